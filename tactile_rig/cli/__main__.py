@@ -1,0 +1,5 @@
+import sys
+
+from tactile_rig.cli import main
+
+sys.exit(main())

@@ -1,0 +1,1 @@
+"""tactile_rig.mocks.world."""

@@ -1,0 +1,48 @@
+"""Where the tests find real sensor data.
+
+MIT-licensed fixtures are copied under ``tests/data``; GPL ones stay in ``../shared/data/real`` and
+the tests that use them skip cleanly when that folder is absent.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+TESTS_DATA = Path(__file__).resolve().parent / "data"
+
+
+def _find_shared_real() -> Path | None:
+    env = os.environ.get("TACTILE_RIG_SHARED_DATA")
+    candidates = [Path(env)] if env else []
+    here = Path(__file__).resolve()
+    for parent in here.parents:
+        candidates.append(parent / "shared" / "data" / "real")
+        candidates.append(parent.parent / "shared" / "data" / "real")
+    for c in candidates:
+        if c.is_dir():
+            return c
+    return None
+
+
+SHARED_REAL: Path | None = _find_shared_real()
+
+
+def require_shared(name: str) -> Path:
+    """Return ``../shared/data/real/<name>`` or skip the calling test when it is absent."""
+    if SHARED_REAL is None or not (SHARED_REAL / name).is_dir():
+        pytest.skip(f"shared data folder {name!r} is not present (../shared/data/real)")
+    return SHARED_REAL / name
+
+
+def test_data(name: str) -> Path:
+    """Return ``tests/data/<name>`` (an MIT fixture shipped with the tests)."""
+    path = TESTS_DATA / name
+    if not path.is_dir():
+        raise FileNotFoundError(f"test fixture folder {path} is missing")
+    return path
+
+
+test_data.__test__ = False  # type: ignore[attr-defined]  # not a pytest test
