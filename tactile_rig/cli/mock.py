@@ -1,0 +1,107 @@
+"""``tactile-rig mock``: list the mock devices and serve one on a pty pair."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import threading
+
+from tactile_rig.cli.common import print_json
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("mock", help="serve faithful device mocks on pseudo-terminals")
+    msub = p.add_subparsers(dest="mock_command", metavar="ACTION")
+
+    ls = msub.add_parser("list", help="list the mock devices")
+    ls.add_argument("--json", action="store_true", help="print JSON")
+    ls.set_defaults(func=_list)
+
+    serve = msub.add_parser(
+        "serve",
+        help="serve a mock on a pty; prints one JSON line with the port and runs until SIGINT/SIGTERM",
+    )
+    serve.add_argument("device", help="device kind: dynamixel, scale or jig")
+    serve.add_argument("--protocol", choices=["1", "2"], help="Dynamixel protocol version (default 2)")
+    serve.add_argument("--id", dest="ids", type=int, action="append", help="servo ID (repeat for several)")
+    serve.add_argument("--baud", type=int, help="the device's baud rate (default: the device's own)")
+    serve.add_argument("--scene", help="scene file or built-in scene name for the world the device sees")
+    serve.add_argument("--seed", type=int, help="seed of the scene's noise")
+    serve.add_argument("--rate", help="scale samples per second (10 or 80)")
+    serve.add_argument("--no-timing", action="store_true", help="answer instantly instead of at wire speed")
+    serve.add_argument(
+        "--param", action="append", default=[], metavar="KEY=VALUE", help="any other device parameter"
+    )
+    serve.set_defaults(func=_serve)
+    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
+
+
+def _list(args: argparse.Namespace) -> int:
+    from tactile_rig.mocks.registry import kinds
+
+    rows = [
+        {"device": k.name, "default_baud": k.default_baud, "description": k.description}
+        for k in kinds().values()
+    ]
+    if args.json:
+        for r in rows:
+            print_json(r)
+    else:
+        for r in rows:
+            print(f"{r['device']:<10} {r['default_baud']:>8} baud  {r['description']}")
+    return 0
+
+
+def serve_params(args: argparse.Namespace) -> dict[str, str]:
+    """The CLI options as the string parameters a device factory reads (same keys as rigsim:// URLs)."""
+    params: dict[str, str] = {}
+    if args.protocol:
+        params["protocol"] = args.protocol
+    if args.ids:
+        params["ids"] = ",".join(str(i) for i in args.ids)
+    if args.baud:
+        params["baud"] = str(args.baud)
+    if args.rate:
+        params["rate"] = args.rate
+    if args.no_timing:
+        params["timing"] = "0"
+    for kv in args.param:
+        key, sep, value = kv.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--param {kv!r} must look like KEY=VALUE")
+        params[key] = value
+    return params
+
+
+def _serve(args: argparse.Namespace) -> int:
+    from tactile_rig.clock import RealClock
+    from tactile_rig.mocks.pty_server import PtyServer
+    from tactile_rig.mocks.registry import Params, create_device
+
+    clock = RealClock()
+    world = None
+    if args.scene:
+        from tactile_rig.mocks.scenes import load_scene
+
+        world = load_scene(args.scene, clock=clock, seed=args.seed).world
+    params = Params(serve_params(args), source=f"mock serve {args.device}")
+    device = create_device(args.device, params, clock=clock, world=world)
+    stop = threading.Event()
+
+    def _on_signal(signum: int, frame: object) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, _on_signal)
+    signal.signal(signal.SIGTERM, _on_signal)
+    with PtyServer(device, clock=clock, name=args.device) as server:
+        info = {"device": args.device, "port": server.port, "baud": device.baud, "timing": device.timing}
+        info.update(getattr(device, "describe", lambda: {})())
+        sys.stdout.write(json.dumps(info) + "\n")
+        sys.stdout.flush()
+        while not stop.wait(0.2):
+            if server.error is not None:
+                print(f"tactile-rig: mock {args.device} failed: {server.error}", file=sys.stderr)
+                return 1
+    return 0

@@ -1,0 +1,197 @@
+"""The serial transport every driver talks through.
+
+A port is a device path (``/dev/ttyUSB0``, ``/dev/serial/by-id/...``, a pty ``/dev/pts/N``) or a
+pyserial URL (``rigsim://dynamixel?ids=1``, ``rigfault://rigsim://scale#drop=0.01``, ``spy://...``,
+``loop://``). :class:`SerialTransport` adds what pyserial lacks: a monotonic deadline for multi-read
+transactions (:meth:`read_exact`), one lock per bus shared by every driver on the same port,
+typed errors that name the device, and a DEBUG log of every byte exchanged.
+"""
+
+from __future__ import annotations
+
+import errno
+import logging
+import threading
+from typing import Any
+
+import serial
+
+from tactile_rig.clock import Clock, Deadline, RealClock
+from tactile_rig.errors import DeviceTimeout, NotConnected
+
+log = logging.getLogger("tactile_rig.transport")
+
+# Registers rigsim:// and rigfault:// with pyserial (importing the package is enough).
+_URL_HANDLER_PACKAGE = "tactile_rig.mocks.urlhandlers"
+if _URL_HANDLER_PACKAGE not in serial.protocol_handler_packages:
+    serial.protocol_handler_packages.append(_URL_HANDLER_PACKAGE)
+
+_BUS_LOCKS: dict[str, threading.RLock] = {}
+_BUS_LOCKS_GUARD = threading.Lock()
+
+
+def bus_lock(port: str) -> threading.RLock:
+    """The one re-entrant lock of the bus on ``port`` (shared by every driver on that port)."""
+    with _BUS_LOCKS_GUARD:
+        return _BUS_LOCKS.setdefault(port, threading.RLock())
+
+
+def open_serial(port: str, *, baudrate: int, device: str, timeout_s: float | None = 0.0,
+                **kwargs: Any) -> serial.SerialBase:
+    """Open ``port`` (path or URL) with pyserial's ``serial_for_url``; errors become :class:`NotConnected`."""
+    try:
+        return serial.serial_for_url(port, baudrate=baudrate, timeout=timeout_s, **kwargs)
+    except (serial.SerialException, OSError, ValueError) as exc:
+        raise NotConnected(
+            f"cannot open port {port!r} at {baudrate} baud: {exc} "
+            "(check the path, that the device is plugged in, and the permissions on the port)",
+            device=device,
+        ) from exc
+
+
+def port_clock(ser: Any) -> Clock:
+    """The clock a port runs on: the mock's clock for ``rigsim://`` ports, else wall time."""
+    clock = getattr(ser, "clock", None)
+    return clock if clock is not None else RealClock()
+
+
+class SerialTransport:
+    """A serial port with deadlines, a bus lock, typed errors and byte logging.
+
+    ``port`` is a path or URL (opened here) or an already open pyserial object. ``device`` names the
+    device in errors and logs. The transport's clock is the port's own (virtual for in-process mocks)
+    unless given.
+    """
+
+    def __init__(
+        self,
+        port: str | serial.SerialBase,
+        *,
+        baudrate: int = 115200,
+        device: str = "serial",
+        clock: Clock | None = None,
+        **serial_kwargs: Any,
+    ) -> None:
+        if isinstance(port, str):
+            self.port_name = port
+            self.serial = open_serial(port, baudrate=baudrate, device=device, **serial_kwargs)
+        else:
+            self.serial = port
+            self.port_name = str(getattr(port, "portstr", None) or getattr(port, "port", "serial"))
+        self.device = device
+        self.clock: Clock = clock if clock is not None else port_clock(self.serial)
+        self.lock = bus_lock(self.port_name)
+        self._rx_log_enabled = log.isEnabledFor(logging.DEBUG)
+
+    # -- basic I/O -------------------------------------------------------------------------
+    def write(self, data: bytes) -> None:
+        """Write all of ``data``; a vanished port raises :class:`NotConnected`."""
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug("%s TX %s", self.device, data.hex(" "))
+        try:
+            self.serial.write(data)
+        except (serial.SerialException, OSError) as exc:
+            raise self._disconnected(exc) from exc
+
+    def read_available(self) -> bytes:
+        """Return whatever bytes are already waiting (possibly none), without blocking."""
+        try:
+            n = self.serial.in_waiting
+            if not n:
+                return b""
+            self.serial.timeout = 0
+            data = self.serial.read(n)
+        except (serial.SerialException, OSError) as exc:
+            raise self._disconnected(exc) from exc
+        if data and log.isEnabledFor(logging.DEBUG):
+            log.debug("%s RX %s", self.device, data.hex(" "))
+        return data
+
+    def read_some(self, max_bytes: int, timeout_s: float) -> bytes:
+        """Read up to ``max_bytes``, waiting at most ``timeout_s`` for the first ones."""
+        try:
+            self.serial.timeout = max(0.0, timeout_s)
+            data = self.serial.read(max_bytes)
+        except (serial.SerialException, OSError) as exc:
+            raise self._disconnected(exc) from exc
+        if data and log.isEnabledFor(logging.DEBUG):
+            log.debug("%s RX %s", self.device, data.hex(" "))
+        return data
+
+    def read_exact(self, n: int, deadline: Deadline | float) -> bytes:
+        """Read exactly ``n`` bytes before ``deadline`` (a :class:`Deadline` or seconds from now).
+
+        Raises :class:`DeviceTimeout` (with the bytes received so far in ``.partial``) when the
+        deadline passes first.
+        """
+        dl = deadline if isinstance(deadline, Deadline) else Deadline(self.clock, deadline)
+        buf = bytearray()
+        while len(buf) < n:
+            remaining = dl.remaining_s()
+            chunk = self.read_some(n - len(buf), 0.0 if remaining is None else remaining)
+            buf += chunk
+            if len(buf) < n and dl.expired():
+                err = DeviceTimeout(
+                    f"expected {n} bytes within {dl.timeout_s:.4g} s, got {len(buf)}"
+                    + (f" ({bytes(buf).hex(' ')})" if buf else " (no answer)"),
+                    device=self.device,
+                )
+                err.partial = bytes(buf)  # type: ignore[attr-defined]
+                raise err
+        return bytes(buf)
+
+    def read_until(self, terminator: bytes, deadline: Deadline | float, max_bytes: int = 4096) -> bytes:
+        """Read up to and including ``terminator`` before the deadline; raise DeviceTimeout otherwise."""
+        dl = deadline if isinstance(deadline, Deadline) else Deadline(self.clock, deadline)
+        buf = bytearray()
+        while not buf.endswith(terminator):
+            if len(buf) >= max_bytes:
+                raise DeviceTimeout(
+                    f"no {terminator!r} within {max_bytes} bytes", device=self.device
+                )
+            remaining = dl.remaining_s()
+            buf += self.read_some(1, 0.0 if remaining is None else remaining)
+            if dl.expired() and not buf.endswith(terminator):
+                err = DeviceTimeout(
+                    f"expected a line ending in {terminator!r} within {dl.timeout_s:.4g} s, got "
+                    f"{bytes(buf)!r}",
+                    device=self.device,
+                )
+                err.partial = bytes(buf)  # type: ignore[attr-defined]
+                raise err
+        return bytes(buf)
+
+    def reset_input_buffer(self) -> bytes:
+        """Discard (and return, for the log) stale input, e.g. a late reply to a timed-out request."""
+        stale = self.read_available()
+        try:
+            self.serial.reset_input_buffer()
+        except (serial.SerialException, OSError) as exc:
+            raise self._disconnected(exc) from exc
+        if stale:
+            log.debug("%s flushed %d stale bytes", self.device, len(stale))
+        return stale
+
+    def set_baudrate(self, baudrate: int) -> None:
+        self.serial.baudrate = baudrate
+
+    @property
+    def is_open(self) -> bool:
+        return bool(getattr(self.serial, "is_open", False))
+
+    def close(self) -> None:
+        try:
+            self.serial.close()
+        except (serial.SerialException, OSError):  # already gone: closing must not fail
+            pass
+
+    def __enter__(self) -> "SerialTransport":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _disconnected(self, exc: BaseException) -> NotConnected:
+        code = getattr(exc, "errno", None)
+        why = "unplugged (EIO)" if code == errno.EIO else str(exc)
+        return NotConnected(f"port {self.port_name!r} failed: {why}", device=self.device)

@@ -1,0 +1,164 @@
+"""Serve a :class:`~tactile_rig.mocks.serial_device.SerialDevice` on a pseudo-terminal pair.
+
+Any client opens the slave path (``/dev/pts/N``) as it would a USB serial adapter: the real
+dynamixel-sdk, grbl-streamer, pyserial, a terminal. The server runs its own thread in real time:
+it notices the client opening and closing the port (the master reads EIO while no client holds the
+slave), reads the client's baud rate from the terminal settings (a mismatch garbles the bytes, as
+on a real line), feeds the device and writes its output when the device's wire timing says the last
+byte has arrived.
+"""
+
+from __future__ import annotations
+
+import errno
+import logging
+import os
+import pty
+import select
+import termios
+import threading
+import time
+import tty
+
+from tactile_rig.clock import Clock, RealClock
+from tactile_rig.mocks.serial_device import SerialDevice
+
+log = logging.getLogger("tactile_rig.mocks.pty")
+
+_BAUD_BY_CONSTANT = {
+    getattr(termios, name): int(name[1:])
+    for name in dir(termios)
+    if name.startswith("B") and name[1:].isdigit()
+}
+
+# Below this much time to the next output we spin instead of sleeping in select(): a select()
+# wake-up is ~60-100 µs late on Linux, too coarse for byte-accurate timing at 1 Mbps.
+_SPIN_S = 0.0004
+_IDLE_POLL_S = 0.005
+_CLOSED_POLL_S = 0.002
+
+
+class PtyServer:
+    """Serve ``device`` on a new pty pair; ``port`` is the slave path clients open.
+
+    Use as a context manager or call :meth:`start` / :meth:`stop`.
+    """
+
+    def __init__(self, device: SerialDevice, *, clock: Clock | None = None, name: str | None = None) -> None:
+        self.device = device
+        self.clock = clock if clock is not None else RealClock()
+        if self.clock.is_virtual:
+            raise ValueError("a pty server runs in real time: pass a RealClock (or no clock)")
+        self.name = name or device.kind
+        self._master, slave = pty.openpty()
+        tty.setraw(self._master)
+        self.port = os.ttyname(slave)
+        # Close our own slave handle so the master reads EIO while no client has the port open:
+        # that is how the server sees a client open and close it (an Arduino resets on open).
+        os.close(slave)
+        os.set_blocking(self._master, False)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.client_open = False
+        self.opens = 0
+        self.error: BaseException | None = None
+
+    # -- lifecycle ---------------------------------------------------------------------------
+    def start(self) -> "PtyServer":
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._run, name=f"pty-{self.name}", daemon=True)
+            self._thread.start()
+        return self
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+            self._thread = None
+        try:
+            os.close(self._master)
+        except OSError:
+            pass
+
+    def __enter__(self) -> "PtyServer":
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # -- the loop -------------------------------------------------------------------------------
+    def _client_baud(self) -> int | None:
+        try:
+            attrs = termios.tcgetattr(self._master)
+        except termios.error:
+            return None
+        return _BAUD_BY_CONSTANT.get(attrs[5])  # ospeed: what the client configured
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                if not self.client_open:
+                    self._wait_for_open()
+                else:
+                    self._serve_once()
+        except BaseException as exc:  # surfaced to tests through .error; the thread must not die silently
+            self.error = exc
+            log.exception("pty server for %s stopped", self.name)
+
+    def _wait_for_open(self) -> None:
+        try:
+            data = os.read(self._master, 4096)
+        except BlockingIOError:
+            data = b""
+        except OSError as exc:
+            if exc.errno == errno.EIO:
+                time.sleep(_CLOSED_POLL_S)
+                return
+            raise
+        now = self.clock.now_s()
+        self.client_open = True
+        self.opens += 1
+        self.device.set_client_baud(self._client_baud())
+        self.device.open(now)
+        log.debug("%s: client opened %s", self.name, self.port)
+        if data:
+            self.device.feed(data, now)
+
+    def _serve_once(self) -> None:
+        now = self.clock.now_s()
+        nxt = self.device.next_ready_s()
+        wait = _IDLE_POLL_S if nxt is None else min(_IDLE_POLL_S, max(0.0, nxt - now))
+        timeout = wait - _SPIN_S if wait > _SPIN_S else 0.0
+        readable, _, _ = select.select([self._master], [], [], timeout)
+        if readable:
+            try:
+                data = os.read(self._master, 4096)
+            except BlockingIOError:
+                data = b""
+            except OSError as exc:
+                if exc.errno != errno.EIO:
+                    raise
+                self.client_open = False
+                self.device.close(self.clock.now_s())
+                log.debug("%s: client closed %s", self.name, self.port)
+                return
+            if data:
+                # Clients may change the baud rate at any time (the SDK's setBaudRate does).
+                self.device.set_client_baud(self._client_baud())
+                self.device.feed(data, self.clock.now_s())
+        out = self.device.pop_ready(self.clock.now_s())
+        if out:
+            self._write_all(out)
+
+    def _write_all(self, data: bytes) -> None:
+        view = memoryview(data)
+        while view:
+            try:
+                n = os.write(self._master, view)
+                view = view[n:]
+            except BlockingIOError:
+                select.select([], [self._master], [], 0.01)
+            except OSError as exc:
+                if exc.errno == errno.EIO:  # the client went away mid-write: bytes are lost
+                    return
+                raise

@@ -1,0 +1,181 @@
+"""One FingerVision processor: frame (BGR uint8) -> markers, force/torque, object moments, slip.
+
+The first ``n_calib_frames`` frames (no contact, no object) build the marker baseline and the
+background histogram unless :meth:`FingerVision.calibrate` was called; meanwhile results carry
+``calibrating=True`` and zero force. After that every frame costs one closing (the contrast map),
+one vectorised window centroid per marker, a back-projection on a half-size frame and a
+Lucas-Kanade step on a quarter-size frame; the full-frame blob detector runs only in calibration.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from tactile_rig.perception.fingervision.force import ForceParams, estimate_force_torque
+from tactile_rig.perception.fingervision.markers import (
+    Detections,
+    MarkerBaseline,
+    MarkerDetectorParams,
+    build_baseline,
+    contrast_map,
+    detect_in_contrast,
+)
+from tactile_rig.perception.fingervision.proximity import ProximityParams, ProximityVision
+from tactile_rig.perception.fingervision.tracking import MarkerTracker, TrackerParams
+
+__all__ = ["FingerVisionParams", "FingerVisionResult", "FingerVision"]
+
+
+@dataclass(frozen=True)
+class FingerVisionParams:
+    """All parameters of the processor (one dataclass per stage) and of the calibration."""
+
+    detector: MarkerDetectorParams = field(default_factory=MarkerDetectorParams)
+    tracker: TrackerParams = field(default_factory=TrackerParams)
+    force: ForceParams = field(default_factory=ForceParams)
+    proximity: ProximityParams = field(default_factory=ProximityParams)
+    n_calib_frames: int = 10
+    """No-contact frames averaged into the baseline (the reference's NCalibPoints)."""
+    n_background_frames: int = 3
+    """Of those, frames used for the background histogram (NCalibBGFrames)."""
+    baseline_match_px: float = 3.0
+    baseline_dist_max_px: float = 0.8
+    baseline_size_max_px: float = 1.0
+    baseline_min_fraction: float = 0.6
+    """A marker found in fewer calibration frames than this fraction is flagged invalid."""
+    marker_exclude_margin_px: float = 2.0
+    """Marker discs (radius + margin) are left out of the slip estimate."""
+
+
+@dataclass(frozen=True)
+class FingerVisionResult:
+    """Perception output of one frame. Positions are (x, y) pixels; force/torque units: see force.py."""
+
+    t_s: float | None
+    calibrating: bool
+    marker_ids: np.ndarray
+    marker_positions_px: np.ndarray
+    marker_sizes_px: np.ndarray
+    marker_valid: np.ndarray
+    marker_found: np.ndarray
+    force_px: np.ndarray
+    """(fx, fy, fz) mean marker displacement / size growth, px (N if ForceParams.newton_per_px)."""
+    torque_px2: np.ndarray
+    """Mean r x f about the image centre, px^2 (N*mm if both scales are given)."""
+    object_area_px: float
+    object_centroid_px: tuple[float, float] | None
+    object_orientation_deg: float | None
+    """(-90, 90], from +x towards +y (clockwise on screen); None when no object or a round one."""
+    slip: bool
+    slip_magnitude_px: float
+    """Object translation between this frame and the previous one, px per frame."""
+    slip_direction_deg: float | None
+    timings_ms: dict[str, float]
+
+    @property
+    def n_markers(self) -> int:
+        """Markers measured in this frame."""
+        return int(np.count_nonzero(self.marker_found))
+
+
+class FingerVision:
+    """Stateful per-sensor processor; see the module docstring."""
+
+    def __init__(self, params: FingerVisionParams = FingerVisionParams()) -> None:
+        if params.n_calib_frames < 1:
+            raise ValueError(f"FingerVisionParams.n_calib_frames: expected >= 1, got {params.n_calib_frames}")
+        self.params = params
+        self.proximity = ProximityVision(params.proximity)
+        self.baseline: MarkerBaseline | None = None
+        self.tracker: MarkerTracker | None = None
+        self._calib: list[Detections] = []
+        self._bg_frames: list[np.ndarray] = []
+        self._shape: tuple[int, ...] | None = None
+
+    # -- calibration -----------------------------------------------------------------------------
+    def calibrate(self, frames_bgr: list[np.ndarray]) -> MarkerBaseline:
+        """Build the baseline (and the background histogram) from no-contact frames."""
+        if not frames_bgr:
+            raise ValueError("FingerVision.calibrate: expected at least one frame, got none")
+        self._calib, self._bg_frames = [], []
+        for f in frames_bgr:
+            self._add_calibration_frame(f, *contrast_map(f, self.params.detector))
+        return self._finish_calibration()
+
+    def set_baseline(self, baseline: MarkerBaseline) -> None:
+        """Use a known baseline (e.g. loaded from disk) instead of calibrating."""
+        self.baseline = baseline
+        self.tracker = MarkerTracker(baseline, self.params.tracker)
+
+    def learn_object(self, frame_bgr: np.ndarray, mask: np.ndarray | None = None,
+                     rects: list[tuple[int, int, int, int]] | None = None) -> None:
+        """Teach the object's colours from a mask or rectangles (see ProximityVision.learn_object)."""
+        self.proximity.learn_object(frame_bgr, mask=mask, rects=rects)
+
+    def _add_calibration_frame(self, frame: np.ndarray, value, bg, contrast) -> Detections:
+        det = detect_in_contrast(value, bg, contrast, self.params.detector)
+        self._calib.append(det)
+        if len(self._bg_frames) < self.params.n_background_frames:
+            self._bg_frames.append(frame)
+        return det
+
+    def _finish_calibration(self) -> MarkerBaseline:
+        p = self.params
+        base = build_baseline(self._calib, p.baseline_match_px, p.baseline_dist_max_px,
+                              p.baseline_size_max_px, p.baseline_min_fraction)
+        # keep only markers seen often enough to have a trustworthy rest position
+        self.set_baseline(base)
+        if self._bg_frames:
+            self.proximity.set_background(self._bg_frames)
+        self._calib, self._bg_frames = [], []
+        return base
+
+    # -- per frame -------------------------------------------------------------------------------
+    def process(self, frame_bgr: np.ndarray, t_s: float | None = None) -> FingerVisionResult:
+        """Process one frame; see :class:`FingerVisionResult`."""
+        t0 = time.perf_counter()
+        if self._shape is not None and frame_bgr.shape[:2] != self._shape:
+            raise ValueError(
+                f"FingerVision.process: frame shape {frame_bgr.shape[:2]} differs from the first frame's {self._shape}"
+            )
+        value, bg, contrast = contrast_map(frame_bgr, self.params.detector)
+        self._shape = value.shape[:2]
+        t1 = time.perf_counter()
+        if self.tracker is None:
+            det = self._add_calibration_frame(frame_bgr, value, bg, contrast)
+            if len(self._calib) >= self.params.n_calib_frames:
+                self._finish_calibration()
+            n = len(det)
+            t2 = time.perf_counter()
+            return FingerVisionResult(
+                t_s, True, np.full(n, -1), det.positions_px, det.sizes_px, np.zeros(n, bool), np.ones(n, bool),
+                np.zeros(3), np.zeros(3), 0.0, None, None, False, 0.0, None,
+                {"contrast": (t1 - t0) * 1e3, "detect": (t2 - t1) * 1e3, "total": (t2 - t0) * 1e3},
+            )
+        st = self.tracker.update(contrast, t_s)
+        t2 = time.perf_counter()
+        base = self.tracker.baseline
+        h, w = value.shape[:2]
+        ft = estimate_force_torque(base.positions_px, base.sizes_px, st.positions_px, st.sizes_px,
+                                   st.valid, (w, h), self.params.force)
+        t3 = time.perf_counter()
+        exclude = None
+        if self.proximity.obj_hist is not None and len(st.ids):
+            exclude = np.zeros((h, w), np.uint8)
+            for (x, y), s in zip(st.positions_px, st.sizes_px):
+                r = int(round(s / 2 + self.params.marker_exclude_margin_px))
+                cv2.circle(exclude, (int(round(x)), int(round(y))), max(1, r), 255, -1)
+        prox = self.proximity.process(frame_bgr, exclude)
+        t4 = time.perf_counter()
+        mom = prox.moments
+        return FingerVisionResult(
+            t_s, False, st.ids, st.positions_px, st.sizes_px, st.valid, st.found,
+            ft.force, ft.torque, mom.area_px, mom.centroid_px, mom.orientation_deg,
+            prox.slip, prox.slip_magnitude_px, prox.slip_direction_deg,
+            {"contrast": (t1 - t0) * 1e3, "track": (t2 - t1) * 1e3, "force": (t3 - t2) * 1e3,
+             "proximity": (t4 - t3) * 1e3, "total": (t4 - t0) * 1e3},
+        )

@@ -1,0 +1,250 @@
+"""Proximity vision: what the camera sees *through* the skin (object area, centroid, orientation, slip).
+
+* A background HSV histogram (``set_background``) and an object histogram learnt from a mask or
+  rectangles with the reference's update rule
+  ``H+ = min(255, H- + f_gain * max(0, H_def - f_bg * H_bg))`` (histograms scaled so their peak is 255).
+* Back-projection of the object histogram on a downsampled frame, threshold, erode/dilate.
+* Moments of the mask: area ``M00``, centroid, orientation ``theta = 1/2 atan2(2 mu11, mu20 - mu02)``
+  (degrees in (-90, 90], from +x towards +y, i.e. clockwise on screen since y points down); ``None``
+  for a round object, whose orientation is undefined. An empty mask is "no object": area 0 and None,
+  never NaN.
+* Slip: translation of the object pixels between consecutive frames, estimated on a coarse grid by
+  iterative Lucas-Kanade over the object region (markers excluded, they do not move with the object),
+  after normalising each frame's brightness so light flicker does not look like motion.
+
+Units: pixels of the full-resolution frame (area px^2, positions px, slip px per frame), degrees.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+__all__ = ["ProximityParams", "ObjectMoments", "ProximityResult", "ProximityVision", "object_moments", "estimate_shift"]
+
+_H_RANGE = [0, 180, 0, 256, 0, 256]
+
+
+@dataclass(frozen=True)
+class ProximityParams:
+    """Proximity-vision knobs. Morphology sizes are in downsampled pixels."""
+
+    downsample: int = 2
+    """Back-projection runs on the frame shrunk by this factor (speed); moments are rescaled."""
+    slip_downsample: int = 4
+    """Slip runs on the frame shrunk by this factor (the coarse grid)."""
+    bins_h: int = 50
+    bins_s: int = 10
+    bins_v: int = 10
+    f_bg: float = 1.0
+    f_gain: float = 2.5
+    backproj_scale: float = 5.0
+    threshold: int = 150
+    n_erode: int = 1
+    n_dilate: int = 1
+    min_object_area_px: float = 100.0
+    """Smaller back-projected areas (full-res px^2) count as no object."""
+    round_tolerance: float = 0.03
+    """Orientation is undefined when sqrt((mu20-mu02)^2 + 4 mu11^2) / (mu20+mu02) is below this
+    (0 for a disc, (a^2-b^2)/(a^2+b^2) for an ellipse of axes a, b: 0.03 is an axis ratio of ~1.03)."""
+    slip_threshold_px: float = 0.35
+    """Object translation (full-res px per frame) from which slip is reported."""
+    slip_min_pixels: int = 12
+    """Coarse pixels with texture needed to estimate slip at all."""
+    slip_iterations: int = 3
+
+
+@dataclass(frozen=True)
+class ObjectMoments:
+    """Object area (px^2), centroid (x, y) px or None, orientation (deg, (-90, 90]) or None."""
+
+    area_px: float
+    centroid_px: tuple[float, float] | None
+    orientation_deg: float | None
+
+
+@dataclass(frozen=True)
+class ProximityResult:
+    """One frame of proximity vision."""
+
+    moments: ObjectMoments
+    slip: bool
+    slip_magnitude_px: float
+    slip_direction_deg: float | None
+    mask: np.ndarray
+    """Object mask at the downsampled resolution (uint8 0/255)."""
+
+
+def object_moments(mask: np.ndarray, scale: float = 1.0, round_tolerance: float = 0.03) -> ObjectMoments:
+    """Area, centroid and orientation of a binary mask whose pixels are ``scale`` full-res pixels wide."""
+    m = cv2.moments(np.ascontiguousarray(mask, dtype=np.uint8), binaryImage=True)
+    m00 = m["m00"]
+    if not m00 > 0:
+        return ObjectMoments(0.0, None, None)
+    cx = (m["m10"] / m00 + 0.5) * scale - 0.5
+    cy = (m["m01"] / m00 + 0.5) * scale - 0.5
+    mu20, mu02, mu11 = m["mu20"] / m00, m["mu02"] / m00, m["mu11"] / m00
+    spread = mu20 + mu02
+    aniso = math.hypot(mu20 - mu02, 2.0 * mu11) / spread if spread > 0 else 0.0
+    theta: float | None = None
+    if aniso >= round_tolerance:
+        theta = 0.5 * math.degrees(math.atan2(2.0 * mu11, mu20 - mu02))
+        if theta <= -90.0:
+            theta += 180.0
+    return ObjectMoments(float(m00 * scale * scale), (float(cx), float(cy)), theta)
+
+
+def estimate_shift(
+    prev: np.ndarray, cur: np.ndarray, region: np.ndarray, iterations: int = 3, min_pixels: int = 12
+) -> tuple[float, float] | None:
+    """Translation (dx, dy) in pixels that moves ``prev`` onto ``cur`` over ``region`` (iterative LK).
+
+    Each image is divided by its mean over the region first (robust to a light gain). Returns None
+    when the region holds too few textured pixels to tell.
+    """
+    sel = region > 0
+    if np.count_nonzero(sel) < min_pixels:
+        return None
+    a = prev.astype(np.float32)
+    b = cur.astype(np.float32)
+    ma, mb = float(a[sel].mean()), float(b[sel].mean())
+    if ma <= 1e-3 or mb <= 1e-3:
+        return None
+    a /= ma
+    b /= mb
+    gx = cv2.Sobel(b, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
+    gy = cv2.Sobel(b, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
+    sx, sy = gx[sel].astype(np.float64), gy[sel].astype(np.float64)
+    A = np.array([[sx @ sx, sx @ sy], [sx @ sy, sy @ sy]])
+    if np.linalg.det(A) <= 1e-9 * max(1.0, np.trace(A)) ** 2 or np.trace(A) < 1e-6:
+        return None
+    Ainv = np.linalg.inv(A)
+    d = np.zeros(2)
+    h, w = b.shape
+    for _ in range(max(1, iterations)):
+        # warp prev forward by d: warped(x) = prev(x - d); residual against cur
+        M = np.float32([[1, 0, d[0]], [0, 1, d[1]]])
+        warped = cv2.warpAffine(a, M, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        it = (b - warped)[sel].astype(np.float64)
+        step = -Ainv @ np.array([sx @ it, sy @ it])
+        d += step
+        if not np.all(np.isfinite(d)) or np.hypot(*d) > max(h, w):
+            return None
+        if np.hypot(*step) < 1e-3:
+            break
+    return float(d[0]), float(d[1])
+
+
+class ProximityVision:
+    """Object detection by histogram back-projection, moments and slip; see the module docstring."""
+
+    def __init__(self, params: ProximityParams = ProximityParams()) -> None:
+        if params.downsample < 1 or params.slip_downsample < 1:
+            raise ValueError(
+                f"ProximityParams: downsample factors must be >= 1, got {params.downsample}, {params.slip_downsample}"
+            )
+        self.params = params
+        self.bg_hist: np.ndarray | None = None
+        self.obj_hist: np.ndarray | None = None
+        self._prev_small: np.ndarray | None = None
+        self._prev_region: np.ndarray | None = None
+
+    # -- histograms -----------------------------------------------------------------------------
+    def _small_hsv(self, frame_bgr: np.ndarray) -> np.ndarray:
+        f = frame_bgr if frame_bgr.ndim == 3 else cv2.cvtColor(frame_bgr, cv2.COLOR_GRAY2BGR)
+        k = self.params.downsample
+        if k > 1:
+            f = cv2.resize(f, (f.shape[1] // k, f.shape[0] // k), interpolation=cv2.INTER_AREA)
+        return cv2.cvtColor(f, cv2.COLOR_BGR2HSV)
+
+    def _hist(self, hsv: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
+        p = self.params
+        hist = cv2.calcHist([hsv], [0, 1, 2], mask, [p.bins_h, p.bins_s, p.bins_v], _H_RANGE)
+        peak = float(hist.max())
+        return hist * (255.0 / peak) if peak > 0 else hist
+
+    def set_background(self, frames_bgr: list[np.ndarray]) -> None:
+        """Background histogram: the mean of the histograms of frames with no object behind the skin."""
+        if not frames_bgr:
+            raise ValueError("set_background: expected at least one frame, got none")
+        self.bg_hist = np.mean([self._hist(self._small_hsv(f), None) for f in frames_bgr], axis=0)
+
+    def learn_object(
+        self,
+        frame_bgr: np.ndarray,
+        mask: np.ndarray | None = None,
+        rects: list[tuple[int, int, int, int]] | None = None,
+    ) -> None:
+        """Add the object seen in ``mask`` (full-res, non-zero = object) or in rects (x, y, w, h) px."""
+        hsv = self._small_hsv(frame_bgr)
+        k = self.params.downsample
+        h, w = hsv.shape[:2]
+        if mask is None and rects is None:
+            raise ValueError("learn_object: expected a mask or rectangles, got neither")
+        small = np.zeros((h, w), np.uint8)
+        if mask is not None:
+            if mask.shape[:2] != frame_bgr.shape[:2]:
+                raise ValueError(f"learn_object: mask shape {mask.shape} != frame shape {frame_bgr.shape[:2]}")
+            small = cv2.resize((mask > 0).astype(np.uint8) * 255, (w, h), interpolation=cv2.INTER_NEAREST)
+        for x, y, rw, rh in rects or []:
+            small[max(0, y // k): max(0, (y + rh) // k), max(0, x // k): max(0, (x + rw) // k)] = 255
+        if not np.any(small):
+            return
+        h_def = self._hist(hsv, small)
+        bg = self.bg_hist if self.bg_hist is not None else np.zeros_like(h_def)
+        prev = self.obj_hist if self.obj_hist is not None else np.zeros_like(h_def)
+        p = self.params
+        self.obj_hist = np.minimum(255.0, prev + p.f_gain * np.maximum(0.0, h_def - p.f_bg * bg)).astype(np.float32)
+
+    def reset_object(self) -> None:
+        self.obj_hist = None
+
+    # -- per frame ------------------------------------------------------------------------------
+    def object_mask(self, frame_bgr: np.ndarray) -> np.ndarray:
+        """Back-projected object mask (uint8 0/255) at the downsampled resolution."""
+        hsv = self._small_hsv(frame_bgr)
+        if self.obj_hist is None:
+            return np.zeros(hsv.shape[:2], np.uint8)
+        p = self.params
+        bp = cv2.calcBackProject([hsv], [0, 1, 2], self.obj_hist, _H_RANGE, scale=p.backproj_scale)
+        _, mask = cv2.threshold(bp, p.threshold - 1, 255, cv2.THRESH_BINARY)
+        k3 = np.ones((3, 3), np.uint8)
+        if p.n_erode:
+            mask = cv2.erode(mask, k3, iterations=p.n_erode)
+        if p.n_dilate:
+            mask = cv2.dilate(mask, k3, iterations=p.n_dilate)
+        return mask
+
+    def process(self, frame_bgr: np.ndarray, exclude: np.ndarray | None = None) -> ProximityResult:
+        """Object moments and slip in one frame. ``exclude``: full-res mask of pixels to ignore (markers)."""
+        p = self.params
+        mask = self.object_mask(frame_bgr)
+        mom = object_moments(mask, float(p.downsample), p.round_tolerance)
+        if mom.area_px < p.min_object_area_px:
+            mom = ObjectMoments(0.0, None, None)
+        # slip on the coarse grid
+        gray = frame_bgr if frame_bgr.ndim == 2 else cv2.max(cv2.max(frame_bgr[:, :, 0], frame_bgr[:, :, 1]), frame_bgr[:, :, 2])
+        ks = p.slip_downsample
+        sh, sw = gray.shape[0] // ks, gray.shape[1] // ks
+        small = cv2.resize(gray, (sw, sh), interpolation=cv2.INTER_AREA) if ks > 1 else gray.copy()
+        region = cv2.resize(mask, (sw, sh), interpolation=cv2.INTER_NEAREST)
+        if mom.area_px == 0:
+            region[:] = 0
+        if exclude is not None:
+            ex = cv2.resize(exclude.astype(np.uint8), (sw, sh), interpolation=cv2.INTER_AREA)
+            region[ex > 0] = 0
+        slip, mag, direction = False, 0.0, None
+        if self._prev_small is not None and self._prev_small.shape == small.shape and self._prev_region is not None:
+            both = cv2.bitwise_or(region, self._prev_region)
+            both = cv2.erode(both, np.ones((3, 3), np.uint8))  # keep away from the image border and marker holes
+            shift = estimate_shift(self._prev_small, small, both, p.slip_iterations, p.slip_min_pixels)
+            if shift is not None:
+                dx, dy = shift[0] * ks, shift[1] * ks
+                mag = math.hypot(dx, dy)
+                direction = math.degrees(math.atan2(dy, dx)) if mag > 0 else None
+                slip = mag >= p.slip_threshold_px
+        self._prev_small, self._prev_region = small, region
+        return ProximityResult(mom, slip, mag, direction, mask)

@@ -1,0 +1,232 @@
+"""Marker identities across frames: gated windowed re-detection plus an optional per-marker Kalman filter.
+
+Each marker of the baseline keeps its id for ever. Every frame, each marker is re-measured inside a
+small window around its predicted position by thresholded moments of the contrast map (cheap, and
+sub-pixel), then accepted only if it passes the reference's gates: peak contrast, position jump
+(``max_jump_px``, VPMax), size jump (``max_size_jump_px``, VSMax), and no other marker measured at the
+same place (two windows converging on one dot during a crossing). A marker that fails
+``n_reset`` frames in a row is reset to its baseline rest position and re-detected there (the
+window is larger while it is lost).
+
+The Kalman filter (the thesis's, not in the reference code) is constant-velocity per marker on state
+``(x, vx, y, vy, s)``: the thesis writes it as ``(x0, x, y0, y, s)`` with the previous position in
+place of the velocity, the same model. Defaults ``dt_s = 1/15``, measurement noise 0.1, process noise
+0.01 (identity covariances, pixel units). It is vectorised over markers, the covariance is updated in
+Joseph form and symmetrised so it stays symmetric positive definite, and a marker that is missed is
+held still (velocity zeroed, no prediction) so it never drifts while it is lost.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tactile_rig.perception.fingervision.markers import MarkerBaseline, refine_centroids
+
+__all__ = ["TrackerParams", "KalmanBank", "TrackState", "MarkerTracker"]
+
+
+@dataclass(frozen=True)
+class TrackerParams:
+    """Tracking knobs (pixels, frames, seconds)."""
+
+    window_half_px: int = 6
+    """Half size of the measurement window around the predicted position."""
+    lost_window_half_px: int = 8
+    """Half size of the re-detection window around the rest position of a lost marker."""
+    rel_threshold: float = 0.5
+    """Fraction of the window's peak contrast below which pixels do not count in the centroid."""
+    min_peak_contrast: float = 0.3
+    """A window whose peak contrast is lower holds no marker (contrast map units, 0..1)."""
+    max_jump_px: float = 5.0
+    """Largest accepted position change in one frame (the reference's VPMax)."""
+    max_size_jump_px: float = 2.0
+    """Largest accepted diameter change in one frame (the reference's VSMax, on a noisier size)."""
+    min_separation_px: float = 3.0
+    """Two markers measured closer than this are both rejected this frame (ambiguous)."""
+    n_reset: int = 3
+    """Consecutive misses after which a marker is reset to its rest position (NReset)."""
+    use_kalman: bool = True
+    dt_s: float = 1.0 / 15.0
+    """Kalman time step used when the frames carry no timestamps."""
+    measurement_noise: float = 0.1
+    process_noise: float = 0.01
+
+
+class KalmanBank:
+    """Constant-velocity Kalman filters for N markers at once, state ``(x, vx, y, vy, s)``."""
+
+    _H = np.array(
+        [[1.0, 0, 0, 0, 0], [0, 0, 1.0, 0, 0], [0, 0, 0, 0, 1.0]],
+    )
+
+    def __init__(
+        self, positions_px: np.ndarray, sizes_px: np.ndarray, measurement_noise: float = 0.1,
+        process_noise: float = 0.01,
+    ) -> None:
+        if measurement_noise <= 0 or process_noise <= 0:
+            raise ValueError(
+                f"KalmanBank: noises must be > 0, got measurement {measurement_noise}, process {process_noise}"
+            )
+        pos = np.asarray(positions_px, dtype=np.float64).reshape(-1, 2)
+        n = pos.shape[0]
+        self.x = np.zeros((n, 5))
+        self.x[:, 0] = pos[:, 0]
+        self.x[:, 2] = pos[:, 1]
+        self.x[:, 4] = np.asarray(sizes_px, dtype=np.float64).reshape(n)
+        self.r = float(measurement_noise)
+        self.q = float(process_noise)
+        self.P = np.repeat((np.eye(5) * self.r)[None], n, axis=0)
+
+    def reset(self, which: np.ndarray, positions_px: np.ndarray, sizes_px: np.ndarray) -> None:
+        """Re-initialise the markers selected by the boolean mask ``which`` at rest (zero velocity)."""
+        self.x[which] = 0.0
+        self.x[which, 0] = positions_px[which, 0]
+        self.x[which, 2] = positions_px[which, 1]
+        self.x[which, 4] = sizes_px[which]
+        self.P[which] = np.eye(5) * self.r
+
+    def predict(self, dt_s: float, which: np.ndarray) -> None:
+        """Advance the selected markers by ``dt_s`` seconds (constant velocity)."""
+        if not np.any(which):
+            return
+        F = np.eye(5)
+        F[0, 1] = F[2, 3] = dt_s
+        self.x[which] = self.x[which] @ F.T
+        self.P[which] = F @ self.P[which] @ F.T + np.eye(5) * self.q
+
+    def update(self, z: np.ndarray, which: np.ndarray) -> None:
+        """Fuse measurements ``z`` (N, 3) = (x, y, size) for the selected markers (Joseph form)."""
+        if not np.any(which):
+            return
+        H = self._H
+        P = self.P[which]
+        x = self.x[which]
+        S = H @ P @ H.T + np.eye(3) * self.r
+        K = np.swapaxes(np.linalg.solve(S, H @ P), 1, 2)  # P H^T S^-1 (P, S symmetric)
+        innov = z[which] - x @ H.T
+        x = x + np.einsum("nij,nj->ni", K, innov)
+        A = np.eye(5) - K @ H
+        P = A @ P @ np.swapaxes(A, 1, 2) + self.r * (K @ np.swapaxes(K, 1, 2))
+        self.P[which] = 0.5 * (P + np.swapaxes(P, 1, 2))
+        self.x[which] = x
+
+    def hold(self, which: np.ndarray, previous_x: np.ndarray) -> None:
+        """A missed marker stays where it was before the prediction, with zero velocity (no drift)."""
+        self.x[which] = previous_x[which]
+        self.x[which, 1] = 0.0
+        self.x[which, 3] = 0.0
+
+    @property
+    def positions_px(self) -> np.ndarray:
+        return self.x[:, [0, 2]].copy()
+
+    @property
+    def sizes_px(self) -> np.ndarray:
+        return self.x[:, 4].copy()
+
+
+@dataclass(frozen=True)
+class TrackState:
+    """Markers of one frame, in baseline order. ``valid``: baseline-valid and not lost."""
+
+    ids: np.ndarray
+    positions_px: np.ndarray
+    sizes_px: np.ndarray
+    valid: np.ndarray
+    found: np.ndarray
+    """Measured in this frame (passed every gate)."""
+    misses: np.ndarray
+
+
+class MarkerTracker:
+    """Track the markers of a :class:`MarkerBaseline` through a sequence of contrast maps."""
+
+    def __init__(self, baseline: MarkerBaseline, params: TrackerParams = TrackerParams()) -> None:
+        if params.n_reset < 1:
+            raise ValueError(f"TrackerParams.n_reset: expected >= 1, got {params.n_reset}")
+        if params.dt_s <= 0:
+            raise ValueError(f"TrackerParams.dt_s: expected > 0 s, got {params.dt_s}")
+        self.params = params
+        self.baseline = baseline
+        n = len(baseline)
+        self.ids = np.arange(n)
+        self.positions_px = baseline.positions_px.astype(np.float64).copy().reshape(n, 2)
+        self.sizes_px = baseline.sizes_px.astype(np.float64).copy().reshape(n)
+        self.misses = np.zeros(n, dtype=np.int64)
+        self.lost = np.zeros(n, dtype=bool)
+        self.kalman = (
+            KalmanBank(self.positions_px, self.sizes_px, params.measurement_noise, params.process_noise)
+            if params.use_kalman
+            else None
+        )
+        self._last_t_s: float | None = None
+
+    def update(self, contrast: np.ndarray, t_s: float | None = None) -> TrackState:
+        """Measure every marker in ``contrast`` (see :func:`markers.contrast_map`); returns the new state."""
+        p = self.params
+        n = len(self.ids)
+        dt_s = p.dt_s
+        if t_s is not None:
+            if self._last_t_s is not None and t_s > self._last_t_s:
+                dt_s = t_s - self._last_t_s
+            self._last_t_s = t_s
+        if n == 0:
+            empty = np.zeros(0)
+            return TrackState(self.ids, np.zeros((0, 2)), empty, empty.astype(bool), empty.astype(bool), self.misses)
+        active = ~self.lost
+        if self.kalman is not None:
+            previous_x = self.kalman.x.copy()
+            self.kalman.predict(dt_s, active)
+            predicted = self.kalman.positions_px
+            predicted[self.lost] = self.positions_px[self.lost]
+        else:
+            predicted = self.positions_px.copy()
+
+        meas = np.zeros((n, 2))
+        size = np.zeros(n)
+        peak = np.zeros(n)
+        for half, sel in ((p.window_half_px, active), (p.lost_window_half_px, self.lost)):
+            if np.any(sel):
+                meas[sel], size[sel], peak[sel] = refine_centroids(
+                    contrast, predicted[sel], half, p.rel_threshold
+                )
+        h, w = contrast.shape[:2]
+        ref_pos = np.where(self.lost[:, None], self.baseline.positions_px, predicted)
+        ok = (peak >= p.min_peak_contrast) & np.isfinite(meas).all(axis=1)
+        ok &= (meas[:, 0] >= -0.5) & (meas[:, 0] <= w - 0.5) & (meas[:, 1] >= -0.5) & (meas[:, 1] <= h - 0.5)
+        jump_limit = np.where(self.lost, p.lost_window_half_px, p.max_jump_px)
+        ok &= np.hypot(*(meas - ref_pos).T) <= jump_limit
+        ok &= np.abs(size - self.sizes_px) <= p.max_size_jump_px + np.where(self.lost, p.max_size_jump_px, 0.0)
+        if n > 1 and np.count_nonzero(ok) > 1:
+            idx = np.flatnonzero(ok)
+            m = meas[idx]
+            d = np.hypot(m[:, None, 0] - m[None, :, 0], m[:, None, 1] - m[None, :, 1])
+            np.fill_diagonal(d, np.inf)
+            ok[idx[(d < p.min_separation_px).any(axis=1)]] = False
+
+        if self.kalman is not None:
+            z = np.column_stack([meas, size])
+            revived = ok & self.lost
+            self.kalman.reset(revived, meas, size)
+            self.kalman.update(z, ok & ~revived)
+            self.kalman.hold(~ok, previous_x)
+            self.positions_px[ok] = self.kalman.positions_px[ok]
+            self.sizes_px[ok] = self.kalman.sizes_px[ok]
+        else:
+            self.positions_px[ok] = meas[ok]
+            self.sizes_px[ok] = size[ok]
+        self.misses = np.where(ok, 0, self.misses + 1)
+        self.lost &= ~ok
+        newly_lost = (self.misses >= p.n_reset) & ~self.lost
+        if np.any(newly_lost):
+            self.lost |= newly_lost
+            self.positions_px[newly_lost] = self.baseline.positions_px[newly_lost]
+            self.sizes_px[newly_lost] = self.baseline.sizes_px[newly_lost]
+            if self.kalman is not None:
+                self.kalman.reset(newly_lost, self.positions_px, self.sizes_px)
+        valid = self.baseline.valid.astype(bool) & ~self.lost
+        return TrackState(
+            self.ids.copy(), self.positions_px.copy(), self.sizes_px.copy(), valid, ok.copy(), self.misses.copy()
+        )

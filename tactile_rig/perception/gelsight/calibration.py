@@ -1,0 +1,358 @@
+"""GelSight colour -> gradient calibration from ball presses; versioned save/load without pickle.
+
+Press folder format (Taxim pack): ``background.png``, ``press_NN.png`` and ``labels.csv`` with
+``file, center_x_px, center_y_px, contact_radius_px`` (x = column, y = row). Slopes are dimensionless
+dz/dx, dz/dy with x right, y down and z the indentation height (towards the ball) in mm.
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime as _dt
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from tactile_rig.errors import CalibrationError
+from tactile_rig.perception.gelsight.models import COLOUR_SCALE, MODELS, LutModel
+
+FORMAT_VERSION = 1
+# A labelled contact radius is clamped to this fraction of the ball radius: a contact circle as wide
+# as the ball would mean the ball sank to its equator, and the source's labels overshoot the rim.
+DEFAULT_MAX_RADIUS_FRACTION = 0.95
+
+
+@dataclass
+class PressSet:
+    """Ball presses: background (HxWx3 uint8 BGR), frames, labelled centres (x, y px) and radii (px)."""
+
+    background: np.ndarray
+    frames: list[np.ndarray]
+    centers_px: np.ndarray
+    radii_px: np.ndarray
+    names: list[str] = field(default_factory=list)
+
+    def subset(self, indices: list[int] | np.ndarray) -> "PressSet":
+        idx = [int(i) for i in indices]
+        return PressSet(self.background, [self.frames[i] for i in idx], self.centers_px[idx],
+                        self.radii_px[idx], [self.names[i] for i in idx])
+
+    def resized(self, factor: int) -> "PressSet":
+        """The same presses upsampled by an integer factor (labels scaled); for tests at other sizes."""
+        def up(img: np.ndarray) -> np.ndarray:
+            h, w = img.shape[:2]
+            return cv2.resize(img, (w * factor, h * factor), interpolation=cv2.INTER_LINEAR)
+
+        return PressSet(up(self.background), [up(f) for f in self.frames],
+                        self.centers_px * factor + (factor - 1) / 2.0, self.radii_px * factor,
+                        list(self.names))
+
+
+def _read_bgr(path: Path) -> np.ndarray:
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None:
+        raise CalibrationError(f"cannot read image {path}", device="gelsight.calibration")
+    return img
+
+
+def load_presses(press_dir: str | Path) -> PressSet:
+    """Load a press folder (background.png, press images, labels.csv); raises CalibrationError."""
+    d = Path(press_dir)
+    if (d / "presses").is_dir() and not (d / "labels.csv").exists():
+        d = d / "presses"
+    labels = d / "labels.csv"
+    if not labels.exists() or not (d / "background.png").exists():
+        raise CalibrationError(f"{d} must hold background.png and labels.csv", device="gelsight.calibration")
+    bg = _read_bgr(d / "background.png")
+    frames, centers, radii, names = [], [], [], []
+    with open(labels, newline="") as fh:
+        for row in csv.DictReader(fh, skipinitialspace=True):
+            frame = _read_bgr(d / row["file"])
+            if frame.shape != bg.shape:
+                raise CalibrationError(f"{row['file']}: shape {frame.shape} differs from the background "
+                                       f"{bg.shape}", device="gelsight.calibration")
+            frames.append(frame)
+            centers.append((float(row["center_x_px"]), float(row["center_y_px"])))
+            radii.append(float(row["contact_radius_px"]))
+            names.append(row["file"])
+    if not frames:
+        raise CalibrationError(f"{labels} lists no presses", device="gelsight.calibration")
+    return PressSet(bg, frames, np.array(centers, float), np.array(radii, float), names)
+
+
+def clamp_radius_px(radius_px: float, ball_radius_mm: float, mm_per_px: float,
+                    max_fraction: float = DEFAULT_MAX_RADIUS_FRACTION) -> float:
+    """The labelled contact radius, clamped to ``max_fraction`` of the ball radius (both in px)."""
+    return float(min(radius_px, max_fraction * ball_radius_mm / mm_per_px))
+
+
+def sphere_cap(shape: tuple[int, int], center_px: tuple[float, float], radius_px: float,
+               ball_radius_mm: float, mm_per_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Ground truth of a press: height (mm), slopes gx, gy and the inside mask of the contact circle.
+
+    z = sqrt(R^2 - r^2) - sqrt(R^2 - a^2) inside r < a, 0 outside.
+    """
+    h, w = shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    dx = (xx - center_px[0]) * mm_per_px
+    dy = (yy - center_px[1]) * mm_per_px
+    r2 = dx * dx + dy * dy
+    a = radius_px * mm_per_px
+    big_r = ball_radius_mm
+    inside = r2 < a * a
+    root = np.sqrt(np.maximum(big_r * big_r - r2, 1e-12))
+    z = np.where(inside, root - np.sqrt(max(big_r * big_r - a * a, 0.0)), 0.0)
+    gx = np.where(inside, -dx / root, 0.0)
+    gy = np.where(inside, -dy / root, 0.0)
+    return z, gx, gy, inside
+
+
+def pixel_features(diff_bgr: np.ndarray) -> np.ndarray:
+    """(H*W, 5) features: colour difference / 255 and position normalised to -1..1."""
+    h, w = diff_bgr.shape[:2]
+    v, u = np.mgrid[0:h, 0:w].astype(np.float32)
+    u = 2.0 * u / max(w - 1, 1) - 1.0
+    v = 2.0 * v / max(h - 1, 1) - 1.0
+    return np.concatenate([diff_bgr.reshape(-1, 3).astype(np.float32) / COLOUR_SCALE,
+                           u.reshape(-1, 1), v.reshape(-1, 1)], axis=1)
+
+
+def marker_mask(frame_bgr: np.ndarray, threshold: float = 25.0, blur_px: int = 15) -> np.ndarray:
+    """Dark gel markers: pixels darker than their blurred surroundings by more than ``threshold``."""
+    grey = cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2GRAY).astype(np.float32)
+    k = blur_px | 1
+    local = cv2.GaussianBlur(grey, (k, k), 0)
+    return (local - grey) > threshold
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """Which pixels train the model.
+
+    rim_px: pixels within this distance inside the (clamped) contact circle are left out (the label
+    is least certain at the rim); outside_px: background pixels farther than this from the circle
+    are used with slope 0, subsampled by ``outside_stride``.
+    """
+
+    rim_px: float = 1.0
+    outside_px: float = 3.0
+    outside_stride: int = 3
+    max_radius_fraction: float = DEFAULT_MAX_RADIUS_FRACTION
+    mask_markers: bool = False
+
+
+def training_samples(presses: PressSet, mm_per_px: float, ball_radius_mm: float,
+                     opts: FitOptions = FitOptions()) -> tuple[np.ndarray, np.ndarray]:
+    """Features (N, 5) and slopes (N, 2) from labelled presses."""
+    feats, slopes = [], []
+    bg = presses.background.astype(np.float32)
+    shape = bg.shape[:2]
+    yy, xx = np.mgrid[0:shape[0], 0:shape[1]]
+    for frame, c, r in zip(presses.frames, presses.centers_px, presses.radii_px):
+        a = clamp_radius_px(r, ball_radius_mm, mm_per_px, opts.max_radius_fraction)
+        _, gx, gy, _ = sphere_cap(shape, (c[0], c[1]), a, ball_radius_mm, mm_per_px)
+        dist = np.hypot(xx - c[0], yy - c[1])
+        use = dist < a - opts.rim_px
+        outside = (dist > a + opts.outside_px) & (xx % opts.outside_stride == 0) & (yy % opts.outside_stride == 0)
+        use |= outside
+        if opts.mask_markers:
+            use &= ~marker_mask(frame)
+        f = pixel_features(frame.astype(np.float32) - bg)
+        sel = use.ravel()
+        feats.append(f[sel])
+        slopes.append(np.stack([gx.ravel()[sel], gy.ravel()[sel]], axis=1))
+    return np.concatenate(feats), np.concatenate(slopes).astype(np.float32)
+
+
+class GelSightCalibration:
+    """A fitted colour(+position) -> slope model with its background frame and scale.
+
+    gradients(frame) returns (gx, gy) float32 slopes; the model's answer on the background itself is
+    subtracted so that a no-contact frame reads flat. With ``bake_bins`` the model is tabulated
+    once over colour bins x position cells and evaluated by integer indexing (fast path).
+    """
+
+    def __init__(self, model: object, background_bgr: np.ndarray, mm_per_px_x: float,
+                 mm_per_px_y: float | None = None, ball_radius_mm: float = float("nan"),
+                 sensor: str = "gelsight", date: str | None = None, bake_bins: int | None = 32,
+                 bake_cells: tuple[int, int] = (6, 8), colour_range: float = 128.0,
+                 extra: dict | None = None) -> None:
+        _check_frame(background_bgr, None, "background_bgr")
+        self.model = model
+        self.background = np.ascontiguousarray(background_bgr)
+        self.mm_per_px_x = float(mm_per_px_x)
+        self.mm_per_px_y = float(mm_per_px_x if mm_per_px_y is None else mm_per_px_y)
+        for name, v in (("mm_per_px_x", self.mm_per_px_x), ("mm_per_px_y", self.mm_per_px_y)):
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a positive finite number of mm per pixel, got {v!r}")
+        self.ball_radius_mm = float(ball_radius_mm)
+        self.sensor = sensor
+        self.date = date or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+        self.colour_range = float(colour_range)
+        self.extra = dict(extra or {})
+        self.bake_bins = None if isinstance(model, LutModel) else bake_bins
+        self.bake_cells = (int(bake_cells[0]), int(bake_cells[1]))
+        self._prepare()
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.background.shape[0], self.background.shape[1]
+
+    # -- evaluation ---------------------------------------------------------------------------
+    def _prepare(self) -> None:
+        h, w = self.shape
+        self._bg16 = self.background.astype(np.int16)
+        feats0 = pixel_features(np.zeros((h, w, 3), np.float32))
+        if isinstance(self.model, LutModel):
+            self._setup_table(self.model.table.reshape(-1, 2), self.model.bins, self.model.colour_range,
+                              np.zeros(h * w, np.int64))
+        elif self.bake_bins:
+            self._bake(self.bake_bins)
+        else:
+            self._table = None
+        self._g0 = self._evaluate(self._bg16 * 0).reshape(h, w, 2)
+        # Background's own slope (non-zero for position-aware models) is subtracted from every frame.
+        del feats0
+
+    def _setup_table(self, table: np.ndarray, bins: int, colour_range: float, cell_offset: np.ndarray) -> None:
+        self._table = np.ascontiguousarray(table, np.float32)
+        self._bins = bins
+        d = np.arange(-255, 256, dtype=np.float64)
+        idx = np.clip(np.floor((d + colour_range) * bins / (2 * colour_range)), 0, bins - 1).astype(np.int32)
+        # Per-channel contributions to the flat table index, looked up by the colour difference.
+        self._lut_b = (idx * bins * bins).astype(np.int32)
+        self._lut_g = (idx * bins).astype(np.int32)
+        self._lut_r = idx.astype(np.int32)
+        self._cell_offset = cell_offset.reshape(self.shape).astype(np.int32)
+
+    def _bake(self, bins: int) -> None:
+        h, w = self.shape
+        cy, cx = self.bake_cells
+        centres = (np.arange(bins) + 0.5) * (2 * self.colour_range / bins) - self.colour_range
+        cb, cg, cr = np.meshgrid(centres, centres, centres, indexing="ij")
+        colours = np.stack([cb.ravel(), cg.ravel(), cr.ravel()], axis=1) / COLOUR_SCALE
+        blocks = []
+        for iy in range(cy):
+            for ix in range(cx):
+                u = -1.0 + (2 * ix + 1) / cx
+                v = -1.0 + (2 * iy + 1) / cy
+                f = np.concatenate([colours, np.full((len(colours), 1), u), np.full((len(colours), 1), v)], 1)
+                blocks.append(self.model.predict(f.astype(np.float32)))  # type: ignore[attr-defined]
+        table = np.concatenate(blocks)
+        yy, xx = np.mgrid[0:h, 0:w]
+        cell = np.minimum(yy * cy // h, cy - 1) * cx + np.minimum(xx * cx // w, cx - 1)
+        self._setup_table(table, bins, self.colour_range, cell * bins ** 3)
+
+    def _evaluate(self, diff16: np.ndarray) -> np.ndarray:
+        if self._table is not None:
+            d = diff16 + 255
+            flat = self._lut_b[d[..., 0]] + self._lut_g[d[..., 1]] + self._lut_r[d[..., 2]] + self._cell_offset
+            return self._table[flat]
+        cr = self.colour_range
+        feats = pixel_features(np.clip(diff16.astype(np.float32), -cr, cr))
+        return self.model.predict(feats).reshape(diff16.shape[0], diff16.shape[1], 2)  # type: ignore[attr-defined]
+
+    def diff(self, frame_bgr: np.ndarray) -> np.ndarray:
+        """Frame minus background as int16 (HxWx3), after checking the frame."""
+        _check_frame(frame_bgr, self.shape, "frame_bgr")
+        return cv2.subtract(frame_bgr, self.background, dtype=cv2.CV_16S)
+
+    def gradients(self, frame_bgr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Slopes (gx, gy) float32 HxW of a BGR uint8 frame of the calibration's size."""
+        g = self._evaluate(self.diff(frame_bgr))
+        g = g - self._g0
+        return g[..., 0], g[..., 1]
+
+    # -- persistence ---------------------------------------------------------------------------
+    def metadata(self) -> dict:
+        return {"format": "tactile_rig.gelsight.calibration", "version": FORMAT_VERSION,
+                "sensor": self.sensor, "mm_per_px_x": self.mm_per_px_x, "mm_per_px_y": self.mm_per_px_y,
+                "ball_radius_mm": self.ball_radius_mm, "date": self.date,
+                "model": self.model.kind, "bake_bins": self.bake_bins,  # type: ignore[attr-defined]
+                "bake_cells": list(self.bake_cells), "colour_range": self.colour_range,
+                "shape": list(self.shape), **({"extra": self.extra} if self.extra else {})}
+
+    def save(self, path: str | Path) -> Path:
+        """Write ``<path>.npz`` (arrays) and ``<path>.json`` (metadata); returns the npz path."""
+        base = Path(path)
+        if base.suffix in (".npz", ".json"):
+            base = base.with_suffix("")
+        base.parent.mkdir(parents=True, exist_ok=True)
+        arrays = {f"model_{k}": v for k, v in self.model.to_arrays().items()}  # type: ignore[attr-defined]
+        arrays["background"] = self.background
+        np.savez_compressed(base.with_suffix(".npz"), **arrays)
+        base.with_suffix(".json").write_text(json.dumps(self.metadata(), indent=2) + "\n")
+        return base.with_suffix(".npz")
+
+    @classmethod
+    def load(cls, path: str | Path) -> "GelSightCalibration":
+        """Load a calibration written by :meth:`save` (npz + JSON); raises CalibrationError."""
+        base = Path(path)
+        if base.suffix in (".npz", ".json"):
+            base = base.with_suffix("")
+        jpath, npath = base.with_suffix(".json"), base.with_suffix(".npz")
+        if not jpath.exists() or not npath.exists():
+            raise CalibrationError(f"calibration {base} needs both {jpath.name} and {npath.name}",
+                                   device="gelsight.calibration")
+        meta = json.loads(jpath.read_text())
+        if meta.get("format") != "tactile_rig.gelsight.calibration":
+            raise CalibrationError(f"{jpath} is not a GelSight calibration", device="gelsight.calibration")
+        if meta.get("version") != FORMAT_VERSION:
+            raise CalibrationError(f"{jpath}: calibration format version {meta.get('version')!r}, "
+                                   f"this code reads version {FORMAT_VERSION}", device="gelsight.calibration")
+        kind = meta.get("model")
+        if kind not in MODELS:
+            raise CalibrationError(f"{jpath}: unknown model {kind!r}", device="gelsight.calibration")
+        with np.load(npath, allow_pickle=False) as data:
+            arrays = {k[len("model_"):]: data[k] for k in data.files if k.startswith("model_")}
+            background = data["background"]
+        model = MODELS[kind].from_arrays(arrays)
+        return cls(model, background, meta["mm_per_px_x"], meta["mm_per_px_y"], meta["ball_radius_mm"],
+                   meta.get("sensor", "gelsight"), meta.get("date"), meta.get("bake_bins"),
+                   tuple(meta.get("bake_cells", (6, 8))), meta.get("colour_range", 128.0), meta.get("extra"))
+
+
+def _check_frame(frame: object, shape: tuple[int, int] | None, name: str) -> None:
+    if not isinstance(frame, np.ndarray):
+        raise ValueError(f"{name}: expected a numpy array, got {type(frame).__name__}")
+    if frame.dtype != np.uint8:
+        raise ValueError(f"{name}: expected dtype uint8 (BGR 0..255), got {frame.dtype}")
+    if frame.ndim != 3 or frame.shape[2] != 3:
+        raise ValueError(f"{name}: expected an HxWx3 BGR image, got shape {frame.shape}")
+    if shape is not None and frame.shape[:2] != tuple(shape):
+        raise ValueError(f"{name}: expected {shape[0]}x{shape[1]} pixels (the calibration's size), "
+                         f"got {frame.shape[0]}x{frame.shape[1]}")
+
+
+def make_model(method: str, **hyper: object) -> object:
+    """A fresh, unfitted model: "lut", "poly" or "mlp" with its hyper-parameters."""
+    if method not in MODELS:
+        raise ValueError(f"method must be one of {sorted(MODELS)}, got {method!r}")
+    return MODELS[method](**hyper)
+
+
+def calibrate_from_presses(press_dir: str | Path | PressSet, mm_per_px: float | tuple[float, float],
+                           ball_radius_mm: float, method: str = "mlp", *, sensor: str = "gelsight",
+                           fit: FitOptions = FitOptions(), bake_bins: int | None = 32,
+                           **hyper: object) -> GelSightCalibration:
+    """Fit a calibration from ball presses (folder or :class:`PressSet`).
+
+    mm_per_px: scalar or (x, y) in mm per pixel; ball_radius_mm: the ball's radius. method: "lut"
+    (Li 2014), "poly" (colour + position polynomial) or "mlp" (tiny numpy MLP on colour + position).
+    """
+    presses = press_dir if isinstance(press_dir, PressSet) else load_presses(press_dir)
+    sx, sy = (mm_per_px, mm_per_px) if np.isscalar(mm_per_px) else mm_per_px  # type: ignore[misc]
+    if not (float(ball_radius_mm) > 0):
+        raise ValueError(f"ball_radius_mm must be > 0, got {ball_radius_mm!r}")
+    if not (float(sx) > 0 and float(sy) > 0):
+        raise ValueError(f"mm_per_px must be > 0, got {mm_per_px!r}")
+    feats, slopes = training_samples(presses, float(np.sqrt(float(sx) * float(sy))), float(ball_radius_mm), fit)
+    model = make_model(method, **hyper)
+    model.fit(feats, slopes)  # type: ignore[attr-defined]
+    return GelSightCalibration(model, presses.background, float(sx), float(sy), float(ball_radius_mm),
+                               sensor=sensor, bake_bins=bake_bins,
+                               extra={"presses": len(presses.frames),
+                                      "max_radius_fraction": fit.max_radius_fraction})

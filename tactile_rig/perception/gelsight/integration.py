@@ -1,0 +1,225 @@
+"""Gradients -> height map in mm by Poisson integration (DST Dirichlet, DCT Neumann, Frankot–Chellappa).
+
+Gradients are dimensionless slopes (dz/dx, dz/dy; x right, y down). The height is in mm. Everything
+that depends only on the frame shape (eigenvalue denominators, masks, FFT frequencies) is computed once
+in :class:`HeightMapper` and reused for every frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import cv2
+import numpy as np
+from scipy import fft as sfft
+
+Solver = Literal["dst", "dct", "fc"]
+SOLVERS: tuple[str, ...] = ("dst", "dct", "fc")
+
+
+def _check_gradients(gx: np.ndarray, gy: np.ndarray) -> None:
+    for name, g in (("gx", gx), ("gy", gy)):
+        if not isinstance(g, np.ndarray) or g.ndim != 2:
+            raise ValueError(f"{name}: expected a 2-D numpy array, got {type(g).__name__} "
+                             f"with shape {getattr(g, 'shape', None)}")
+        if not np.issubdtype(g.dtype, np.floating) and not np.issubdtype(g.dtype, np.integer):
+            raise ValueError(f"{name}: expected a real numeric dtype, got {g.dtype}")
+    if gx.shape != gy.shape:
+        raise ValueError(f"gx and gy must have the same shape, got {gx.shape} and {gy.shape}")
+    if min(gx.shape) < 3:
+        raise ValueError(f"gradient maps must be at least 3x3 pixels, got {gx.shape}")
+
+
+@dataclass(frozen=True)
+class IntegrationParams:
+    """Knobs of the integration (see docs/gelsight.md for the measured speed/accuracy trade).
+
+    solver: "dst" (Dirichlet: height 0 on the border), "dct" (Neumann: border slopes honoured, mean 0)
+    or "fc" (Frankot–Chellappa, periodic FFT). downsample: integer factor (>=1) applied to the
+    gradients before solving; the height is upsampled back. border_px: slopes within this many pixels
+    of the edge are zeroed (vignetted, unreliable border). max_slope: slopes are clipped to +-max_slope
+    so that saturated/out-of-range colours cannot blow the height up.
+    """
+
+    solver: str = "dst"
+    downsample: int = 1
+    border_px: int = 0
+    max_slope: float = 20.0
+
+    def __post_init__(self) -> None:
+        if self.solver not in SOLVERS:
+            raise ValueError(f"solver must be one of {SOLVERS}, got {self.solver!r}")
+        if int(self.downsample) != self.downsample or self.downsample < 1:
+            raise ValueError(f"downsample must be an integer >= 1, got {self.downsample!r}")
+        if self.border_px < 0:
+            raise ValueError(f"border_px must be >= 0, got {self.border_px!r}")
+        if not (self.max_slope > 0):
+            raise ValueError(f"max_slope must be > 0, got {self.max_slope!r}")
+
+
+class HeightMapper:
+    """Integrate gradient maps of one fixed shape into height maps in mm, reusing precomputed terms.
+
+    shape: (rows, cols) of the gradient maps. mm_per_px_x / mm_per_px_y: pixel pitch in mm.
+    """
+
+    def __init__(self, shape: tuple[int, int], mm_per_px_x: float, mm_per_px_y: float | None = None,
+                 params: IntegrationParams | None = None, **knobs: object) -> None:
+        if params is None:
+            params = IntegrationParams(**knobs)  # type: ignore[arg-type]
+        elif knobs:
+            raise ValueError("pass either params or individual knobs, not both")
+        mm_per_px_y = mm_per_px_x if mm_per_px_y is None else mm_per_px_y
+        for name, v in (("mm_per_px_x", mm_per_px_x), ("mm_per_px_y", mm_per_px_y)):
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a positive finite number of mm per pixel, got {v!r}")
+        rows, cols = int(shape[0]), int(shape[1])
+        if rows < 3 or cols < 3:
+            raise ValueError(f"shape must be at least 3x3 pixels, got {shape}")
+        self.shape = (rows, cols)
+        self.params = params
+        self.mm_per_px_x = float(mm_per_px_x)
+        self.mm_per_px_y = float(mm_per_px_y)
+        k = int(params.downsample)
+        self._k = k
+        self._small = (max(3, rows // k), max(3, cols // k))
+        # Slopes become height steps per (downsampled) pixel in mm.
+        self._sx = np.float32(self.mm_per_px_x * cols / self._small[1])
+        self._sy = np.float32(self.mm_per_px_y * rows / self._small[0])
+        self._border = None
+        if params.border_px > 0:
+            b = int(params.border_px)
+            border = np.zeros(self.shape, np.float32)
+            border[b:rows - b, b:cols - b] = 1.0
+            self._border = border
+        self._denom = self._make_denominator(*self._small)
+
+    def _make_denominator(self, h: int, w: int) -> np.ndarray:
+        solver = self.params.solver
+        if solver == "dst":
+            # Eigenvalues of the 5-point Laplacian with zero Dirichlet values outside the interior.
+            ky = 2.0 * np.cos(np.pi * np.arange(1, h - 1) / (h - 1)) - 2.0
+            kx = 2.0 * np.cos(np.pi * np.arange(1, w - 1) / (w - 1)) - 2.0
+            return (ky[:, None] + kx[None, :]).astype(np.float32)
+        if solver == "dct":
+            ky = 2.0 * np.cos(np.pi * np.arange(h) / h) - 2.0
+            kx = 2.0 * np.cos(np.pi * np.arange(w) / w) - 2.0
+            d = ky[:, None] + kx[None, :]
+            d[0, 0] = 1.0  # the mean is free under Neumann conditions; fixed to 0 below
+            return d.astype(np.float32)
+        wy = 2.0 * np.pi * sfft.fftfreq(h)
+        wx = 2.0 * np.pi * sfft.rfftfreq(w)
+        d = wy[:, None] ** 2 + wx[None, :] ** 2
+        d[0, 0] = 1.0
+        self._fc_wx = (1j * wx[None, :]).astype(np.complex64)
+        self._fc_wy = (1j * wy[:, None]).astype(np.complex64)
+        return d.astype(np.float32)
+
+    def height_mm(self, gx: np.ndarray, gy: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+        """Height map in mm (float32, same shape as the gradients) from slopes gx = dz/dx, gy = dz/dy.
+
+        mask: optional boolean map; slopes outside it are set to 0 before integration (contact mask).
+        Non-finite slopes are treated as 0.
+        """
+        _check_gradients(gx, gy)
+        if gx.shape != self.shape:
+            raise ValueError(f"gradient shape {gx.shape} does not match the mapper's shape {self.shape}")
+        p = self.params
+        gx = np.clip(np.nan_to_num(np.asarray(gx, np.float32), nan=0.0, posinf=0.0, neginf=0.0),
+                     -p.max_slope, p.max_slope)
+        gy = np.clip(np.nan_to_num(np.asarray(gy, np.float32), nan=0.0, posinf=0.0, neginf=0.0),
+                     -p.max_slope, p.max_slope)
+        if mask is not None:
+            if mask.shape != self.shape:
+                raise ValueError(f"mask shape {mask.shape} does not match {self.shape}")
+            gx = np.where(mask, gx, np.float32(0))
+            gy = np.where(mask, gy, np.float32(0))
+        if self._border is not None:
+            gx = gx * self._border
+            gy = gy * self._border
+        if self._k > 1:
+            size = (self._small[1], self._small[0])
+            gx = cv2.resize(gx, size, interpolation=cv2.INTER_AREA)
+            gy = cv2.resize(gy, size, interpolation=cv2.INTER_AREA)
+        px = gx * self._sx
+        py = gy * self._sy
+        solver = p.solver
+        if solver == "dst":
+            z = self._solve_dst(px, py)
+        elif solver == "dct":
+            z = self._solve_dct(px, py)
+        else:
+            z = self._solve_fc(px, py)
+        if self._k > 1:
+            z = cv2.resize(z, (self.shape[1], self.shape[0]), interpolation=cv2.INTER_LINEAR)
+        return z.astype(np.float32, copy=False)
+
+    def _solve_dst(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
+        # Slopes averaged onto half-pixels, then differenced: the compact 5-point Laplacian with
+        # no half-pixel shift of the result.
+        inner = 0.5 * ((px[1:-1, 2:] - px[1:-1, :-2]) + (py[2:, 1:-1] - py[:-2, 1:-1]))
+        t = sfft.dstn(inner, type=1, workers=1)
+        t /= self._denom
+        z = np.zeros_like(px)
+        z[1:-1, 1:-1] = sfft.idstn(t, type=1, workers=1)
+        return z
+
+    def _solve_dct(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
+        # Slopes live on the half-pixel between samples; outside flux is the given border slope,
+        # which makes the Neumann problem consistent with a DCT-II diagonalisation.
+        f = np.empty_like(px)
+        f[:, 1:-1] = 0.5 * (px[:, 2:] - px[:, :-2])
+        f[:, 0] = 0.5 * (px[:, 1] + px[:, 0])
+        f[:, -1] = -0.5 * (px[:, -1] + px[:, -2])
+        fy = np.empty_like(py)
+        fy[1:-1, :] = 0.5 * (py[2:, :] - py[:-2, :])
+        fy[0, :] = 0.5 * (py[1, :] + py[0, :])
+        fy[-1, :] = -0.5 * (py[-1, :] + py[-2, :])
+        f += fy
+        t = sfft.dctn(f, type=2, norm="ortho", workers=1)
+        t /= self._denom
+        t[0, 0] = 0.0
+        return sfft.idctn(t, type=2, norm="ortho", workers=1)
+
+    def _solve_fc(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
+        fx = sfft.rfft2(px, workers=1)
+        fy = sfft.rfft2(py, workers=1)
+        num = -(self._fc_wx * fx + self._fc_wy * fy)
+        t = num / self._denom
+        t[0, 0] = 0.0
+        return sfft.irfft2(t, s=px.shape, workers=1)
+
+
+def height_map_mm(gx: np.ndarray, gy: np.ndarray, mm_per_px: float | tuple[float, float],
+                  method: str = "dst", mask: np.ndarray | None = None, **knobs: object) -> np.ndarray:
+    """One-shot height map in mm from slopes (builds a :class:`HeightMapper`; reuse one for video).
+
+    mm_per_px: a scalar or (x, y) pitch in mm per pixel. method: "dst", "dct" or "fc".
+    """
+    _check_gradients(gx, gy)
+    sx, sy = (mm_per_px, mm_per_px) if np.isscalar(mm_per_px) else mm_per_px  # type: ignore[misc]
+    mapper = HeightMapper(gx.shape, float(sx), float(sy), solver=method, **knobs)
+    return mapper.height_mm(gx, gy, mask=mask)
+
+
+def contact_mask(diff_bgr: np.ndarray, height_mm: np.ndarray | None = None,
+                 colour_threshold: float = 12.0, height_threshold_mm: float | None = None,
+                 close_px: int = 3) -> np.ndarray:
+    """Boolean contact mask from the colour distance to the background (and optionally the height).
+
+    diff_bgr: frame minus background (float, 0..255 scale). A pixel is in contact when its colour
+    distance exceeds colour_threshold (after a morphological close of close_px) and, when
+    height_threshold_mm is given, its height exceeds that threshold.
+    """
+    if diff_bgr.ndim != 3 or diff_bgr.shape[2] != 3:
+        raise ValueError(f"diff_bgr must be HxWx3, got shape {diff_bgr.shape}")
+    dist = np.sqrt(np.sum(np.square(diff_bgr, dtype=np.float32), axis=2))
+    m = (dist > colour_threshold).astype(np.uint8)
+    if close_px > 0:
+        k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * close_px + 1, 2 * close_px + 1))
+        m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, k)
+    mask = m.astype(bool)
+    if height_threshold_mm is not None and height_mm is not None:
+        mask &= height_mm > height_threshold_mm
+    return mask

@@ -1,0 +1,60 @@
+"""Frame -> height map in mm: calibrated slopes, contact mask and Poisson integration, precomputed once."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from tactile_rig.perception.gelsight.calibration import GelSightCalibration
+from tactile_rig.perception.gelsight.integration import HeightMapper, IntegrationParams
+
+
+@dataclass(frozen=True)
+class ContactParams:
+    """Contact mask knobs: slopes are kept where the colour distance to the background exceeds
+    ``colour_threshold`` (0..255 units), grown by ``dilate_px``; ``None`` threshold keeps every slope.
+    Heights below ``min_height_mm`` are set to 0 after integration (``None``: keep all)."""
+
+    colour_threshold: float | None = 10.0
+    dilate_px: int = 2
+    min_height_mm: float | None = None
+
+
+class Reconstructor:
+    """Reusable frame -> height pipeline for one calibration (all per-shape terms precomputed)."""
+
+    def __init__(self, calibration: GelSightCalibration, integration: IntegrationParams | None = None,
+                 contact: ContactParams | None = None) -> None:
+        self.calibration = calibration
+        self.integration = integration or IntegrationParams()
+        self.contact = contact or ContactParams()
+        self.mapper = HeightMapper(calibration.shape, calibration.mm_per_px_x, calibration.mm_per_px_y,
+                                   params=self.integration)
+        d = int(self.contact.dilate_px)
+        self._kernel = (cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * d + 1, 2 * d + 1)) if d > 0 else None)
+
+    def contact_mask(self, diff16: np.ndarray) -> np.ndarray | None:
+        """Boolean HxW mask of pixels whose colour differs from the background (None: no masking)."""
+        thr = self.contact.colour_threshold
+        if thr is None:
+            return None
+        # Sum of squares on int32 avoids a float conversion of the whole frame.
+        d = diff16.astype(np.int32)
+        dist2 = np.einsum("ijk,ijk->ij", d, d)
+        m = (dist2 > int(thr * thr)).view(np.uint8)
+        if self._kernel is not None:
+            m = cv2.dilate(m, self._kernel)
+        return m.view(bool)
+
+    def height_mm(self, frame_bgr: np.ndarray) -> np.ndarray:
+        """Height map in mm (float32, HxW) of a BGR uint8 frame."""
+        cal = self.calibration
+        diff16 = cal.diff(frame_bgr)
+        g = cal._evaluate(diff16) - cal._g0
+        mask = self.contact_mask(diff16)
+        z = self.mapper.height_mm(g[..., 0], g[..., 1], mask=mask)
+        if self.contact.min_height_mm is not None:
+            z = np.where(z > self.contact.min_height_mm, z, np.float32(0))
+        return z
