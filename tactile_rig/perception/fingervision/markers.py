@@ -176,13 +176,16 @@ def contrast_map(
     return value, bg, contrast
 
 
-def _gather_windows(image: np.ndarray, centres_xy: np.ndarray, half: int) -> tuple[np.ndarray, np.ndarray]:
+def _gather_windows(
+    image: np.ndarray, centres_xy: np.ndarray, half: int, padded: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Windows (N, 2h+1, 2h+1) of ``image`` around rounded centres; outside the image reads as 0."""
     h, w = image.shape[:2]
-    padded = cv2.copyMakeBorder(image, half, half, half, half, cv2.BORDER_CONSTANT, value=0)
+    if padded is None:
+        padded = cv2.copyMakeBorder(image, half, half, half, half, cv2.BORDER_CONSTANT, value=0)
     c = np.rint(np.nan_to_num(centres_xy)).astype(np.int64)
-    c[:, 0] = np.clip(c[:, 0], 0, w - 1)
-    c[:, 1] = np.clip(c[:, 1], 0, h - 1)
+    np.clip(c[:, 0], 0, w - 1, out=c[:, 0])
+    np.clip(c[:, 1], 0, h - 1, out=c[:, 1])
     offs = np.arange(2 * half + 1)
     rows = c[:, 1, None] + offs  # padded coords: window starts at centre - half + half
     cols = c[:, 0, None] + offs
@@ -209,11 +212,12 @@ def refine_centroids(
     if n == 0:
         return np.zeros((0, 2)), np.zeros(0), np.zeros(0)
     offs = np.arange(-half_px, half_px + 1, dtype=np.float64)
+    padded = cv2.copyMakeBorder(contrast, half_px, half_px, half_px, half_px, cv2.BORDER_CONSTANT, value=0)
     pos = centres.copy()
     peak = np.zeros(n)
     size = np.zeros(n)
     for _ in range(max(1, iterations)):
-        win, c = _gather_windows(contrast, pos, half_px)
+        win, c = _gather_windows(contrast, pos, half_px, padded)
         win = win.astype(np.float64)
         peak = win.reshape(n, -1).max(axis=1)
         wt = np.maximum(win - rel_threshold * peak[:, None, None], 0.0)

@@ -12,7 +12,6 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 
 from tactile_rig.perception.fingervision.force import ForceParams, estimate_force_torque
@@ -163,13 +162,8 @@ class FingerVision:
         ft = estimate_force_torque(base.positions_px, base.sizes_px, st.positions_px, st.sizes_px,
                                    st.valid, (w, h), self.params.force)
         t3 = time.perf_counter()
-        exclude = None
-        if self.proximity.obj_hist is not None and len(st.ids):
-            exclude = np.zeros((h, w), np.uint8)
-            for (x, y), s in zip(st.positions_px, st.sizes_px):
-                r = int(round(s / 2 + self.params.marker_exclude_margin_px))
-                cv2.circle(exclude, (int(round(x)), int(round(y))), max(1, r), 255, -1)
-        prox = self.proximity.process(frame_bgr, exclude)
+        radius = float(np.max(st.sizes_px, initial=0.0)) / 2 + self.params.marker_exclude_margin_px
+        prox = self.proximity.process(frame_bgr, st.positions_px, radius)
         t4 = time.perf_counter()
         mom = prox.moments
         return FingerVisionResult(

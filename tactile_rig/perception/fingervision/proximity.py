@@ -25,7 +25,6 @@ import numpy as np
 
 __all__ = ["ProximityParams", "ObjectMoments", "ProximityResult", "ProximityVision", "object_moments", "estimate_shift"]
 
-_H_RANGE = [0, 180, 0, 256, 0, 256]
 
 
 @dataclass(frozen=True)
@@ -151,6 +150,8 @@ class ProximityVision:
         self.obj_hist: np.ndarray | None = None
         self._prev_small: np.ndarray | None = None
         self._prev_region: np.ndarray | None = None
+        self._luts: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._bp_table: np.ndarray | None = None
 
     # -- histograms -----------------------------------------------------------------------------
     def _small_hsv(self, frame_bgr: np.ndarray) -> np.ndarray:
@@ -160,10 +161,26 @@ class ProximityVision:
             f = cv2.resize(f, (f.shape[1] // k, f.shape[0] // k), interpolation=cv2.INTER_AREA)
         return cv2.cvtColor(f, cv2.COLOR_BGR2HSV)
 
-    def _hist(self, hsv: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
+    def _bin_index(self, hsv: np.ndarray) -> np.ndarray:
+        """Flat histogram bin of every pixel (H in 0..179, S and V in 0..255), via lookup tables."""
         p = self.params
-        hist = cv2.calcHist([hsv], [0, 1, 2], mask, [p.bins_h, p.bins_s, p.bins_v], _H_RANGE)
-        peak = float(hist.max())
+        if self._luts is None:
+            ramp = np.arange(256, dtype=np.float64)
+            lut_h = np.minimum((ramp * p.bins_h / 180.0).astype(np.int32), p.bins_h - 1)
+            lut_s = np.minimum((ramp * p.bins_s / 256.0).astype(np.int32), p.bins_s - 1)
+            lut_v = np.minimum((ramp * p.bins_v / 256.0).astype(np.int32), p.bins_v - 1)
+            self._luts = (lut_h * p.bins_s * p.bins_v, lut_s * p.bins_v, lut_v)
+        lh, ls, lv = self._luts
+        return lh[hsv[:, :, 0]] + ls[hsv[:, :, 1]] + lv[hsv[:, :, 2]]
+
+    def _hist(self, hsv: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
+        """Flat H x S x V histogram scaled so that its peak is 255 (all zeros for an empty mask)."""
+        p = self.params
+        idx = self._bin_index(hsv)
+        if mask is not None:
+            idx = idx[mask > 0]
+        hist = np.bincount(idx.ravel(), minlength=p.bins_h * p.bins_s * p.bins_v).astype(np.float64)
+        peak = float(hist.max()) if hist.size else 0.0
         return hist * (255.0 / peak) if peak > 0 else hist
 
     def set_background(self, frames_bgr: list[np.ndarray]) -> None:
@@ -197,10 +214,12 @@ class ProximityVision:
         bg = self.bg_hist if self.bg_hist is not None else np.zeros_like(h_def)
         prev = self.obj_hist if self.obj_hist is not None else np.zeros_like(h_def)
         p = self.params
-        self.obj_hist = np.minimum(255.0, prev + p.f_gain * np.maximum(0.0, h_def - p.f_bg * bg)).astype(np.float32)
+        self.obj_hist = np.minimum(255.0, prev + p.f_gain * np.maximum(0.0, h_def - p.f_bg * bg))
+        self._bp_table = None
 
     def reset_object(self) -> None:
         self.obj_hist = None
+        self._bp_table = None
 
     # -- per frame ------------------------------------------------------------------------------
     def object_mask(self, frame_bgr: np.ndarray) -> np.ndarray:
@@ -209,8 +228,11 @@ class ProximityVision:
         if self.obj_hist is None:
             return np.zeros(hsv.shape[:2], np.uint8)
         p = self.params
-        bp = cv2.calcBackProject([hsv], [0, 1, 2], self.obj_hist, _H_RANGE, scale=p.backproj_scale)
-        _, mask = cv2.threshold(bp, p.threshold - 1, 255, cv2.THRESH_BINARY)
+        # back-projection by table look-up (cv2.calcBackProject mishandles 3-D numpy histograms)
+        if self._bp_table is None:
+            self._bp_table = np.clip(self.obj_hist * p.backproj_scale, 0, 255).astype(np.uint8)
+        bp = self._bp_table[self._bin_index(hsv)]
+        mask = np.where(bp >= p.threshold, np.uint8(255), np.uint8(0))
         k3 = np.ones((3, 3), np.uint8)
         if p.n_erode:
             mask = cv2.erode(mask, k3, iterations=p.n_erode)
@@ -218,8 +240,17 @@ class ProximityVision:
             mask = cv2.dilate(mask, k3, iterations=p.n_dilate)
         return mask
 
-    def process(self, frame_bgr: np.ndarray, exclude: np.ndarray | None = None) -> ProximityResult:
-        """Object moments and slip in one frame. ``exclude``: full-res mask of pixels to ignore (markers)."""
+    def process(
+        self,
+        frame_bgr: np.ndarray,
+        exclude_px: np.ndarray | None = None,
+        exclude_radius_px: float = 6.0,
+    ) -> ProximityResult:
+        """Object moments and slip in one frame.
+
+        ``exclude_px``: (N, 2) points (markers, which do not move with the object) whose
+        neighbourhood of ``exclude_radius_px`` is left out of the slip estimate.
+        """
         p = self.params
         mask = self.object_mask(frame_bgr)
         mom = object_moments(mask, float(p.downsample), p.round_tolerance)
@@ -233,9 +264,17 @@ class ProximityVision:
         region = cv2.resize(mask, (sw, sh), interpolation=cv2.INTER_NEAREST)
         if mom.area_px == 0:
             region[:] = 0
-        if exclude is not None:
-            ex = cv2.resize(exclude.astype(np.uint8), (sw, sh), interpolation=cv2.INTER_AREA)
-            region[ex > 0] = 0
+        if exclude_px is not None and len(exclude_px):
+            pts = np.asarray(exclude_px, dtype=np.float64).reshape(-1, 2)
+            pts = pts[np.isfinite(pts).all(axis=1)]
+            k = int(np.ceil(exclude_radius_px / ks))
+            cx = np.floor((pts[:, 0] + 0.5) / ks).astype(np.int64)
+            cy = np.floor((pts[:, 1] + 0.5) / ks).astype(np.int64)
+            offs = np.arange(-k, k + 1)
+            xs = np.clip(cx[:, None, None] + offs[None, None, :], 0, sw - 1)
+            ys = np.clip(cy[:, None, None] + offs[None, :, None], 0, sh - 1)
+            region[np.broadcast_to(ys, (len(pts), 2 * k + 1, 2 * k + 1)),
+                   np.broadcast_to(xs, (len(pts), 2 * k + 1, 2 * k + 1))] = 0
         slip, mag, direction = False, 0.0, None
         if self._prev_small is not None and self._prev_small.shape == small.shape and self._prev_region is not None:
             both = cv2.bitwise_or(region, self._prev_region)

@@ -55,76 +55,103 @@ class TrackerParams:
 
 
 class KalmanBank:
-    """Constant-velocity Kalman filters for N markers at once, state ``(x, vx, y, vy, s)``."""
+    """Constant-velocity Kalman filters for N markers at once, state ``(x, vx, y, vy, s)``.
 
-    _H = np.array(
-        [[1.0, 0, 0, 0, 0], [0, 0, 1.0, 0, 0], [0, 0, 0, 0, 1.0]],
-    )
+    With identity noise covariances and x, y always measured together, the x and y blocks of the
+    covariance are equal and independent of the size block, so the 5x5 covariance of each marker is
+    stored as one symmetric 2x2 axis block ``(p00, p01, p11)`` plus a size variance ``ps``: the same
+    filter in closed form, elementwise over markers (no batched matrix algebra per frame).
+    """
 
     def __init__(
         self, positions_px: np.ndarray, sizes_px: np.ndarray, measurement_noise: float = 0.1,
         process_noise: float = 0.01,
     ) -> None:
-        if measurement_noise <= 0 or process_noise <= 0:
+        if not (measurement_noise > 0 and process_noise > 0):
             raise ValueError(
                 f"KalmanBank: noises must be > 0, got measurement {measurement_noise}, process {process_noise}"
             )
         pos = np.asarray(positions_px, dtype=np.float64).reshape(-1, 2)
         n = pos.shape[0]
-        self.x = np.zeros((n, 5))
-        self.x[:, 0] = pos[:, 0]
-        self.x[:, 2] = pos[:, 1]
-        self.x[:, 4] = np.asarray(sizes_px, dtype=np.float64).reshape(n)
         self.r = float(measurement_noise)
         self.q = float(process_noise)
-        self.P = np.repeat((np.eye(5) * self.r)[None], n, axis=0)
+        self.pos = pos.copy()
+        self.vel = np.zeros((n, 2))
+        self.size = np.asarray(sizes_px, dtype=np.float64).reshape(n).copy()
+        self.p00 = np.full(n, self.r)
+        self.p01 = np.zeros(n)
+        self.p11 = np.full(n, self.r)
+        self.ps = np.full(n, self.r)
 
     def reset(self, which: np.ndarray, positions_px: np.ndarray, sizes_px: np.ndarray) -> None:
         """Re-initialise the markers selected by the boolean mask ``which`` at rest (zero velocity)."""
-        self.x[which] = 0.0
-        self.x[which, 0] = positions_px[which, 0]
-        self.x[which, 2] = positions_px[which, 1]
-        self.x[which, 4] = sizes_px[which]
-        self.P[which] = np.eye(5) * self.r
+        self.pos[which] = positions_px[which]
+        self.vel[which] = 0.0
+        self.size[which] = sizes_px[which]
+        self.p00[which] = self.r
+        self.p01[which] = 0.0
+        self.p11[which] = self.r
+        self.ps[which] = self.r
+
+    def snapshot(self) -> tuple[np.ndarray, ...]:
+        return (self.pos.copy(), self.vel.copy(), self.size.copy())
 
     def predict(self, dt_s: float, which: np.ndarray) -> None:
         """Advance the selected markers by ``dt_s`` seconds (constant velocity)."""
         if not np.any(which):
             return
-        F = np.eye(5)
-        F[0, 1] = F[2, 3] = dt_s
-        self.x[which] = self.x[which] @ F.T
-        self.P[which] = F @ self.P[which] @ F.T + np.eye(5) * self.q
+        q = self.q
+        self.pos[which] += self.vel[which] * dt_s
+        p00, p01, p11 = self.p00[which], self.p01[which], self.p11[which]
+        self.p00[which] = p00 + 2.0 * dt_s * p01 + dt_s * dt_s * p11 + q
+        self.p01[which] = p01 + dt_s * p11
+        self.p11[which] = p11 + q
+        self.ps[which] += q
 
     def update(self, z: np.ndarray, which: np.ndarray) -> None:
         """Fuse measurements ``z`` (N, 3) = (x, y, size) for the selected markers (Joseph form)."""
         if not np.any(which):
             return
-        H = self._H
-        P = self.P[which]
-        x = self.x[which]
-        S = H @ P @ H.T + np.eye(3) * self.r
-        K = np.swapaxes(np.linalg.solve(S, H @ P), 1, 2)  # P H^T S^-1 (P, S symmetric)
-        innov = z[which] - x @ H.T
-        x = x + np.einsum("nij,nj->ni", K, innov)
-        A = np.eye(5) - K @ H
-        P = A @ P @ np.swapaxes(A, 1, 2) + self.r * (K @ np.swapaxes(K, 1, 2))
-        self.P[which] = 0.5 * (P + np.swapaxes(P, 1, 2))
-        self.x[which] = x
+        r = self.r
+        p00, p01, p11 = self.p00[which], self.p01[which], self.p11[which]
+        k0 = p00 / (p00 + r)
+        k1 = p01 / (p00 + r)
+        innov = z[which, :2] - self.pos[which]
+        self.pos[which] += k0[:, None] * innov
+        self.vel[which] += k1[:, None] * innov
+        a = 1.0 - k0
+        # P+ = A P A^T + r K K^T with A = I - K H, H = [1, 0]: stays symmetric positive definite
+        self.p00[which] = a * a * p00 + r * k0 * k0
+        self.p01[which] = a * (p01 - k1 * p00) + r * k0 * k1
+        self.p11[which] = k1 * k1 * p00 - 2.0 * k1 * p01 + p11 + r * k1 * k1
+        ps = self.ps[which]
+        ks = ps / (ps + r)
+        self.size[which] += ks * (z[which, 2] - self.size[which])
+        self.ps[which] = (1.0 - ks) ** 2 * ps + r * ks * ks
 
-    def hold(self, which: np.ndarray, previous_x: np.ndarray) -> None:
+    def hold(self, which: np.ndarray, previous: tuple[np.ndarray, ...]) -> None:
         """A missed marker stays where it was before the prediction, with zero velocity (no drift)."""
-        self.x[which] = previous_x[which]
-        self.x[which, 1] = 0.0
-        self.x[which, 3] = 0.0
+        pos, _vel, size = previous
+        self.pos[which] = pos[which]
+        self.vel[which] = 0.0
+        self.size[which] = size[which]
+
+    def covariance(self, i: int) -> np.ndarray:
+        """The full 5x5 covariance of marker ``i`` in state order (x, vx, y, vy, s)."""
+        blk = np.array([[self.p00[i], self.p01[i]], [self.p01[i], self.p11[i]]])
+        P = np.zeros((5, 5))
+        P[0:2, 0:2] = blk
+        P[2:4, 2:4] = blk
+        P[4, 4] = self.ps[i]
+        return P
 
     @property
     def positions_px(self) -> np.ndarray:
-        return self.x[:, [0, 2]].copy()
+        return self.pos.copy()
 
     @property
     def sizes_px(self) -> np.ndarray:
-        return self.x[:, 4].copy()
+        return self.size.copy()
 
 
 @dataclass(frozen=True)
@@ -177,7 +204,7 @@ class MarkerTracker:
             return TrackState(self.ids, np.zeros((0, 2)), empty, empty.astype(bool), empty.astype(bool), self.misses)
         active = ~self.lost
         if self.kalman is not None:
-            previous_x = self.kalman.x.copy()
+            previous = self.kalman.snapshot()
             self.kalman.predict(dt_s, active)
             predicted = self.kalman.positions_px
             predicted[self.lost] = self.positions_px[self.lost]
@@ -211,7 +238,7 @@ class MarkerTracker:
             revived = ok & self.lost
             self.kalman.reset(revived, meas, size)
             self.kalman.update(z, ok & ~revived)
-            self.kalman.hold(~ok, previous_x)
+            self.kalman.hold(~ok, previous)
             self.positions_px[ok] = self.kalman.positions_px[ok]
             self.sizes_px[ok] = self.kalman.sizes_px[ok]
         else:

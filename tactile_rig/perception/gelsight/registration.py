@@ -1,0 +1,378 @@
+"""Height map vs height map -> 2-D isometry (Li et al. 2014), honest about when it does not know.
+
+Pipeline: height maps rendered to 8-bit with a band-pass that puts keypoints on smooth contacts ->
+BRISK or ORB keypoints -> cross-checked Hamming matches -> two-pair sampling RANSAC for a rigid
+transform -> least-squares refit on the inliers -> the paper's confidence
+c = max(1 - |1 - det R|, 0), R the 2x2 part of the least-squares homography of the inliers -> a dense
+check (normalised correlation of the overlapping heights). With too few keypoints a dense
+Fourier–Mellin (log-polar phase correlation) estimate is tried; when neither is trustworthy the result
+is a refusal (``ok=False`` with a ``reason``) rather than a confident wrong answer.
+
+Frames: a point of B in mm from B's centre (x right, y down) maps into A's frame (mm from A's centre)
+by ``matrix_mm``; ``matrix_px`` does the same in pixel (column, row) coordinates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+INSUFFICIENT_TEXTURE = "insufficient_texture"
+NO_CONSENSUS = "no_consensus"
+LOW_CONFIDENCE = "low_confidence"
+MISMATCH = "dense_check_failed"
+
+
+@dataclass
+class RegistrationResult:
+    """Outcome of a registration; ``ok=False`` means refused (``matrix_mm`` None, ``reason`` set)."""
+
+    ok: bool
+    matrix_mm: np.ndarray | None
+    rotation_deg: float
+    translation_mm: np.ndarray
+    confidence: float
+    inliers: int
+    method: str
+    reason: str | None = None
+    matrix_px: np.ndarray | None = None
+    matches: int = 0
+    ncc: float = float("nan")
+
+    def as_dict(self) -> dict:
+        """JSON-friendly summary (lists, floats, None)."""
+        return {"ok": self.ok,
+                "matrix_mm": None if self.matrix_mm is None else np.asarray(self.matrix_mm).tolist(),
+                "rotation_deg": self.rotation_deg, "translation_mm": np.asarray(self.translation_mm).tolist(),
+                "confidence": self.confidence, "inliers": self.inliers, "method": self.method,
+                "reason": self.reason, "matches": self.matches, "ncc": self.ncc}
+
+
+@dataclass(frozen=True)
+class RegistrationParams:
+    """Knobs (measured in docs/gelsight.md).
+
+    detector: "brisk", "orb" or "both" (keypoints of both pooled); brisk_threshold / orb_features:
+    detector sensitivity; band_px: (fine, coarse) Gaussian sigmas of the band-pass rendering;
+    ransac_iters: two-pair samples; inlier_px: RANSAC residual threshold; min_inliers: fewer is a
+    refusal of the keypoint answer; min_confidence: the paper's c below this is refused (the tactile
+    map accepts at 0.98); min_ncc: the dense check on the overlap; dense_fallback: try Fourier–Mellin
+    when keypoints fail; refine_ecc: polish the keypoint answer with ECC (sub-pixel, slower).
+    """
+
+    detector: str = "brisk"
+    brisk_threshold: int = 20
+    brisk_octaves: int = 3
+    orb_features: int = 500
+    band_px: tuple[float, float] = (1.0, 8.0)
+    ransac_iters: int = 256
+    inlier_px: float = 2.0
+    min_inliers: int = 8
+    min_confidence: float = 0.9
+    min_ncc: float = 0.6
+    min_overlap: float = 0.2
+    dense_fallback: bool = True
+    refine_ecc: bool = True
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.detector not in ("brisk", "orb", "both"):
+            raise ValueError(f"detector must be 'brisk', 'orb' or 'both', got {self.detector!r}")
+        if self.ransac_iters < 1 or self.min_inliers < 2:
+            raise ValueError("ransac_iters must be >= 1 and min_inliers >= 2")
+
+
+def _brisk(threshold: int, octaves: int) -> cv2.Feature2D:
+    if hasattr(cv2, "BRISK_create"):  # OpenCV 4.x
+        return cv2.BRISK_create(threshold, octaves)
+    return cv2.xfeatures2d.BRISK_create(threshold, octaves)  # OpenCV 5: moved to contrib
+
+
+def _check_height(h: object, name: str) -> np.ndarray:
+    if not isinstance(h, np.ndarray):
+        raise ValueError(f"{name}: expected a numpy array, got {type(h).__name__}")
+    if h.ndim != 2 or min(h.shape) < 16:
+        raise ValueError(f"{name}: expected a 2-D height map of at least 16x16 pixels, got shape {h.shape}")
+    if not (np.issubdtype(h.dtype, np.floating) or np.issubdtype(h.dtype, np.integer)):
+        raise ValueError(f"{name}: expected a real numeric dtype, got {h.dtype}")
+    return np.nan_to_num(h.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+
+
+def render_u8(height_mm: np.ndarray, band_px: tuple[float, float] = (1.0, 8.0)) -> np.ndarray:
+    """8-bit image for keypoints: band-passed height (difference of Gaussians) plus a little of the
+    height itself, contrast-normalised per image. Rotation-invariant (no directional shading), and
+    a smooth dome gets a ring/blob structure that FAST-style detectors fire on."""
+    z = height_mm.astype(np.float32)
+    fine = cv2.GaussianBlur(z, (0, 0), band_px[0]) if band_px[0] > 0 else z
+    coarse = cv2.GaussianBlur(z, (0, 0), band_px[1])
+    band = fine - coarse
+    s_band = float(np.percentile(np.abs(band), 99.5)) + 1e-12
+    s_z = float(np.percentile(np.abs(z - np.median(z)), 99.5)) + 1e-12
+    img = 0.8 * band / s_band + 0.2 * (z - float(np.median(z))) / s_z
+    return np.clip(128.0 + 100.0 * img, 0, 255).astype(np.uint8)
+
+
+@dataclass
+class Features:
+    """Keypoint positions (N, 2) px and binary descriptors per detector, of one height map."""
+
+    points: dict[str, np.ndarray] = field(default_factory=dict)
+    descriptors: dict[str, np.ndarray] = field(default_factory=dict)
+    image: np.ndarray | None = None
+
+
+def extract_features(height_mm: np.ndarray, params: RegistrationParams = RegistrationParams()) -> Features:
+    """Keypoints and descriptors of a height map (reuse for a map matched many times)."""
+    img = render_u8(_check_height(height_mm, "height_mm"), params.band_px)
+    feats = Features(image=img)
+    names = ("brisk", "orb") if params.detector == "both" else (params.detector,)
+    for name in names:
+        det = (_brisk(params.brisk_threshold, params.brisk_octaves) if name == "brisk"
+               else cv2.ORB_create(params.orb_features, edgeThreshold=15, patchSize=15, fastThreshold=5))
+        kps, desc = det.detectAndCompute(img, None)
+        pts = np.array([k.pt for k in kps], np.float64).reshape(-1, 2)
+        feats.points[name] = pts
+        feats.descriptors[name] = desc if desc is not None else np.zeros((0, 32), np.uint8)
+    return feats
+
+
+def _match(fa: Features, fb: Features) -> tuple[np.ndarray, np.ndarray]:
+    pa, pb = [], []
+    matcher = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
+    for name, da in fa.descriptors.items():
+        db = fb.descriptors.get(name)
+        if db is None or len(da) < 2 or len(db) < 2:
+            continue
+        for m in matcher.match(db, da):
+            pb.append(fb.points[name][m.queryIdx])
+            pa.append(fa.points[name][m.trainIdx])
+    return np.array(pa, np.float64).reshape(-1, 2), np.array(pb, np.float64).reshape(-1, 2)
+
+
+def rigid_fit(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Least-squares 2-D rotation + translation mapping src (N,2) onto dst (N,2); 2x3 matrix."""
+    cs, cd = src.mean(0), dst.mean(0)
+    s, d = src - cs, dst - cd
+    num = np.sum(s[:, 0] * d[:, 1] - s[:, 1] * d[:, 0])
+    den = np.sum(s[:, 0] * d[:, 0] + s[:, 1] * d[:, 1])
+    th = np.arctan2(num, den)
+    c, si = np.cos(th), np.sin(th)
+    r = np.array([[c, -si], [si, c]])
+    return np.hstack([r, (cd - r @ cs)[:, None]])
+
+
+def ransac_rigid(src: np.ndarray, dst: np.ndarray, iters: int = 256, inlier_px: float = 2.0,
+                 seed: int = 0) -> tuple[np.ndarray | None, np.ndarray]:
+    """Two-pair sampling RANSAC (Li 2014): each sample of two matches fixes a rotation and a
+    translation; pairs whose lengths disagree are skipped. Returns (2x3 or None, inlier mask)."""
+    n = len(src)
+    if n < 2:
+        return None, np.zeros(n, bool)
+    rng = np.random.default_rng(seed)
+    i = rng.integers(0, n, iters)
+    j = rng.integers(0, n, iters)
+    vs = src[j] - src[i]
+    vd = dst[j] - dst[i]
+    ls, ld = np.hypot(vs[:, 0], vs[:, 1]), np.hypot(vd[:, 0], vd[:, 1])
+    good = (i != j) & (ls > 2 * inlier_px) & (np.abs(ls - ld) < 2 * inlier_px)
+    if not good.any():
+        return None, np.zeros(n, bool)
+    th = np.arctan2(vd[good, 1], vd[good, 0]) - np.arctan2(vs[good, 1], vs[good, 0])
+    c, s = np.cos(th), np.sin(th)
+    si, di = src[i[good]], dst[i[good]]
+    tx = di[:, 0] - (c * si[:, 0] - s * si[:, 1])
+    ty = di[:, 1] - (s * si[:, 0] + c * si[:, 1])
+    # Residuals of every match under every hypothesis: (hypotheses, matches).
+    px = c[:, None] * src[None, :, 0] - s[:, None] * src[None, :, 1] + tx[:, None] - dst[None, :, 0]
+    py = s[:, None] * src[None, :, 0] + c[:, None] * src[None, :, 1] + ty[:, None] - dst[None, :, 1]
+    inl = (px * px + py * py) < inlier_px * inlier_px
+    best = int(np.argmax(inl.sum(1)))
+    mask = inl[best]
+    if mask.sum() < 2:
+        return None, mask
+    m = rigid_fit(src[mask], dst[mask])
+    for _ in range(2):  # re-select inliers under the refit, then refit
+        res = src @ m[:, :2].T + m[:, 2] - dst
+        new = np.einsum("ij,ij->i", res, res) < inlier_px * inlier_px
+        if new.sum() < 2:
+            break
+        mask = new
+        m = rigid_fit(src[mask], dst[mask])
+    return m, mask
+
+
+def homography_confidence(src: np.ndarray, dst: np.ndarray) -> float:
+    """Li 2014 confidence c = max(1 - |1 - det R|, 0), R the 2x2 part of the least-squares
+    homography of the inlier matches (normalised so H[2,2] = 1); 0 when it is degenerate."""
+    if len(src) < 4:
+        return 0.0
+    h, _ = cv2.findHomography(src.astype(np.float32), dst.astype(np.float32), 0)
+    if h is None or not np.all(np.isfinite(h)) or abs(h[2, 2]) < 1e-12:
+        return 0.0
+    h = h / h[2, 2]
+    det = float(np.linalg.det(h[:2, :2]))
+    if not np.isfinite(det):
+        return 0.0
+    return max(1.0 - abs(1.0 - det), 0.0)
+
+
+def overlap_ncc(height_a: np.ndarray, height_b: np.ndarray, matrix_px: np.ndarray) -> tuple[float, float]:
+    """(normalised cross-correlation of A and B warped into A, overlap fraction of A's area)."""
+    h, w = height_a.shape
+    warped = cv2.warpAffine(height_b, matrix_px, (w, h), flags=cv2.INTER_LINEAR, borderValue=np.nan)
+    valid = np.isfinite(warped)
+    frac = float(valid.mean())
+    if valid.sum() < 16:
+        return 0.0, frac
+    a = height_a[valid].astype(np.float64)
+    b = warped[valid].astype(np.float64)
+    a -= a.mean()
+    b -= b.mean()
+    den = np.sqrt((a * a).sum() * (b * b).sum())
+    if den < 1e-18:
+        return 0.0, frac
+    return float((a * b).sum() / den), frac
+
+
+def _ecc_refine(height_a: np.ndarray, height_b: np.ndarray, matrix_px: np.ndarray) -> np.ndarray:
+    """Sub-pixel polish of a B->A rigid transform by ECC on the band-passed heights."""
+    # ECC warps the input (A) into the template (B) frame: invert B->A to get A->B.
+    inv = cv2.invertAffineTransform(matrix_px).astype(np.float32)
+    za = height_a - cv2.GaussianBlur(height_a, (0, 0), 8.0)
+    zb = height_b - cv2.GaussianBlur(height_b, (0, 0), 8.0)
+    try:
+        _, warp = cv2.findTransformECC(zb, za, inv, cv2.MOTION_EUCLIDEAN,
+                                       (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 1e-5),
+                                       None, 3)
+    except cv2.error:
+        return matrix_px
+    new = cv2.invertAffineTransform(warp).astype(np.float64)
+    # ECC can wander on flat regions: keep it only when it is a small correction.
+    if np.abs(new[:, 2] - matrix_px[:, 2]).max() > 3.0 or np.abs(new[:, :2] - matrix_px[:, :2]).max() > 0.05:
+        return matrix_px
+    return new
+
+
+def _dense_fourier_mellin(height_a: np.ndarray, height_b: np.ndarray) -> tuple[np.ndarray, float]:
+    """B->A rigid estimate by log-polar phase correlation of the magnitude spectra (rotation, with
+    the 180 degree ambiguity resolved by correlation) then phase correlation (translation)."""
+    h, w = height_a.shape
+    win = cv2.createHanningWindow((w, h), cv2.CV_32F)
+
+    def logpolar_mag(z: np.ndarray) -> np.ndarray:
+        f = np.fft.fftshift(np.abs(np.fft.fft2((z - z.mean()) * win)))
+        f = np.log1p(f).astype(np.float32)
+        radius = min(h, w) / 2.0
+        return cv2.warpPolar(f, (0, 0), (w / 2.0, h / 2.0), radius, cv2.WARP_POLAR_LOG + cv2.INTER_LINEAR)
+
+    la, lb = logpolar_mag(height_a), logpolar_mag(height_b)
+    (_, dy), _ = cv2.phaseCorrelate(lb, la)
+    angle = -360.0 * dy / la.shape[0]
+    best = (None, -2.0)
+    for cand in (angle, angle + 180.0):
+        rot = cv2.getRotationMatrix2D(((w - 1) / 2.0, (h - 1) / 2.0), -cand, 1.0)
+        rb = cv2.warpAffine(height_b, rot, (w, h), flags=cv2.INTER_LINEAR)
+        (sx, sy), _ = cv2.phaseCorrelate(rb * win, height_a * win)
+        m = rot.copy()
+        m[:, 2] += (sx, sy)
+        ncc, _ = overlap_ncc(height_a, height_b, m)
+        if ncc > best[1]:
+            best = (m, ncc)
+    return best[0], best[1]  # type: ignore[return-value]
+
+
+def _rotation_is_observable(height_a: np.ndarray, height_b: np.ndarray, m: np.ndarray, ncc: float,
+                            probe_deg: float = 8.0) -> bool:
+    """A dense answer is trusted only if rotating it by +-probe_deg about B's content clearly lowers
+    the correlation (a lone dome or a flat frame is rotation-symmetric: refuse)."""
+    h, w = height_b.shape
+    ys, xs = np.nonzero(np.abs(height_b) > 0.2 * float(np.abs(height_b).max() + 1e-12))
+    c = (float(xs.mean()), float(ys.mean())) if len(xs) else ((w - 1) / 2.0, (h - 1) / 2.0)
+    worst = -1.0
+    for d in (-probe_deg, probe_deg):
+        r = cv2.getRotationMatrix2D(c, d, 1.0)
+        r3 = np.vstack([r, [0, 0, 1]])
+        m3 = np.vstack([m, [0, 0, 1]])
+        worst = max(worst, overlap_ncc(height_a, height_b, (m3 @ r3)[:2])[0])
+    return ncc - worst > 0.1
+
+
+def _result(ok: bool, m_px: np.ndarray | None, shape_a: tuple[int, int], shape_b: tuple[int, int],
+            mm_per_px: tuple[float, float], conf: float, inliers: int, method: str, reason: str | None,
+            matches: int, ncc: float) -> RegistrationResult:
+    if not ok or m_px is None:
+        return RegistrationResult(False, None, float("nan"), np.full(2, np.nan), float(conf), int(inliers),
+                                  method, reason, None, matches, ncc)
+    sx, sy = mm_per_px
+    s = np.diag([sx, sy])
+    s_inv = np.diag([1.0 / sx, 1.0 / sy])
+    ca = np.array([(shape_a[1] - 1) / 2.0, (shape_a[0] - 1) / 2.0])
+    cb = np.array([(shape_b[1] - 1) / 2.0, (shape_b[0] - 1) / 2.0])
+    r = m_px[:, :2]
+    t = m_px[:, 2]
+    r_mm = s @ r @ s_inv
+    t_mm = s @ (r @ cb + t - ca)
+    mat = np.hstack([r_mm, t_mm[:, None]])
+    rot = float(np.degrees(np.arctan2(r[1, 0], r[0, 0])))
+    return RegistrationResult(True, mat, rot, t_mm, float(conf), int(inliers), method, None, m_px, matches, ncc)
+
+
+def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float | tuple[float, float],
+             params: RegistrationParams | None = None, features_a: Features | None = None,
+             **knobs: object) -> RegistrationResult:
+    """Register height map B (mm) onto height map A (mm): the rigid transform taking B into A.
+
+    mm_per_px: scalar or (x, y) pixel pitch. features_a: precomputed :func:`extract_features` of A
+    (a map matched many times). Knobs override :class:`RegistrationParams` fields.
+    """
+    if params is None:
+        params = RegistrationParams(**knobs)  # type: ignore[arg-type]
+    elif knobs:
+        raise ValueError("pass either params or individual knobs, not both")
+    a = _check_height(height_a_mm, "height_a_mm")
+    b = _check_height(height_b_mm, "height_b_mm")
+    scale = (float(mm_per_px), float(mm_per_px)) if np.isscalar(mm_per_px) else tuple(map(float, mm_per_px))  # type: ignore[arg-type]
+    if not all(np.isfinite(v) and v > 0 for v in scale):
+        raise ValueError(f"mm_per_px must be positive, got {mm_per_px!r}")
+    shapes = (a.shape, b.shape)
+
+    def refuse(reason: str, method: str, conf: float = 0.0, inl: int = 0, matches: int = 0,
+               ncc: float = float("nan")) -> RegistrationResult:
+        return _result(False, None, *shapes, scale, conf, inl, method, reason, matches, ncc)  # type: ignore[arg-type]
+
+    # A (near) flat map has nothing to register against.
+    if float(np.ptp(a)) < 1e-6 or float(np.ptp(b)) < 1e-6:
+        return refuse(INSUFFICIENT_TEXTURE, "none")
+    fa = features_a if features_a is not None else extract_features(a, params)
+    fb = extract_features(b, params)
+    pa, pb = _match(fa, fb)
+    method = params.detector
+    keypoint_reason = INSUFFICIENT_TEXTURE
+    conf, n_inl = 0.0, 0
+    if len(pa) >= params.min_inliers:
+        m, mask = ransac_rigid(pb, pa, params.ransac_iters, params.inlier_px, params.seed)
+        n_inl = int(mask.sum())
+        if m is not None and n_inl >= params.min_inliers:
+            conf = homography_confidence(pb[mask], pa[mask])
+            if conf >= params.min_confidence:
+                if params.refine_ecc:
+                    m = _ecc_refine(a, b, m)
+                ncc, overlap = overlap_ncc(a, b, m)
+                if ncc >= params.min_ncc and overlap >= params.min_overlap:
+                    return _result(True, m, *shapes, scale, conf, n_inl, method, None, len(pa), ncc)  # type: ignore[arg-type]
+                keypoint_reason = MISMATCH
+            else:
+                keypoint_reason = LOW_CONFIDENCE
+        else:
+            keypoint_reason = NO_CONSENSUS
+    if params.dense_fallback and a.shape == b.shape:
+        m, ncc = _dense_fourier_mellin(a, b)
+        if m is not None and ncc >= max(params.min_ncc, 0.8):
+            _, overlap = overlap_ncc(a, b, m)
+            if overlap >= params.min_overlap and _rotation_is_observable(a, b, m, ncc):
+                return _result(True, m, *shapes, scale, 1.0, 0, "dense_fourier_mellin", None, len(pa), ncc)  # type: ignore[arg-type]
+        return refuse(keypoint_reason if keypoint_reason != NO_CONSENSUS else INSUFFICIENT_TEXTURE,
+                      method + "+dense", conf, n_inl, len(pa), ncc)
+    return refuse(keypoint_reason, method, conf, n_inl, len(pa))
