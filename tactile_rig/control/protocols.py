@@ -101,3 +101,49 @@ class Trace:
         for col in self.channels.values():
             if len(col) < n:
                 col.append(float("nan"))
+
+
+# -- additions for the closed-loop controllers (issue 7) -----------------------------------------
+
+
+@dataclass
+class TouchReading:
+    """A sensor-agnostic view of one tactile frame, what the controllers consume.
+
+    ``force_n`` is (shear x, shear y, normal z) in the sensor frame and ``torque_nmm`` the moments
+    about the sensor axes; with an uncalibrated FingerVision they are pixel units instead (the
+    thresholds of a controller are then in those units too). ``t_s`` is the capture time on the
+    controller's clock.
+    """
+
+    t_s: float
+    force_n: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    torque_nmm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    contact: bool = False
+    slip: bool = False
+    slip_mm: float = 0.0  # object motion relative to the skin since the previous frame
+    object_area_px: float = 0.0
+    object_centroid_px: tuple[float, float] | None = None
+    object_orientation_deg: float | None = None
+
+
+@dataclass
+class Localization:
+    """Where the grasped object lies in the sensor's tactile map (a GelSight ``localize`` result).
+
+    ``x_mm``/``y_mm``/``theta_deg``: the object frame in the map (sensor) frame, ``m_T_o``;
+    ``confidence`` ∈ [0, 1] (the paper accepts c ≥ 0.98).
+    """
+
+    t_s: float
+    x_mm: float
+    y_mm: float
+    theta_deg: float
+    confidence: float
+
+
+@runtime_checkable
+class ForceGauge(Protocol):
+    """A load reading in newtons (the scale under the assembly fixture)."""
+
+    def read_n(self, timeout_s: float | None = None) -> float: ...

@@ -67,7 +67,7 @@ class FingerVisionRenderer:
 
     def __init__(self, shape_px: tuple[int, int] = (240, 320), *, grid_cols: int = 7, grid_rows: int = 4,
                  pitch_px: float | None = None, marker_radius_px: float | None = None, jitter_px: float = 1.5,
-                 size_jitter: float = 0.22, fisheye_k: float = 0.9, load_growth: float = 0.35,
+                 size_jitter: float = 0.1, fisheye_k: float = 1.0, load_growth: float = 0.35,
                  noise_sigma: float = 2.0, seed: int | np.random.Generator | None = 0) -> None:
         rows, cols = int(shape_px[0]), int(shape_px[1])
         if rows < 16 or cols < 16:
@@ -75,7 +75,7 @@ class FingerVisionRenderer:
         self.shape_px = (rows, cols)
         scale = cols / 320.0
         self.pitch_px = float(pitch_px) if pitch_px is not None else 60.0 * scale
-        self.marker_radius_px = float(marker_radius_px) if marker_radius_px is not None else 4.6 * scale
+        self.marker_radius_px = float(marker_radius_px) if marker_radius_px is not None else 6.1 * scale
         check_range("pitch_px", self.pitch_px, 4.0, 1e4, "px")
         check_range("marker_radius_px", self.marker_radius_px, 0.5, self.pitch_px / 2, "px")
         self.fisheye_k = check_range("fisheye_k", float(fisheye_k), 0.0, 5.0)
@@ -110,10 +110,10 @@ class FingerVisionRenderer:
         skin = skin + self._rng.normal(0.0, jitter_px, skin.shape)
         img, mag = self._distort(skin)
         img = img + np.array([(cols - 1) / 2.0, (rows - 1) / 2.0])
-        radius = self.marker_radius_px * mag * (1.0 + self._rng.normal(0.0, size_jitter, len(mag)))
+        radius = self.marker_radius_px * mag**2 * (1.0 + self._rng.normal(0.0, size_jitter, len(mag)))
         radius = np.clip(radius, 0.6, None)
-        keep = ((img[:, 0] > -radius) & (img[:, 0] < cols - 1 + radius)
-                & (img[:, 1] > -radius) & (img[:, 1] < rows - 1 + radius))
+        # Only dots whose centre is in view: a sliver of an outside dot has no usable centre.
+        keep = (img[:, 0] >= 0) & (img[:, 0] <= cols - 1) & (img[:, 1] >= 0) & (img[:, 1] <= rows - 1)
         return img[keep], radius[keep]
 
     def _background(self) -> np.ndarray:

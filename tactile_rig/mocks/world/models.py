@@ -14,6 +14,11 @@ _BUILTIN = (
     "tactile_rig.mocks.world.objects",
     "tactile_rig.mocks.world.gelsight_render",
     "tactile_rig.mocks.world.fingervision_render",
+    "tactile_rig.mocks.world.arm",
+    "tactile_rig.mocks.world.table",
+    "tactile_rig.mocks.world.hand",
+    "tactile_rig.mocks.world.friction",
+    "tactile_rig.mocks.world.sim_gripper",
 )
 
 for _name in _BUILTIN:

@@ -157,12 +157,14 @@ def plate_with_features(width_mm: float = 30.0, length_mm: float = 24.0, thickne
 
 
 def usb_connector_part(mm_per_px: float = 0.05, *, name: str = "usb_connector_part") -> HeightField:
-    """A 28 x 22 mm part (larger than a GelSight field of view) with a USB-A-like connector.
+    """A 28 x 22 mm panel (larger than a GelSight field of view) with a USB-A-like receptacle.
 
-    Features, heights in mm above the part's base: a 2 mm plate; a USB-A shell (12 x 4.5 mm outline,
-    0.6 mm wall) rising 0.6 mm above the plate with its tongue inside (0.3 mm) and two latch
-    windows; two 2.4 mm mounting holes; an edge chamfer; a row of three small ridges; a notch in one
-    corner, so no rotation of the part looks like another.
+    Heights in mm above the part's base; the top face is flat (2 mm) so a press touches all of it
+    and the features show as edges: the receptacle (a 12 x 4.5 mm cavity, 1.5 mm deep, with its
+    tongue 0.15 mm below the face and two latch windows), five mounting holes of different sizes, a
+    scale bar of three grooves of decreasing length, a 2 x 3 grid of pits, a slot, a knurled patch,
+    a chamfered edge and a notched corner, so no rotation or mirror of the part looks like another
+    and every sensor-sized window holds several features.
     """
     width_mm, length_mm, plate = 28.0, 22.0, 2.0
     xx, yy = _grid_mm(width_mm, length_mm, mm_per_px)
@@ -170,31 +172,32 @@ def usb_connector_part(mm_per_px: float = 0.05, *, name: str = "usb_connector_pa
     # Chamfer the outer 1 mm so the plate edge is a slope, not a cliff.
     edge = np.minimum(width_mm / 2 - np.abs(xx), length_mm / 2 - np.abs(yy))
     h = np.where(edge < 1.0, plate * np.clip(0.4 + 0.6 * edge, 0.0, 1.0), h)
-    # Corner notch (asymmetry).
-    h[(xx > width_mm / 2 - 5) & (yy < -length_mm / 2 + 4)] = 0.0
-    # USB-A shell: a rectangular rim with a hollow inside and a tongue.
-    sx, sy, w, l, wall = -3.0, 2.0, 12.0, 4.5, 0.6
-    outer = (np.abs(xx - sx) <= w / 2) & (np.abs(yy - sy) <= l / 2)
-    inner = (np.abs(xx - sx) <= w / 2 - wall) & (np.abs(yy - sy) <= l / 2 - wall)
-    h[outer] = plate + 0.6
-    h[inner] = plate - 0.4
-    tongue = (np.abs(xx - sx) <= w / 2 - 1.2) & (yy - sy >= -0.2) & (yy - sy <= 0.9)
-    h[tongue] = plate + 0.3
-    for lx in (sx - 3.0, sx + 3.0):  # latch windows in the shell's top wall
-        h[(np.abs(xx - lx) <= 0.8) & (np.abs(yy - (sy - l / 2 + wall / 2)) <= wall / 2)] = plate
-    # Mounting holes.
-    for hx, hy in ((9.5, 5.5), (-10.0, -6.0)):
-        h[(xx - hx) ** 2 + (yy - hy) ** 2 <= 1.2**2] = 0.0
-    # Ridges of decreasing length (a scale bar that breaks mirror symmetry).
+    h[(xx > width_mm / 2 - 5) & (yy < -length_mm / 2 + 4)] = 0.0  # corner notch
+    # Receptacle: a cavity with the tongue inside and latch windows on one long side.
+    sx, sy, w, l = -3.0, 2.0, 12.0, 4.5
+    h[(np.abs(xx - sx) <= w / 2) & (np.abs(yy - sy) <= l / 2)] = plate - 1.5
+    h[(np.abs(xx - sx) <= w / 2 - 1.2) & (yy - sy >= -0.3) & (yy - sy <= 0.9)] = plate - 0.15
+    for lx in (sx - 3.0, sx + 3.0):
+        h[(np.abs(xx - lx) <= 0.8) & (yy - sy >= -l / 2 - 0.9) & (yy - sy < -l / 2)] = plate - 0.8
+    # Mounting holes (through).
+    for hx, hy, hr in ((9.5, 5.5, 1.2), (-10.0, -6.0, 1.2), (-9.5, 7.0, 0.8), (4.0, -7.5, 0.6), (11.0, -2.0, 0.9)):
+        h[(xx - hx) ** 2 + (yy - hy) ** 2 <= hr * hr] = 0.0
+    # Scale bar: grooves of decreasing length.
     for i, length in enumerate((6.0, 4.0, 2.5)):
-        ry = -4.5 - 1.6 * i
-        h[(np.abs(yy - ry) <= 0.35) & (xx >= 1.0) & (xx <= 1.0 + length)] = plate + 0.3
-    # Text-like bumps: a small dome grid beside the connector.
+        ry = -3.5 - 1.4 * i
+        h[(np.abs(yy - ry) <= 0.3) & (xx >= -4.0) & (xx <= -4.0 + length)] = plate - 0.3
+    # A 2 x 3 grid of pits beside the receptacle.
     for i in range(3):
         for j in range(2):
-            cx, cy = 7.5 + 1.4 * i, -1.0 + 1.4 * j
-            d2 = (xx - cx) ** 2 + (yy - cy) ** 2
-            h = np.where(d2 <= 0.45**2, np.maximum(h, plate + 0.25 * np.sqrt(np.maximum(0, 1 - d2 / 0.2025))), h)
+            h[(xx - (5.5 + 1.3 * i)) ** 2 + (yy - (1.0 + 1.3 * j)) ** 2 <= 0.4**2] = plate - 0.4
+    # A slanted slot.
+    u = (xx + 8.0) * math.cos(0.6) + (yy - 1.0) * math.sin(0.6)
+    v = -(xx + 8.0) * math.sin(0.6) + (yy - 1.0) * math.cos(0.6)
+    h[(np.abs(u) <= 2.5) & (np.abs(v) <= 0.45)] = plate - 1.0
+    # Knurled patch: shallow cross-hatch (0.8 mm period, 0.1 mm deep) in one quadrant.
+    patch = (xx > 1.0) & (xx < 8.0) & (yy > 4.5) & (yy < 9.5)
+    knurl = 0.05 * (np.sin(2 * np.pi * (xx + yy) / 0.8) + np.sin(2 * np.pi * (xx - yy) / 0.8)) - 0.1
+    h = np.where(patch, h + knurl.astype(np.float32), h)
     return HeightField(h, mm_per_px, name=name, colour_bgr=(90, 90, 95))
 
 

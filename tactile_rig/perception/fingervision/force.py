@@ -80,8 +80,8 @@ def estimate_force_torque(
     r = rest - np.array([(w - 1) / 2.0, (h - 1) / 2.0])
     if params.mm_per_px is not None:
         r = r * params.mm_per_px
-    r3 = np.column_stack([r, np.zeros(n)])
-    tau = np.cross(r3, f) if n else np.zeros((0, 3))
+    # r x f with r = (rx, ry, 0)
+    tau = np.column_stack([r[:, 1] * f[:, 2], -r[:, 0] * f[:, 2], r[:, 0] * f[:, 1] - r[:, 1] * f[:, 0]])
     per = np.where(use[:, None], f, 0.0)
     if not np.any(use):
         return ForceTorque(np.zeros(3), np.zeros(3), per, 0)

@@ -122,7 +122,8 @@ class MarkerBaseline:
         return int(self.positions_px.shape[0])
 
 
-def _check_frame(frame_bgr: np.ndarray) -> np.ndarray:
+def check_frame_bgr(frame_bgr: np.ndarray) -> np.ndarray:
+    """Validate a frame (HxW or HxWx{1,3}); returns it as uint8 (floats are clipped to 0..255)."""
     if not isinstance(frame_bgr, np.ndarray) or frame_bgr.ndim not in (2, 3) or frame_bgr.size == 0:
         raise ValueError(
             f"frame_bgr: expected a non-empty HxW or HxWx3 uint8 array, got "
@@ -140,7 +141,7 @@ def _check_frame(frame_bgr: np.ndarray) -> np.ndarray:
 
 def value_channel(frame_bgr: np.ndarray) -> np.ndarray:
     """HSV value (max over B, G, R) as uint8: black ink is dark in every channel, coloured print is not."""
-    frame_bgr = _check_frame(frame_bgr)
+    frame_bgr = check_frame_bgr(frame_bgr)
     if frame_bgr.ndim == 2:
         return frame_bgr
     if frame_bgr.shape[2] == 1:
@@ -198,14 +199,16 @@ def refine_centroids(
     half_px: int = 6,
     rel_threshold: float = 0.5,
     iterations: int = 2,
+    disc_margin_px: float | None = 1.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Sub-pixel centroids by thresholded moments of the contrast in a window around each centre.
 
     Vectorised over markers. Returns ``(positions_px (N,2), sizes_px (N,), peak (N,))``. Weights are
     ``max(0, c - t * peak)``: subtracting the threshold keeps the centroid of a symmetric dot unbiased
     and silences the texture around it. The size is the diameter of the disc whose area equals the
-    peak-normalised contrast mass above a quarter of the peak. A window with no contrast keeps its
-    centre and reports peak 0.
+    peak-normalised contrast mass above a quarter of the peak. After the first pass only a disc of
+    the half-maximum radius + ``disc_margin_px`` around the last centroid counts (None: the whole
+    window). A window with no contrast keeps its centre and reports peak 0.
     """
     centres = np.asarray(centres_xy, dtype=np.float64).reshape(-1, 2)
     n = centres.shape[0]
@@ -216,9 +219,16 @@ def refine_centroids(
     pos = centres.copy()
     peak = np.zeros(n)
     size = np.zeros(n)
-    for _ in range(max(1, iterations)):
+    radius = np.full(n, np.inf)
+    for it in range(max(1, iterations)):
         win, c = _gather_windows(contrast, pos, half_px, padded)
         win = win.astype(np.float64)
+        if it > 0 and disc_margin_px is not None:
+            # keep only a disc around the last centroid: print touching a marker stops pulling it
+            rx = c[:, 0, None] + offs[None, :] - pos[:, 0, None]
+            ry = c[:, 1, None] + offs[None, :] - pos[:, 1, None]
+            inside = (rx[:, None, :] ** 2 + ry[:, :, None] ** 2) <= (radius ** 2)[:, None, None]
+            win = np.where(inside, win, 0.0)
         peak = win.reshape(n, -1).max(axis=1)
         wt = np.maximum(win - rel_threshold * peak[:, None, None], 0.0)
         mass = wt.sum(axis=(1, 2))
@@ -231,6 +241,9 @@ def refine_centroids(
         norm = np.clip(win / np.where(peak > 0, peak, 1.0)[:, None, None], 0.0, 1.0)
         area = np.where(norm > 0.25, norm, 0.0).sum(axis=(1, 2))
         size = 2.0 * np.sqrt(area / np.pi)
+        if disc_margin_px is not None:
+            half_max_r = np.sqrt(np.count_nonzero(wt > 0, axis=(1, 2)) / np.pi)
+            radius = half_max_r + disc_margin_px
     return pos, np.where(peak > 0, size, 0.0), peak
 
 
@@ -301,9 +314,9 @@ def detect_markers_reference(
     frame_bgr: np.ndarray, params: ReferenceBlobParams = ReferenceBlobParams()
 ) -> Detections:
     """Baseline: the reference setting (HSV ``inRange`` V <= 42, plain SimpleBlobDetector), no refinement."""
-    frame_bgr = _check_frame(frame_bgr)
-    if frame_bgr.ndim == 2:
-        frame_bgr = cv2.cvtColor(frame_bgr, cv2.COLOR_GRAY2BGR)
+    frame_bgr = check_frame_bgr(frame_bgr)
+    if frame_bgr.ndim == 2 or frame_bgr.shape[2] == 1:
+        frame_bgr = cv2.cvtColor(frame_bgr.reshape(frame_bgr.shape[:2]), cv2.COLOR_GRAY2BGR)
     hsv = cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2HSV)
     dark = cv2.inRange(hsv, (0, 0, 0), (params.thresh_h, params.thresh_s, params.thresh_v))
     img = cv2.bitwise_not(dark)  # dark markers on white, as SimpleBlobDetector expects by default
@@ -337,15 +350,16 @@ def build_baseline(
     detections: list[Detections],
     match_dist_px: float = 3.0,
     dist_max_px: float = 0.8,
-    size_max_px: float = 0.8,
+    size_max_px: float = 1.5,
     min_fraction: float = 1.0,
 ) -> MarkerBaseline:
-    """Average marker rest positions and sizes over N no-contact frames; flag unsteady markers invalid.
+    """Marker rest positions and sizes from N no-contact frames, with a per-marker valid flag.
 
     Markers are seeded from every frame (a marker missed in frame 0 still gets an entry) and matched by
-    nearest neighbour within ``match_dist_px``. A marker is valid when it was found in at least
-    ``min_fraction`` of the frames, its positions stay within ``dist_max_px`` of their mean and its
-    sizes within ``size_max_px`` (the reference's DistMaxCalib / DSMaxCalib idea).
+    nearest neighbour within ``match_dist_px``. Per marker, the detections within ``dist_max_px`` of
+    the median position and ``size_max_px`` of the median size are inliers (the reference's
+    DistMaxCalib / DSMaxCalib, made robust to one bad frame); the rest position and size are the
+    inlier means, and the marker is valid when inliers make up at least ``min_fraction`` of the frames.
     """
     if not detections:
         raise ValueError("build_baseline: expected at least one frame of detections, got none")
@@ -365,7 +379,7 @@ def build_baseline(
                 used.add(len(centres) - 1)
             else:
                 tracks[best].append((p, float(s)))
-                centres[best] = np.mean([q for q, _ in tracks[best]], axis=0)
+                centres[best] = np.median([q for q, _ in tracks[best]], axis=0)
                 used.add(best)
     n_frames = len(detections)
     pos = np.zeros((len(tracks), 2))
@@ -374,9 +388,11 @@ def build_baseline(
     for k, tr in enumerate(tracks):
         ps = np.array([q for q, _ in tr])
         ss = np.array([s for _, s in tr])
-        pos[k] = ps.mean(axis=0)
-        size[k] = ss.mean()
-        steady = np.hypot(*(ps - pos[k]).T).max() <= dist_max_px and np.abs(ss - size[k]).max() <= size_max_px
-        valid[k] = len(tr) >= min_fraction * n_frames - 1e-9 and steady
+        inl = (np.hypot(*(ps - np.median(ps, axis=0)).T) <= dist_max_px) & (np.abs(ss - np.median(ss)) <= size_max_px)
+        valid[k] = inl.sum() >= min_fraction * n_frames - 1e-9
+        if not inl.any():  # no consensus: keep the median as the rest position, flagged invalid
+            inl[:] = True
+        pos[k] = ps[inl].mean(axis=0)
+        size[k] = ss[inl].mean()
     order = np.lexsort((pos[:, 0], pos[:, 1])) if len(tracks) else np.zeros(0, dtype=np.int64)
     return MarkerBaseline(pos[order].reshape(-1, 2), size[order], valid[order])

@@ -9,8 +9,11 @@ Lucas-Kanade step on a quarter-size frame; the full-frame blob detector runs onl
 
 from __future__ import annotations
 
+import dataclasses
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -43,11 +46,35 @@ class FingerVisionParams:
     """Of those, frames used for the background histogram (NCalibBGFrames)."""
     baseline_match_px: float = 3.0
     baseline_dist_max_px: float = 0.8
-    baseline_size_max_px: float = 1.0
+    baseline_size_max_px: float = 1.5
     baseline_min_fraction: float = 0.6
     """A marker found in fewer calibration frames than this fraction is flagged invalid."""
     marker_exclude_margin_px: float = 2.0
     """Marker discs (radius + margin) are left out of the slip estimate."""
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any]) -> FingerVisionParams:
+        """Build from a nested mapping (a parsed TOML/JSON config): sections ``detector``, ``tracker``,
+        ``force``, ``proximity`` plus the top-level calibration keys. Unknown keys are errors."""
+        if not isinstance(data, Mapping):
+            raise ValueError(f"FingerVision config: expected a table/object, got {type(data).__name__}")
+        sections = {f.name: f for f in dataclasses.fields(cls)}
+        kwargs: dict[str, Any] = {}
+        for key, value in data.items():
+            if key not in sections:
+                raise ValueError(f"FingerVision config: unknown key {key!r}; expected one of {sorted(sections)}")
+            default = getattr(cls(), key)
+            if dataclasses.is_dataclass(default):
+                if not isinstance(value, Mapping):
+                    raise ValueError(f"FingerVision config: [{key}] must be a table, got {value!r}")
+                known = {f.name for f in dataclasses.fields(default)}
+                bad = sorted(set(value) - known)
+                if bad:
+                    raise ValueError(f"FingerVision config: unknown key(s) {bad} in [{key}]; expected some of {sorted(known)}")
+                kwargs[key] = dataclasses.replace(default, **dict(value))
+            else:
+                kwargs[key] = value
+        return cls(**kwargs)
 
 
 @dataclass(frozen=True)
@@ -126,7 +153,6 @@ class FingerVision:
         p = self.params
         base = build_baseline(self._calib, p.baseline_match_px, p.baseline_dist_max_px,
                               p.baseline_size_max_px, p.baseline_min_fraction)
-        # keep only markers seen often enough to have a trustworthy rest position
         self.set_baseline(base)
         if self._bg_frames:
             self.proximity.set_background(self._bg_frames)
@@ -163,7 +189,7 @@ class FingerVision:
                                    st.valid, (w, h), self.params.force)
         t3 = time.perf_counter()
         radius = float(np.max(st.sizes_px, initial=0.0)) / 2 + self.params.marker_exclude_margin_px
-        prox = self.proximity.process(frame_bgr, st.positions_px, radius)
+        prox = self.proximity.process(frame_bgr, st.positions_px, radius, value)
         t4 = time.perf_counter()
         mom = prox.moments
         return FingerVisionResult(

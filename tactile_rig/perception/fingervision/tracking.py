@@ -47,6 +47,10 @@ class TrackerParams:
     """Two markers measured closer than this are both rejected this frame (ambiguous)."""
     n_reset: int = 3
     """Consecutive misses after which a marker is reset to its rest position (NReset)."""
+    n_confirm: int = 2
+    """A lost marker is re-acquired after this many consecutive frames of a dot near its rest position..."""
+    confirm_motion_px: float = 1.0
+    """...that moved less than this between those frames (a passing dot is not a returning marker)."""
     use_kalman: bool = True
     dt_s: float = 1.0 / 15.0
     """Kalman time step used when the frames carry no timestamps."""
@@ -183,6 +187,8 @@ class MarkerTracker:
         self.sizes_px = baseline.sizes_px.astype(np.float64).copy().reshape(n)
         self.misses = np.zeros(n, dtype=np.int64)
         self.lost = np.zeros(n, dtype=bool)
+        self._confirm = np.zeros(n, dtype=np.int64)
+        self._confirm_pos = np.zeros((n, 2))
         self.kalman = (
             KalmanBank(self.positions_px, self.sizes_px, params.measurement_noise, params.process_noise)
             if params.use_kalman
@@ -232,6 +238,13 @@ class MarkerTracker:
             d = np.hypot(m[:, None, 0] - m[None, :, 0], m[:, None, 1] - m[None, :, 1])
             np.fill_diagonal(d, np.inf)
             ok[idx[(d < p.min_separation_px).any(axis=1)]] = False
+
+        # a lost marker comes back only on a dot that stays put for n_confirm frames
+        seen = ok & self.lost
+        still = np.hypot(*(meas - self._confirm_pos).T) <= p.confirm_motion_px
+        self._confirm = np.where(seen, np.where(still & (self._confirm > 0), self._confirm + 1, 1), 0)
+        self._confirm_pos = np.where(seen[:, None], meas, self._confirm_pos)
+        ok &= ~self.lost | (self._confirm >= p.n_confirm)
 
         if self.kalman is not None:
             z = np.column_stack([meas, size])

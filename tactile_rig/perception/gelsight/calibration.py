@@ -137,7 +137,7 @@ class FitOptions:
     are used with slope 0, subsampled by ``outside_stride``.
     """
 
-    rim_px: float = 1.0
+    rim_px: float = 2.0
     outside_px: float = 3.0
     outside_stride: int = 3
     max_radius_fraction: float = DEFAULT_MAX_RADIUS_FRACTION
@@ -204,8 +204,7 @@ class GelSightCalibration:
     # -- evaluation ---------------------------------------------------------------------------
     def _prepare(self) -> None:
         h, w = self.shape
-        self._bg16 = self.background.astype(np.int16)
-        feats0 = pixel_features(np.zeros((h, w, 3), np.float32))
+        self._g0: np.ndarray | None = None
         if isinstance(self.model, LutModel):
             self._setup_table(self.model.table.reshape(-1, 2), self.model.bins, self.model.colour_range,
                               np.zeros(h * w, np.int64))
@@ -213,16 +212,24 @@ class GelSightCalibration:
             self._bake(self.bake_bins)
         else:
             self._table = None
-        self._g0 = self._evaluate(self._bg16 * 0).reshape(h, w, 2)
-        # Background's own slope (non-zero for position-aware models) is subtracted from every frame.
-        del feats0
+            # Background's own slope (non-zero for position-aware models), subtracted from every frame.
+            gx0, gy0 = self._evaluate(np.zeros((h, w, 3), np.int16))
+            self._g0 = np.stack([gx0, gy0], -1)
 
     def _setup_table(self, table: np.ndarray, bins: int, colour_range: float, cell_offset: np.ndarray) -> None:
-        self._table = np.ascontiguousarray(table, np.float32)
-        self._bins = bins
         d = np.arange(-255, 256, dtype=np.float64)
         idx = np.clip(np.floor((d + colour_range) * bins / (2 * colour_range)), 0, bins - 1).astype(np.int32)
-        # Per-channel contributions to the flat table index, looked up by the colour difference.
+        zero_bin = int(idx[255])
+        # The background's own slope is the table entry of a zero difference in each position cell:
+        # subtracting it inside the table costs nothing per frame.
+        table = np.asarray(table, np.float32).reshape(-1, bins ** 3, 2)
+        table = table - table[:, (zero_bin * bins + zero_bin) * bins + zero_bin][:, None, :]
+        table = table.reshape(-1, 2)
+        self._table = table
+        self._tab_x = np.ascontiguousarray(table[:, 0])
+        self._tab_y = np.ascontiguousarray(table[:, 1])
+        self._bins = bins
+        # Per-channel contributions to the flat table index, looked up by the colour difference + 255.
         self._lut_b = (idx * bins * bins).astype(np.int32)
         self._lut_g = (idx * bins).astype(np.int32)
         self._lut_r = idx.astype(np.int32)
@@ -246,14 +253,20 @@ class GelSightCalibration:
         cell = np.minimum(yy * cy // h, cy - 1) * cx + np.minimum(xx * cx // w, cx - 1)
         self._setup_table(table, bins, self.colour_range, cell * bins ** 3)
 
-    def _evaluate(self, diff16: np.ndarray) -> np.ndarray:
+    def _evaluate(self, diff16: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if self._table is not None:
-            d = diff16 + 255
-            flat = self._lut_b[d[..., 0]] + self._lut_g[d[..., 1]] + self._lut_r[d[..., 2]] + self._cell_offset
-            return self._table[flat]
+            b, g, r = cv2.split(diff16)
+            flat = np.take(self._lut_b, b + 255)
+            flat += np.take(self._lut_g, g + 255)
+            flat += np.take(self._lut_r, r + 255)
+            flat += self._cell_offset
+            return np.take(self._tab_x, flat), np.take(self._tab_y, flat)
         cr = self.colour_range
         feats = pixel_features(np.clip(diff16.astype(np.float32), -cr, cr))
-        return self.model.predict(feats).reshape(diff16.shape[0], diff16.shape[1], 2)  # type: ignore[attr-defined]
+        g = self.model.predict(feats).reshape(diff16.shape[0], diff16.shape[1], 2)  # type: ignore[attr-defined]
+        if self._g0 is not None:
+            g = g - self._g0
+        return np.ascontiguousarray(g[..., 0]), np.ascontiguousarray(g[..., 1])
 
     def diff(self, frame_bgr: np.ndarray) -> np.ndarray:
         """Frame minus background as int16 (HxWx3), after checking the frame."""
@@ -262,9 +275,7 @@ class GelSightCalibration:
 
     def gradients(self, frame_bgr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Slopes (gx, gy) float32 HxW of a BGR uint8 frame of the calibration's size."""
-        g = self._evaluate(self.diff(frame_bgr))
-        g = g - self._g0
-        return g[..., 0], g[..., 1]
+        return self._evaluate(self.diff(frame_bgr))
 
     # -- persistence ---------------------------------------------------------------------------
     def metadata(self) -> dict:

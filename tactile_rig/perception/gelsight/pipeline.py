@@ -35,15 +35,15 @@ class Reconstructor:
         d = int(self.contact.dilate_px)
         self._kernel = (cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * d + 1, 2 * d + 1)) if d > 0 else None)
 
-    def contact_mask(self, diff16: np.ndarray) -> np.ndarray | None:
-        """Boolean HxW mask of pixels whose colour differs from the background (None: no masking)."""
+    def contact_mask(self, frame_bgr: np.ndarray) -> np.ndarray | None:
+        """Boolean HxW mask of pixels whose colour differs from the background by more than the
+        threshold in any channel (max-channel distance), grown by dilate_px (None: no masking)."""
         thr = self.contact.colour_threshold
         if thr is None:
             return None
-        # Sum of squares on int32 avoids a float conversion of the whole frame.
-        d = diff16.astype(np.int32)
-        dist2 = np.einsum("ijk,ijk->ij", d, d)
-        m = (dist2 > int(thr * thr)).view(np.uint8)
+        a = cv2.absdiff(frame_bgr, self.calibration.background)
+        b, g, r = cv2.split(a)
+        _, m = cv2.threshold(cv2.max(cv2.max(b, g), r), float(thr), 1, cv2.THRESH_BINARY)
         if self._kernel is not None:
             m = cv2.dilate(m, self._kernel)
         return m.view(bool)
@@ -51,10 +51,9 @@ class Reconstructor:
     def height_mm(self, frame_bgr: np.ndarray) -> np.ndarray:
         """Height map in mm (float32, HxW) of a BGR uint8 frame."""
         cal = self.calibration
-        diff16 = cal.diff(frame_bgr)
-        g = cal._evaluate(diff16) - cal._g0
-        mask = self.contact_mask(diff16)
-        z = self.mapper.height_mm(g[..., 0], g[..., 1], mask=mask)
+        gx, gy = cal.gradients(frame_bgr)
+        mask = self.contact_mask(frame_bgr)
+        z = self.mapper.height_mm(gx, gy, mask=mask)
         if self.contact.min_height_mm is not None:
             z = np.where(z > self.contact.min_height_mm, z, np.float32(0))
         return z

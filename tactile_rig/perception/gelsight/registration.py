@@ -55,18 +55,23 @@ class RegistrationParams:
     """Knobs (measured in docs/gelsight.md).
 
     detector: "brisk", "orb" or "both" (keypoints of both pooled); brisk_threshold / orb_features:
-    detector sensitivity; band_px: (fine, coarse) Gaussian sigmas of the band-pass rendering;
+    detector sensitivity; detect_scale: keypoints are found on the map resized by this factor (the
+    dense polish restores full-resolution accuracy); None picks the factor that makes the short side
+    ``detect_short_px``; band_px: (fine, coarse) Gaussian sigmas of the band-pass rendering;
     ransac_iters: two-pair samples; inlier_px: RANSAC residual threshold; min_inliers: fewer is a
     refusal of the keypoint answer; min_confidence: the paper's c below this is refused (the tactile
     map accepts at 0.98); min_ncc: the dense check on the overlap; dense_fallback: try Fourier–Mellin
-    when keypoints fail; refine_ecc: polish the keypoint answer with ECC (sub-pixel, slower).
+    when keypoints fail; refine: Gauss–Newton polish on dense_samples steep pixels (sub-pixel);
+    max_sigma_rot_deg / max_sigma_px: refuse when the dense fit cannot pin rotation/translation.
     """
 
-    detector: str = "brisk"
+    detector: str = "orb"
     brisk_threshold: int = 20
     brisk_octaves: int = 3
-    orb_features: int = 500
-    band_px: tuple[float, float] = (1.0, 8.0)
+    orb_features: int = 300
+    detect_scale: float | None = None
+    detect_short_px: int = 160
+    band_px: tuple[float, float] = (0.0, 4.0)
     ransac_iters: int = 256
     inlier_px: float = 2.0
     min_inliers: int = 8
@@ -74,20 +79,37 @@ class RegistrationParams:
     min_ncc: float = 0.6
     min_overlap: float = 0.2
     dense_fallback: bool = True
-    refine_ecc: bool = True
+    refine: bool = True
+    dense_samples: int = 2000
+    refine_iters: int = 5
+    max_sigma_rot_deg: float = 0.1
+    max_sigma_px: float = 0.1
     seed: int = 0
 
     def __post_init__(self) -> None:
         if self.detector not in ("brisk", "orb", "both"):
             raise ValueError(f"detector must be 'brisk', 'orb' or 'both', got {self.detector!r}")
+        if self.detect_scale is not None and not 0.1 <= self.detect_scale <= 4.0:
+            raise ValueError(f"detect_scale must be None (auto) or in [0.1, 4], got {self.detect_scale!r}")
         if self.ransac_iters < 1 or self.min_inliers < 2:
             raise ValueError("ransac_iters must be >= 1 and min_inliers >= 2")
 
 
-def _brisk(threshold: int, octaves: int) -> cv2.Feature2D:
-    if hasattr(cv2, "BRISK_create"):  # OpenCV 4.x
-        return cv2.BRISK_create(threshold, octaves)
-    return cv2.xfeatures2d.BRISK_create(threshold, octaves)  # OpenCV 5: moved to contrib
+_DETECTORS: dict[tuple, cv2.Feature2D] = {}
+
+
+def _detector(name: str, params: "RegistrationParams") -> cv2.Feature2D:
+    # Building BRISK's sampling pattern costs tens of ms: build each configuration once.
+    key = (name, params.brisk_threshold, params.brisk_octaves, params.orb_features)
+    det = _DETECTORS.get(key)
+    if det is None:
+        if name == "brisk":
+            make = cv2.BRISK_create if hasattr(cv2, "BRISK_create") else cv2.xfeatures2d.BRISK_create  # 4.x / 5.x
+            det = make(params.brisk_threshold, params.brisk_octaves)
+        else:
+            det = cv2.ORB_create(params.orb_features, edgeThreshold=15, patchSize=15, fastThreshold=5)
+        _DETECTORS[key] = det
+    return det
 
 
 def _check_height(h: object, name: str) -> np.ndarray:
@@ -100,17 +122,31 @@ def _check_height(h: object, name: str) -> np.ndarray:
     return np.nan_to_num(h.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
 
 
-def render_u8(height_mm: np.ndarray, band_px: tuple[float, float] = (1.0, 8.0)) -> np.ndarray:
-    """8-bit image for keypoints: band-passed height (difference of Gaussians) plus a little of the
-    height itself, contrast-normalised per image. Rotation-invariant (no directional shading), and
-    a smooth dome gets a ring/blob structure that FAST-style detectors fire on."""
+def _blur(z: np.ndarray, sigma: float) -> np.ndarray:
+    # Two box passes approximate a Gaussian at O(1) cost per pixel whatever the sigma.
+    if sigma <= 0:
+        return z
+    k = max(1, int(round(sigma * 1.7)))
+    k += 1 - k % 2
+    return cv2.blur(cv2.blur(z, (k, k)), (k, k))
+
+
+def render_u8(height_mm: np.ndarray, band_px: tuple[float, float] = (0.0, 4.0),
+              valid: np.ndarray | None = None) -> np.ndarray:
+    """8-bit image for keypoints: band-passed height (difference of blurs) plus a little of the
+    height itself, contrast-normalised per image (statistics over ``valid`` pixels when given, e.g.
+    the covered part of a tactile map). Rotation-invariant (no directional shading), and a smooth
+    dome gets a ring/blob structure that FAST-style detectors fire on."""
     z = height_mm.astype(np.float32)
     fine = cv2.GaussianBlur(z, (0, 0), band_px[0]) if band_px[0] > 0 else z
-    coarse = cv2.GaussianBlur(z, (0, 0), band_px[1])
-    band = fine - coarse
-    s_band = float(np.percentile(np.abs(band), 99.5)) + 1e-12
-    s_z = float(np.percentile(np.abs(z - np.median(z)), 99.5)) + 1e-12
-    img = 0.8 * band / s_band + 0.2 * (z - float(np.median(z))) / s_z
+    band = fine - _blur(z, band_px[1])
+    sel = (lambda x: x) if valid is None else (lambda x: x[valid])
+    base = z - float(sel(z).mean())
+    s_band = 4.0 * float(sel(band).std()) + 1e-12
+    s_z = 4.0 * float(sel(base).std()) + 1e-12
+    img = 0.8 * band / s_band + 0.2 * base / s_z
+    if valid is not None:
+        img[~valid] = 0.0
     return np.clip(128.0 + 100.0 * img, 0, 255).astype(np.uint8)
 
 
@@ -121,18 +157,48 @@ class Features:
     points: dict[str, np.ndarray] = field(default_factory=dict)
     descriptors: dict[str, np.ndarray] = field(default_factory=dict)
     image: np.ndarray | None = None
+    scale: float = 1.0
+    smooth: np.ndarray | None = None
+    sample_xy: np.ndarray | None = None
+    sample_z: np.ndarray | None = None
 
 
-def extract_features(height_mm: np.ndarray, params: RegistrationParams = RegistrationParams()) -> Features:
-    """Keypoints and descriptors of a height map (reuse for a map matched many times)."""
-    img = render_u8(_check_height(height_mm, "height_mm"), params.band_px)
-    feats = Features(image=img)
+def detect_scale(params: "RegistrationParams", touch_shape: tuple[int, int]) -> float:
+    """Resize factor for keypoint detection; both maps of a pair must use the same (the touch's)."""
+    if params.detect_scale:
+        return float(params.detect_scale)
+    return float(np.clip(params.detect_short_px / min(touch_shape), 0.25, 2.0))
+
+
+def extract_features(height_mm: np.ndarray, params: RegistrationParams = RegistrationParams(),
+                     dense: bool = True, scale: float | None = None, valid: np.ndarray | None = None) -> Features:
+    """Keypoints and descriptors of a height map (reuse for a map matched many times); with
+    ``dense`` also the steep-pixel samples used when this map is the reference A. scale: detection
+    resize factor (default from this map's own shape; pass the touch's for a large map)."""
+    z = _check_height(height_mm, "height_mm")
+    smooth = cv2.GaussianBlur(z, (0, 0), 1.0)
+    feats = Features(smooth=smooth)
+    if dense:
+        feats.sample_xy, feats.sample_z = _dense_samples(smooth, params.dense_samples, valid)
+    k = detect_scale(params, z.shape) if scale is None else float(scale)
+    small = z if k == 1.0 else cv2.resize(z, None, fx=k, fy=k, interpolation=cv2.INTER_AREA)
+    if valid is not None and k != 1.0:
+        valid = cv2.resize(valid.astype(np.uint8), (small.shape[1], small.shape[0]),
+                           interpolation=cv2.INTER_NEAREST).astype(bool)
+    img = render_u8(small, tuple(b * k for b in params.band_px), valid)  # type: ignore[arg-type]
+    feats.image = img
+    feats.scale = k
     names = ("brisk", "orb") if params.detector == "both" else (params.detector,)
+    # Keep the keypoint density of a touch-sized image on a larger map.
+    per_area = params.orb_features / (params.detect_short_px ** 2 * 4.0 / 3.0)
+    n_orb = max(params.orb_features, int(per_area * img.shape[0] * img.shape[1]))
     for name in names:
-        det = (_brisk(params.brisk_threshold, params.brisk_octaves) if name == "brisk"
-               else cv2.ORB_create(params.orb_features, edgeThreshold=15, patchSize=15, fastThreshold=5))
+        det = _detector(name, params)
+        if name == "orb":
+            det.setMaxFeatures(n_orb)
         kps, desc = det.detectAndCompute(img, None)
-        pts = np.array([k.pt for k in kps], np.float64).reshape(-1, 2)
+        # Keypoints back to full-resolution pixel centres.
+        pts = (np.array([kp.pt for kp in kps], np.float64).reshape(-1, 2) + 0.5) / k - 0.5
         feats.points[name] = pts
         feats.descriptors[name] = desc if desc is not None else np.zeros((0, 32), np.uint8)
     return feats
@@ -208,6 +274,10 @@ def homography_confidence(src: np.ndarray, dst: np.ndarray) -> float:
     homography of the inlier matches (normalised so H[2,2] = 1); 0 when it is degenerate."""
     if len(src) < 4:
         return 0.0
+    # Centring each point set is a translation conjugation (an exact isometry still gives c = 1) and
+    # keeps the projective terms from trading off against the linear part far from the origin.
+    src = src - src.mean(0)
+    dst = dst - dst.mean(0)
     h, _ = cv2.findHomography(src.astype(np.float32), dst.astype(np.float32), 0)
     if h is None or not np.all(np.isfinite(h)) or abs(h[2, 2]) < 1e-12:
         return 0.0
@@ -236,23 +306,119 @@ def overlap_ncc(height_a: np.ndarray, height_b: np.ndarray, matrix_px: np.ndarra
     return float((a * b).sum() / den), frac
 
 
-def _ecc_refine(height_a: np.ndarray, height_b: np.ndarray, matrix_px: np.ndarray) -> np.ndarray:
-    """Sub-pixel polish of a B->A rigid transform by ECC on the band-passed heights."""
-    # ECC warps the input (A) into the template (B) frame: invert B->A to get A->B.
-    inv = cv2.invertAffineTransform(matrix_px).astype(np.float32)
-    za = height_a - cv2.GaussianBlur(height_a, (0, 0), 8.0)
-    zb = height_b - cv2.GaussianBlur(height_b, (0, 0), 8.0)
+def _dense_samples(smooth: np.ndarray, count: int, valid: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels of A that constrain alignment: the steepest quarter (2 px from the edge and inside
+    ``valid`` shrunk by 3 px), thinned to at most ``count`` on a regular stride (deterministic)."""
+    gx, gy = _grad(smooth)
+    mag = gx * gx + gy * gy
+    mag[:2, :] = mag[-2:, :] = 0
+    mag[:, :2] = mag[:, -2:] = 0
+    if valid is not None:
+        mag[cv2.erode(valid.astype(np.uint8), np.ones((7, 7), np.uint8)) == 0] = 0
+    thr = np.quantile(mag[::3, ::3], 0.75)  # a sparse grid estimates the quartile well enough
+    ys, xs = np.nonzero(mag > max(float(thr), 1e-20))
+    if len(xs) > count:
+        sel = np.linspace(0, len(xs) - 1, count).astype(np.int64)
+        ys, xs = ys[sel], xs[sel]
+    return np.stack([xs, ys], 1).astype(np.float32), smooth[ys, xs].astype(np.float64)
+
+
+def _grad(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Central-difference slopes per pixel (x, y) as float32."""
+    gx = cv2.Sobel(z, cv2.CV_32F, 1, 0, ksize=1, scale=0.5, borderType=cv2.BORDER_REPLICATE)
+    gy = cv2.Sobel(z, cv2.CV_32F, 0, 1, ksize=1, scale=0.5, borderType=cv2.BORDER_REPLICATE)
+    return gx, gy
+
+
+def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    return cv2.remap(img, x.reshape(-1, 1), y.reshape(-1, 1), cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE).ravel().astype(np.float64)
+
+
+@dataclass
+class DenseFit:
+    """Result of :func:`dense_refine`: B->A matrix (px), NCC and overlap on A's samples, and the
+    1-sigma uncertainty of rotation (deg) and translation (px) from the Gauss–Newton information
+    (residual variance floored at ``noise_mm``): large when the content is rotation-symmetric/flat."""
+
+    matrix_px: np.ndarray
+    ncc: float = 0.0
+    overlap: float = 0.0
+    sigma_rot_deg: float = float("inf")
+    sigma_px: float = float("inf")
+
+
+def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, iters: int = 5,
+                 noise_mm: float = 2e-3) -> DenseFit:
+    """Gauss–Newton polish of a B->A rigid transform on A's steep pixels (rotation, translation and
+    a height offset between the touches)."""
+    xy, za = fa.sample_xy, fa.sample_z
+    if xy is None or za is None or len(xy) < 8:
+        return DenseFit(matrix_px)
+    h, w = smooth_b.shape
+    gxb, gyb = _grad(smooth_b)
+    inv = cv2.invertAffineTransform(matrix_px)  # A px -> B px
+    th = float(np.arctan2(inv[1, 0], inv[0, 0]))
+    t = inv[:, 2].astype(np.float64).copy()
+    bias = 0.0
+    x, y = xy[:, 0].astype(np.float64), xy[:, 1].astype(np.float64)
+    start = (th, t.copy())
+    for _ in range(iters):
+        c, s_ = np.cos(th), np.sin(th)
+        u = c * x - s_ * y + t[0]
+        v = s_ * x + c * y + t[1]
+        ok = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
+        if ok.sum() < 8:
+            break
+        u32, v32 = u[ok].astype(np.float32), v[ok].astype(np.float32)
+        zb = _sample(smooth_b, u32, v32)
+        bx, by = _sample(gxb, u32, v32), _sample(gyb, u32, v32)
+        xo, yo = x[ok], y[ok]
+        j = np.stack([bx * (-s_ * xo - c * yo) + by * (c * xo - s_ * yo), bx, by, np.ones_like(bx)], 1)
+        r = zb + bias - za[ok]
+        hess = j.T @ j
+        hess[np.diag_indices(4)] *= 1.0 + 1e-6
+        try:
+            d = -np.linalg.solve(hess, j.T @ r)
+        except np.linalg.LinAlgError:
+            break
+        th += d[0]
+        t += d[1:3]
+        bias += d[3]
+        if abs(d[0]) < 1e-6 and abs(d[1]) + abs(d[2]) < 1e-4:
+            break
+    # GN can wander on flat content: a large move away from the coarse answer is not trusted.
+    if abs(th - start[0]) > np.radians(6.0) or np.abs(t - start[1]).max() > 8.0 or not np.isfinite(th):
+        th, t = start
+    c, s_ = np.cos(th), np.sin(th)
+    u = c * x - s_ * y + t[0]
+    v = s_ * x + c * y + t[1]
+    ok = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
+    fwd = np.array([[c, -s_, t[0]], [s_, c, t[1]]])
+    fit = DenseFit(cv2.invertAffineTransform(fwd).astype(np.float64), overlap=float(ok.mean()))
+    if ok.sum() < 8:
+        return fit
+    u32, v32 = u[ok].astype(np.float32), v[ok].astype(np.float32)
+    zb = _sample(smooth_b, u32, v32)
+    a_ = za[ok] - za[ok].mean()
+    b_ = zb - zb.mean()
+    den = np.sqrt((a_ * a_).sum() * (b_ * b_).sum())
+    fit.ncc = float((a_ * b_).sum() / den) if den > 1e-18 else 0.0
+    bx, by = _sample(gxb, u32, v32), _sample(gyb, u32, v32)
+    xo, yo = x[ok], y[ok]
+    # Rotate about the samples' centroid so the angle's information is not mixed with translation.
+    xo, yo = xo - xo.mean(), yo - yo.mean()
+    j = np.stack([bx * (-s_ * xo - c * yo) + by * (c * xo - s_ * yo), bx, by, np.ones_like(bx)], 1)
+    resid = b_ - a_
+    var = max(float(resid @ resid) / max(len(resid) - 4, 1), noise_mm ** 2)
     try:
-        _, warp = cv2.findTransformECC(zb, za, inv, cv2.MOTION_EUCLIDEAN,
-                                       (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 1e-5),
-                                       None, 3)
-    except cv2.error:
-        return matrix_px
-    new = cv2.invertAffineTransform(warp).astype(np.float64)
-    # ECC can wander on flat regions: keep it only when it is a small correction.
-    if np.abs(new[:, 2] - matrix_px[:, 2]).max() > 3.0 or np.abs(new[:, :2] - matrix_px[:, :2]).max() > 0.05:
-        return matrix_px
-    return new
+        cov = var * np.linalg.inv(j.T @ j)
+        fit.sigma_rot_deg = float(np.degrees(np.sqrt(max(cov[0, 0], 0.0))))
+        fit.sigma_px = float(np.sqrt(max(cov[1, 1], 0.0) + max(cov[2, 2], 0.0)))
+    except np.linalg.LinAlgError:
+        pass
+    return fit
 
 
 def _dense_fourier_mellin(height_a: np.ndarray, height_b: np.ndarray) -> tuple[np.ndarray, float]:
@@ -281,22 +447,6 @@ def _dense_fourier_mellin(height_a: np.ndarray, height_b: np.ndarray) -> tuple[n
         if ncc > best[1]:
             best = (m, ncc)
     return best[0], best[1]  # type: ignore[return-value]
-
-
-def _rotation_is_observable(height_a: np.ndarray, height_b: np.ndarray, m: np.ndarray, ncc: float,
-                            probe_deg: float = 8.0) -> bool:
-    """A dense answer is trusted only if rotating it by +-probe_deg about B's content clearly lowers
-    the correlation (a lone dome or a flat frame is rotation-symmetric: refuse)."""
-    h, w = height_b.shape
-    ys, xs = np.nonzero(np.abs(height_b) > 0.2 * float(np.abs(height_b).max() + 1e-12))
-    c = (float(xs.mean()), float(ys.mean())) if len(xs) else ((w - 1) / 2.0, (h - 1) / 2.0)
-    worst = -1.0
-    for d in (-probe_deg, probe_deg):
-        r = cv2.getRotationMatrix2D(c, d, 1.0)
-        r3 = np.vstack([r, [0, 0, 1]])
-        m3 = np.vstack([m, [0, 0, 1]])
-        worst = max(worst, overlap_ncc(height_a, height_b, (m3 @ r3)[:2])[0])
-    return ncc - worst > 0.1
 
 
 def _result(ok: bool, m_px: np.ndarray | None, shape_a: tuple[int, int], shape_b: tuple[int, int],
@@ -345,8 +495,9 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
     # A (near) flat map has nothing to register against.
     if float(np.ptp(a)) < 1e-6 or float(np.ptp(b)) < 1e-6:
         return refuse(INSUFFICIENT_TEXTURE, "none")
-    fa = features_a if features_a is not None else extract_features(a, params)
-    fb = extract_features(b, params)
+    k = detect_scale(params, b.shape)
+    fa = features_a if features_a is not None and features_a.scale == k else extract_features(a, params, scale=k)
+    fb = extract_features(b, params, dense=False, scale=k)
     pa, pb = _match(fa, fb)
     method = params.detector
     keypoint_reason = INSUFFICIENT_TEXTURE
@@ -357,22 +508,27 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
         if m is not None and n_inl >= params.min_inliers:
             conf = homography_confidence(pb[mask], pa[mask])
             if conf >= params.min_confidence:
-                if params.refine_ecc:
-                    m = _ecc_refine(a, b, m)
-                ncc, overlap = overlap_ncc(a, b, m)
-                if ncc >= params.min_ncc and overlap >= params.min_overlap:
-                    return _result(True, m, *shapes, scale, conf, n_inl, method, None, len(pa), ncc)  # type: ignore[arg-type]
-                keypoint_reason = MISMATCH
+                fit = dense_refine(fa, fb.smooth, m, params.refine_iters if params.refine else 0)  # type: ignore[arg-type]
+                if fit.ncc >= params.min_ncc and fit.overlap >= params.min_overlap:
+                    if fit.sigma_rot_deg <= params.max_sigma_rot_deg and fit.sigma_px <= params.max_sigma_px:
+                        return _result(True, fit.matrix_px, *shapes, scale, conf, n_inl, method, None,  # type: ignore[arg-type]
+                                       len(pa), fit.ncc)
+                    keypoint_reason = INSUFFICIENT_TEXTURE
+                else:
+                    keypoint_reason = MISMATCH
             else:
                 keypoint_reason = LOW_CONFIDENCE
         else:
             keypoint_reason = NO_CONSENSUS
     if params.dense_fallback and a.shape == b.shape:
         m, ncc = _dense_fourier_mellin(a, b)
-        if m is not None and ncc >= max(params.min_ncc, 0.8):
-            _, overlap = overlap_ncc(a, b, m)
-            if overlap >= params.min_overlap and _rotation_is_observable(a, b, m, ncc):
-                return _result(True, m, *shapes, scale, 1.0, 0, "dense_fourier_mellin", None, len(pa), ncc)  # type: ignore[arg-type]
+        if m is not None and ncc >= params.min_ncc:
+            fit = dense_refine(fa, fb.smooth, m, params.refine_iters if params.refine else 0)  # type: ignore[arg-type]
+            ncc = fit.ncc
+            if (fit.ncc >= max(params.min_ncc, 0.8) and fit.overlap >= params.min_overlap
+                    and fit.sigma_rot_deg <= params.max_sigma_rot_deg and fit.sigma_px <= params.max_sigma_px):
+                return _result(True, fit.matrix_px, *shapes, scale, 1.0, 0, "dense_fourier_mellin", None,  # type: ignore[arg-type]
+                               len(pa), fit.ncc)
         return refuse(keypoint_reason if keypoint_reason != NO_CONSENSUS else INSUFFICIENT_TEXTURE,
                       method + "+dense", conf, n_inl, len(pa), ncc)
     return refuse(keypoint_reason, method, conf, n_inl, len(pa))

@@ -57,3 +57,25 @@ def jig_move(height_mm: np.ndarray, rotation_deg: float, shift_mm: tuple[float, 
     cvec = np.array(c)
     t_mm = (r @ cvec + inv[:, 2] - cvec) * mm_per_px
     return b, np.hstack([r, t_mm[:, None]])
+
+
+def tile(heights: list[np.ndarray], grid: tuple[int, int] = (2, 2)) -> np.ndarray:
+    """A larger textured height map (mm, float32): ``grid`` rows x cols of same-size height maps
+    (e.g. reconstructed real presses: their domes plus the gel's real fine texture)."""
+    rows, cols = grid
+    if len(heights) < rows * cols:
+        raise ValueError(f"need {rows * cols} height maps for a {rows}x{cols} tile, got {len(heights)}")
+    shape = heights[0].shape
+    if any(h.shape != shape for h in heights[: rows * cols]):
+        raise ValueError("all tiled height maps must have the same shape")
+    return np.block([[heights[r * cols + c] for c in range(cols)] for r in range(rows)]).astype(np.float32)
+
+
+def touch_at(surface_mm: np.ndarray, rotation_deg: float, center_px: tuple[float, float],
+             shape: tuple[int, int]) -> np.ndarray:
+    """A touch of ``shape`` cut from a larger surface: centred on ``center_px`` (x, y) of the
+    surface and rotated by ``rotation_deg`` (OpenCV sense) about it."""
+    h, w = shape
+    m = cv2.getRotationMatrix2D((float(center_px[0]), float(center_px[1])), rotation_deg, 1.0)
+    m[:, 2] += ((w - 1) / 2.0 - center_px[0], (h - 1) / 2.0 - center_px[1])
+    return cv2.warpAffine(surface_mm.astype(np.float32), m, (w, h), flags=cv2.INTER_LINEAR)

@@ -1,0 +1,115 @@
+"""``tactile-rig calibrate ...``: calibration and learning sessions, each writing a versioned file + report.
+
+Subcommands live in one ``_register_<name>(csub)`` function each (add new sessions the same way):
+``force-map`` (thesis 3.4.1) and ``substance`` (thesis 3.4.2) here; GelSight, FingerVision, scale
+and gripper calibrations join them. Sessions never prompt when stdin is not a terminal.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from tactile_rig.cli.common import add_json_flag, print_json
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("calibrate", help="calibration and learning sessions (force map, substance classifier, ...)")
+    csub = p.add_subparsers(dest="calibrate_command", metavar="SESSION")
+    for reg in (_register_force_map, _register_substance):
+        reg(csub)
+    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
+
+
+def _source_arguments(p: argparse.ArgumentParser) -> None:
+    from tactile_rig.rig.bench import add_bench_arguments
+
+    add_bench_arguments(p)
+    p.add_argument("--from-recording", metavar="FILE.mcap",
+                   help="learn from a recorded session instead of collecting one")
+    p.add_argument("--camera", help="perception topic name in the recording (default: the only one)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the mock session (default 0)")
+    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures and Markdown page")
+    add_json_flag(p)
+
+
+def _check_source(args: argparse.Namespace, what: str) -> None:
+    """Mocks simulate the session; a hardware bench needs a recording of it (live collection: TODO)."""
+    if args.from_recording or getattr(args, "mock", False) or not getattr(args, "bench", None):
+        return
+    from tactile_rig.rig.bench import bench_from_args
+
+    bench = bench_from_args(args, check_files=False)
+    if not bench.is_mock:
+        raise ValueError(f"{what} on hardware: record the session (tactile-rig replay reads it) and pass "
+                         f"--from-recording FILE.mcap; live guided collection is not available yet")
+
+
+# -- force map ---------------------------------------------------------------------------------
+def _register_force_map(csub: argparse._SubParsersAction) -> None:
+    p = csub.add_parser("force-map", help="learn marker forces → newtons on the scale (kernel ridge, thesis 3.4.1)",
+                        description="Press a grasped stick on the scale through N trials of increasing force, "
+                        "fit RBF kernel ridge regression on robust-scaled marker forces, report the MSE on a "
+                        "held-out trial, save force_map.npz + force_map.json (no pickle).")
+    _source_arguments(p)
+    p.add_argument("--trials", type=int, default=10, help="number of presses (default 10)")
+    p.add_argument("--max-force", type=float, default=20.0, help="peak force of the last press in N (default 20)")
+    p.add_argument("--holdout", type=int, help="trial held out for the MSE (default: the middle one)")
+    p.add_argument("--alpha", type=float, default=0.02, help="ridge penalty λ (default 0.02, as the thesis)")
+    p.add_argument("--gamma", type=float, default=None, help="RBF gamma on robust-scaled features (default 0.05)")
+    p.add_argument("--out", default="calib/force_map", help="output folder (default calib/force_map)")
+    p.set_defaults(func=_force_map)
+
+
+def _force_map(args: argparse.Namespace) -> int:
+    from tactile_rig.rig.learning import DEFAULT_GAMMA, force_map_session
+
+    _check_source(args, "force-map")
+    if args.trials < 2:
+        raise ValueError(f"--trials {args.trials} must be >= 2 (one trial is held out)")
+    if not args.max_force > 0:
+        raise ValueError(f"--max-force {args.max_force} must be > 0 N")
+    report = force_map_session(Path(args.out), n_trials=args.trials, max_force_n=args.max_force, seed=args.seed,
+                               recording=args.from_recording, holdout=args.holdout, alpha=args.alpha,
+                               gamma=DEFAULT_GAMMA if args.gamma is None else args.gamma, camera=args.camera,
+                               figures=not args.no_figures)
+    if args.json:
+        print_json(report)
+    else:
+        noise = f" (scene noise {report['scene_noise_rms_n']:.3f} N rms)" if "scene_noise_rms_n" in report else ""
+        print(f"force map: held-out trial {report['holdout_trial']}: MSE {report['mse_holdout_n2']:.4f} N², "
+              f"RMSE {report['rmse_holdout_n']:.3f} N{noise}; {report['n_train']} training samples")
+        print(f"model: {report['model']['npz']} + {report['model']['json']}")
+    return 0
+
+
+# -- substance classifier ----------------------------------------------------------------------
+def _register_substance(csub: argparse._SubParsersAction) -> None:
+    p = csub.add_parser("substance", help="learn the stirred substance from marker forces (MLP, thesis 3.4.2)",
+                        description="Stirring trials → windows of marker-force statistics → MLPClassifier "
+                        "(10, 10, 10), logistic, lbfgs; accuracy on held-out trials; saves substance.npz + .json.")
+    _source_arguments(p)
+    p.add_argument("--per-substance", type=int, default=12, help="mock trials per substance (default 12)")
+    p.add_argument("--window", type=float, default=2.0, help="feature window in s (default 2)")
+    p.add_argument("--test-fraction", type=float, default=0.25, help="trials held out per substance (default 0.25)")
+    p.add_argument("--out", default="calib/substance", help="output folder (default calib/substance)")
+    p.set_defaults(func=_substance)
+
+
+def _substance(args: argparse.Namespace) -> int:
+    from tactile_rig.rig.learning import substance_session
+
+    _check_source(args, "substance")
+    if args.per_substance < 2:
+        raise ValueError(f"--per-substance {args.per_substance} must be >= 2 (train and test trials)")
+    report = substance_session(Path(args.out), per_substance=args.per_substance, seed=args.seed,
+                               recording=args.from_recording, test_fraction=args.test_fraction,
+                               window_s=args.window, camera=args.camera, figures=not args.no_figures)
+    if args.json:
+        print_json(report)
+    else:
+        print(f"substance classifier: held-out accuracy {report['accuracy_holdout']:.3f} on "
+              f"{report['n_test_windows']} windows of {report['n_test_trials']} trials; classes "
+              f"{', '.join(report['classes'])}")
+        print(f"model: {report['model']['npz']} + {report['model']['json']}")
+    return 0

@@ -1,0 +1,206 @@
+"""``tactile-rig gelsight``: calibrate from ball presses, height maps, registration, tactile maps."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from tactile_rig.cli.common import add_json_flag, print_json
+
+
+def _load_height(path: str) -> np.ndarray:
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"height map {p} does not exist")
+    if p.suffix != ".npy":
+        raise ValueError(f"{p}: expected a .npy height map in mm")
+    arr = np.load(p, allow_pickle=False)
+    if arr.ndim != 2:
+        raise ValueError(f"{p}: expected a 2-D height map, got shape {arr.shape}")
+    return arr.astype(np.float32)
+
+
+def _read_image(path: str) -> np.ndarray:
+    import cv2
+
+    img = cv2.imread(path, cv2.IMREAD_COLOR)
+    if img is None:
+        raise FileNotFoundError(f"cannot read image {path}")
+    return img
+
+
+def _reconstructor(calib: str, background: str | None, solver: str | None = None):
+    from tactile_rig.perception.gelsight import GelSightCalibration, IntegrationParams, Reconstructor
+
+    cal = GelSightCalibration.load(calib)
+    if background:
+        bg = _read_image(background)
+        cal = GelSightCalibration(cal.model, bg, cal.mm_per_px_x, cal.mm_per_px_y, cal.ball_radius_mm,
+                                  cal.sensor, cal.date, cal.bake_bins, cal.bake_cells, cal.colour_range, cal.extra)
+    return Reconstructor(cal, IntegrationParams(solver=solver) if solver else None)
+
+
+def _height_or_image(path: str, calib: str | None, background: str | None) -> np.ndarray:
+    if path.endswith(".npy"):
+        return _load_height(path)
+    if not calib:
+        raise ValueError(f"{path} is an image: pass --calib CALIB to turn it into a height map")
+    return _reconstructor(calib, background).height_mm(_read_image(path))
+
+
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from tactile_rig.perception.gelsight import calibrate_from_presses, cross_validate, load_presses
+
+    presses = load_presses(args.press_dir)
+    hyper = {"bins": args.bins} if args.method == "lut" else {}
+    cal = calibrate_from_presses(presses, args.mm_per_px, args.ball_radius_mm, args.method,
+                                 sensor=args.sensor, **hyper)
+    path = cal.save(args.output)
+    out: dict = {"calibration": str(path), "method": args.method, "presses": len(presses.frames),
+                 "mm_per_px_x": cal.mm_per_px_x, "mm_per_px_y": cal.mm_per_px_y}
+    if args.report:
+        rep = cross_validate(presses, args.mm_per_px, args.ball_radius_mm, args.method, folds=args.folds, **hyper)
+        out.update({"held_out_normal_deg": rep.mean_normal_deg, "held_out_height_rms_mm": rep.mean_height_rms_mm,
+                    "colour_coverage": rep.colour_coverage, "protocol": rep.protocol})
+    if args.json:
+        print_json(out)
+    else:
+        for k, v in out.items():
+            print(f"{k}: {v}")
+    return 0
+
+
+def _cmd_height(args: argparse.Namespace) -> int:
+    rec = _reconstructor(args.calib, args.background, args.solver)
+    out = Path(args.output)
+    written = []
+    if len(args.images) == 1:
+        target = out if out.suffix == ".npy" else out.with_suffix(".npy")
+        target.parent.mkdir(parents=True, exist_ok=True)
+        np.save(target, rec.height_mm(_read_image(args.images[0])))
+        written.append(str(target))
+    else:
+        out.mkdir(parents=True, exist_ok=True)
+        for img in args.images:
+            target = out / (Path(img).stem + ".npy")
+            np.save(target, rec.height_mm(_read_image(img)))
+            written.append(str(target))
+    if args.json:
+        print_json({"written": written})
+    else:
+        print("\n".join(written))
+    return 0
+
+
+def _print_result(res, as_json: bool) -> int:
+    d = res.as_dict()
+    if as_json:
+        print_json(d)
+    elif res.ok:
+        print(f"rotation_deg: {res.rotation_deg:.4f}\ntranslation_mm: {np.round(res.translation_mm, 4).tolist()}\n"
+              f"confidence: {res.confidence:.4f}\ninliers: {res.inliers}\nmethod: {res.method}")
+    else:
+        print(f"refused: {res.reason} (confidence {res.confidence:.3f}, inliers {res.inliers})")
+    return 0 if res.ok else 1
+
+
+def _params(args: argparse.Namespace):
+    from tactile_rig.perception.gelsight import RegistrationParams
+
+    return RegistrationParams(detector=args.detector, ransac_iters=args.ransac_iters)
+
+
+def _cmd_register(args: argparse.Namespace) -> int:
+    from tactile_rig.perception.gelsight import register
+
+    res = register(_load_height(args.a), _load_height(args.b), args.mm_per_px, _params(args))
+    return _print_result(res, args.json)
+
+
+def _cmd_map(args: argparse.Namespace) -> int:
+    from tactile_rig.perception.gelsight import TactileMap
+
+    tmap = TactileMap(args.mm_per_px, canvas_factor=args.canvas_factor, params=_params(args))
+    rows = []
+    for path in args.heights:
+        rec = tmap.add_touch(_height_or_image(path, args.calib, args.background))
+        rows.append({"touch": path, "accepted": rec.accepted, "reason": rec.result.reason,
+                     "confidence": rec.result.confidence,
+                     "g_T_m": None if rec.g_T_m is None else rec.g_T_m.tolist()})
+    saved = tmap.save(args.output)
+    if args.json:
+        print_json({"map": str(saved), "touches": rows})
+    else:
+        for r in rows:
+            print(f"{r['touch']}: {'accepted' if r['accepted'] else 'rejected (' + str(r['reason']) + ')'}")
+        print(f"map: {saved}")
+    return 0
+
+
+def _cmd_localize(args: argparse.Namespace) -> int:
+    from tactile_rig.perception.gelsight import TactileMap
+
+    tmap = TactileMap.load(args.map, params=_params(args))
+    res = tmap.localize(_height_or_image(args.touch, args.calib, args.background))
+    return _print_result(res, args.json)
+
+
+def _add_reg_knobs(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--detector", default="orb", choices=["orb", "brisk", "both"], help="keypoints (default orb)")
+    p.add_argument("--ransac-iters", type=int, default=256, help="two-pair RANSAC samples (default 256)")
+    add_json_flag(p)
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``gelsight`` command group."""
+    g = subparsers.add_parser("gelsight", help="GelSight calibration, height maps, registration, tactile maps")
+    sub = g.add_subparsers(dest="gelsight_command", metavar="SUBCOMMAND", required=True)
+
+    p = sub.add_parser("calibrate", help="fit a colour->gradient calibration from ball presses")
+    p.add_argument("press_dir", help="folder with background.png, press images and labels.csv")
+    p.add_argument("--mm-per-px", type=float, required=True, help="pixel pitch in mm")
+    p.add_argument("--ball-radius-mm", type=float, required=True, help="calibration ball radius in mm")
+    p.add_argument("--method", default="mlp", choices=["lut", "poly", "mlp"], help="model (default mlp)")
+    p.add_argument("--bins", type=int, default=32, help="LUT bins per channel (method lut)")
+    p.add_argument("--sensor", default="gelsight", help="sensor name stored in the metadata")
+    p.add_argument("--report", action="store_true", help="also cross-validate on held-out presses")
+    p.add_argument("--folds", type=int, default=5, help="folds of the report (default 5)")
+    p.add_argument("-o", "--output", required=True, help="output base path (writes .npz and .json)")
+    add_json_flag(p)
+    p.set_defaults(func=_cmd_calibrate)
+
+    p = sub.add_parser("height", help="height maps (mm, .npy) from frames")
+    p.add_argument("calib", help="calibration (.npz/.json base path)")
+    p.add_argument("images", nargs="+", help="BGR frames")
+    p.add_argument("--background", help="a fresh no-contact frame replacing the calibration's")
+    p.add_argument("--solver", choices=["dst", "dct", "fc"], help="Poisson solver (default: the pipeline's)")
+    p.add_argument("-o", "--output", required=True, help="OUT.npy for one image, a folder for several")
+    add_json_flag(p)
+    p.set_defaults(func=_cmd_height)
+
+    p = sub.add_parser("register", help="rigid transform taking height map B into A")
+    p.add_argument("a", help="reference height map A (.npy, mm)")
+    p.add_argument("b", help="height map B (.npy, mm)")
+    p.add_argument("--mm-per-px", type=float, required=True, help="pixel pitch in mm")
+    _add_reg_knobs(p)
+    p.set_defaults(func=_cmd_register)
+
+    p = sub.add_parser("map", help="mosaic touches (height maps or frames) into a tactile map (.npz)")
+    p.add_argument("heights", nargs="+", help="touches: .npy height maps, or frames with --calib")
+    p.add_argument("--mm-per-px", type=float, required=True, help="pixel pitch in mm")
+    p.add_argument("--canvas-factor", type=float, default=3.0, help="map size / touch size (default 3)")
+    p.add_argument("--calib", help="calibration for frames given as images")
+    p.add_argument("--background", help="no-contact frame for --calib")
+    p.add_argument("-o", "--output", required=True, help="output map .npz")
+    _add_reg_knobs(p)
+    p.set_defaults(func=_cmd_map)
+
+    p = sub.add_parser("localize", help="where a touch lies in a tactile map")
+    p.add_argument("map", help="tactile map .npz from 'gelsight map'")
+    p.add_argument("touch", help="touch: .npy height map, or a frame with --calib")
+    p.add_argument("--calib", help="calibration for a frame given as an image")
+    p.add_argument("--background", help="no-contact frame for --calib")
+    _add_reg_knobs(p)
+    p.set_defaults(func=_cmd_localize)

@@ -1,0 +1,125 @@
+"""``tactile-rig run``: long rig runs. ``run jig-accuracy`` reproduces Li 2014 Fig. 7 (see docs/jig_accuracy.md).
+
+    tactile-rig run jig-accuracy --mock                      # the README's first command
+    tactile-rig run jig-accuracy --bench bench.toml --sweep rotation --out runs/r1
+    tactile-rig run jig-accuracy --mock --json | jq .        # one object per point, then a summary
+
+A run interrupted at point k continues at k when started again with the same options and ``--out``
+(``--resume`` insists on it; ``--overwrite`` starts afresh).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from tactile_rig.cli.common import add_json_flag, print_json
+
+DEFAULT_OUT = "runs/jig-accuracy"
+
+
+def _range(text: str) -> tuple[float, float, float]:
+    """``START:STOP:STEP`` → floats (argparse type)."""
+    parts = text.split(":")
+    if len(parts) != 3:
+        raise argparse.ArgumentTypeError(f"{text!r} must be START:STOP:STEP, e.g. -90:90:10")
+    try:
+        return float(parts[0]), float(parts[1]), float(parts[2])
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} must be three numbers START:STOP:STEP") from None
+
+
+def register(subparsers: Any) -> None:
+    from tactile_rig.rig.bench import add_bench_arguments
+
+    run = subparsers.add_parser("run", help="long rig runs (jig accuracy)", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = run.add_subparsers(dest="run_command", metavar="RUN")
+    p = sub.add_parser("jig-accuracy", help="Li 2014 Fig. 7: localization accuracy over jig rotations and shifts",
+                       description="Build a tactile map of the object, step the jig through rotations and "
+                                   "shifts, localize each touch and print estimated vs true with MAE and std.")
+    add_bench_arguments(p)
+    p.add_argument("--sweep", choices=["rotation", "translation", "both"], default="both",
+                   help="which sweep(s) to run (default: both)")
+    p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
+                   help=f"output folder: points.jsonl, summary.json, run.mcap, figures, report.md "
+                        f"(default: {DEFAULT_OUT})")
+    p.add_argument("--seed", type=int, default=0, help="seed of the mock world (default 0)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the partial run in --out (automatic when the options match)")
+    p.add_argument("--overwrite", action="store_true", help="discard any run in --out and start again")
+    p.add_argument("--rotations", type=_range, default=(-90.0, 90.0, 10.0), metavar="START:STOP:STEP",
+                   help="rotation sweep in degrees (default -90:90:10)")
+    p.add_argument("--shifts", type=_range, default=(-6.0, 6.0, 1.0), metavar="START:STOP:STEP",
+                   help="translation sweep in mm (default -6:6:1)")
+    p.add_argument("--shift-axis", choices=["x", "y"], default="x", help="jig axis of the shifts (default x)")
+    p.add_argument("--calibration", metavar="FILE",
+                   help="GelSight calibration (.json/.npz); default: the bench camera's, or on --mock one "
+                        "made by the ball-press calibration session")
+    p.add_argument("--camera", metavar="NAME", help="which GelSight camera of the bench (default: the first)")
+    p.add_argument("--no-record", action="store_true", help="do not write run.mcap")
+    p.add_argument("--no-report", action="store_true", help="do not write figures and report.md")
+    p.add_argument("--max-rotation-mae-deg", type=float, metavar="DEG",
+                   help="exit 1 when the rotation MAE exceeds this")
+    p.add_argument("--max-translation-mae-mm", type=float, metavar="MM",
+                   help="exit 1 when the translation MAE exceeds this")
+    add_json_flag(p)
+    p.set_defaults(func=_jig_accuracy)
+    run.set_defaults(func=lambda args: (run.print_help(), 2)[1])
+
+
+def _jig_accuracy(args: argparse.Namespace) -> int:
+    from tactile_rig.rig.bench import bench_from_args
+    from tactile_rig.rig.jig_accuracy import JigAccuracyConfig, execute_jig_accuracy, format_table, plan_points
+
+    cfg = JigAccuracyConfig(sweep=args.sweep, rotations_deg=args.rotations, shifts_mm=args.shifts,
+                            shift_axis=args.shift_axis, seed=args.seed)
+    bench = None if args.mock else bench_from_args(args)
+    total = len(plan_points(cfg))
+    progress = None
+    if not args.json:
+        from tactile_rig.rig.progress import Progress
+
+        isatty = getattr(sys.stderr, "isatty", None)
+        progress = Progress(total, label="jig accuracy", mode="bar" if callable(isatty) and isatty() else "off")
+
+    def on_point(result: Any, done: int, n: int) -> None:
+        if args.json:
+            print_json(result.to_json())
+        elif progress is not None:
+            progress.update(1)
+
+    try:
+        outcome = execute_jig_accuracy(cfg, args.out, bench=bench, calibration=args.calibration, camera=args.camera,
+                                       resume=True if args.resume else None, overwrite=args.overwrite,
+                                       record=not args.no_record, report=not args.no_report, on_point=on_point)
+    finally:
+        if progress is not None:
+            progress.close()
+    s = outcome.summary
+    if args.json:
+        print_json({**s, "out": str(outcome.out_dir), "resumed_from": outcome.resumed_from, "files": outcome.files})
+    else:
+        print(format_table(outcome.results, s))
+        if outcome.resumed_from:
+            print(f"(resumed: points 0..{outcome.resumed_from - 1} come from the interrupted run)")
+        print(f"results in {outcome.out_dir}/: " + ", ".join(sorted(Path(v).name for k, v in outcome.files.items()
+                                                                if k != "figures" and not v.startswith("skipped"))))
+        if "figures" in outcome.files:
+            print(f"figures {outcome.files['figures']}")
+    failed = []
+    if args.max_rotation_mae_deg is not None and not _within(s.get("rotation_mae_deg"), args.max_rotation_mae_deg):
+        failed.append(f"rotation MAE {s.get('rotation_mae_deg')} deg > {args.max_rotation_mae_deg}")
+    if args.max_translation_mae_mm is not None and not _within(s.get("translation_mae_mm"),
+                                                                args.max_translation_mae_mm):
+        failed.append(f"translation MAE {s.get('translation_mae_mm')} mm > {args.max_translation_mae_mm}")
+    if failed:
+        print("tactile-rig: accuracy check failed: " + "; ".join(failed), file=sys.stderr)
+        return 1
+    return 0
+
+
+def _within(value: float | None, limit: float) -> bool:
+    return value is not None and value <= limit

@@ -1,0 +1,63 @@
+"""``tactile-rig sweep TARGET --param NAME=VALUES ...``: a resumable parameter sweep of simulated runs."""
+
+from __future__ import annotations
+
+import argparse
+
+from tactile_rig.cli.common import add_json_flag, print_json
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "sweep",
+        help="run a parameter sweep (processes locally, Dask with --executor dask); resumable",
+        description="Each point is keyed by its parameters, seeded from its key, skipped when "
+        "OUT/<key>/result.json exists. TARGET is 'module:function' or 'scene:<name>'.",
+    )
+    p.add_argument("target", help="what to run per point: module:function or scene:<name>")
+    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUES",
+                   help="a swept axis: name=1,2,3 or name=start:stop:step (stop inclusive); repeat")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="a parameter fixed for every point; repeat")
+    p.add_argument("--out", default="sweep-out", help="output folder (default ./sweep-out)")
+    p.add_argument("--executor", choices=["process", "thread", "dask"], default="process")
+    p.add_argument("--workers", type=int, help="number of workers (default: the CPU count)")
+    p.add_argument("--address", help="Dask scheduler address (tcp://host:8786) for --executor dask")
+    p.add_argument("--progress", choices=["auto", "bar", "json", "off"], default="auto",
+                   help="progress on stderr: a bar on a terminal, JSON lines otherwise (auto)")
+    add_json_flag(p)
+    p.set_defaults(func=_sweep)
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    from tactile_rig.rig.progress import Progress
+    from tactile_rig.rig.sweep import _scalar, grid, make_executor, parse_axis, run_sweep
+
+    if args.workers is not None and args.workers < 1:
+        raise ValueError(f"--workers {args.workers} must be >= 1")
+    axes = dict(parse_axis(s) for s in args.param)
+    fixed = {}
+    for kv in args.set:
+        k, sep, v = kv.partition("=")
+        if not sep or not k:
+            raise ValueError(f"--set {kv!r} must look like NAME=VALUE")
+        fixed[k.strip()] = _scalar(v.strip())
+    points = grid(axes, fixed) if axes else [fixed]
+    ex = make_executor(args.executor, workers=args.workers, address=args.address)
+    with Progress(len(points), label=f"sweep {args.target}", mode=args.progress) as prog:
+        try:
+            summary = run_sweep(args.target, points, args.out, executor=ex, progress=prog)
+        finally:
+            ex.shutdown(wait=True)
+    counts = summary.counts
+    if args.json:
+        print_json({"out": summary.out_dir, "counts": counts,
+                    "points": [{"key": p.key, "params": p.params, "seed": p.seed, "status": p.status,
+                                "result": p.result, "error": p.error} for p in summary.points]})
+    else:
+        print(f"{len(summary.points)} points: {counts['ok']} ran, {counts['skipped']} already done, "
+              f"{counts['failed']} failed; results in {summary.out_dir}/<key>/result.json")
+        for p in summary.points:
+            if p.status == "failed":
+                print(f"  FAILED {p.key} {p.params}: {p.error}")
+    return 1 if counts["failed"] else 0

@@ -1,0 +1,361 @@
+"""A parallel gripper on one MX-64: ``gripper_go(position, effort)``, ``state()``, calibration.
+
+Position is the opening between the fingertips in metres (or 0-1 with ``normalized=True``), mapped
+linearly onto servo ticks between the calibrated closed and open positions. Effort is the fraction
+of the servo's current limit: on Protocol 2.0 the Goal Current of current-based position mode (5),
+on Protocol 1.0 the Torque Limit. A blocking move ends as reached, stalled on an object (no
+progress while the current is at the cap), timed out, or faulted (a latched overload/overheating
+error, torque off).
+
+Lifecycle (after ros2_control): ``connected`` → ``activate()`` → ``active`` → a hardware fault →
+``fault``; ``reboot()`` → ``connected``. Only :meth:`DynamixelGripper.activate` enables torque, and
+it first sets the goal to the measured position so re-activation never jumps.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+from collections import deque
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from tactile_rig.clock import Deadline
+from tactile_rig.control.protocols import GripperOutcome, GripperState
+from tactile_rig.drivers.dynamixel import control_table as ct
+from tactile_rig.drivers.dynamixel.bus import DynamixelBus
+from tactile_rig.errors import CalibrationError, DeviceFault, LimitError, NotConnected, check_range
+
+log = logging.getLogger("tactile_rig.dynamixel.gripper")
+
+#: MX-64 stall current at 12 V (e-manual): the current cannot exceed it whatever the cap
+STALL_CURRENT_A = 4.1
+_REBOOT_WAIT_S = 0.1
+
+
+class Lifecycle(str, enum.Enum):
+    CONNECTED = "connected"
+    ACTIVE = "active"
+    FAULT = "fault"
+    CLOSED = "closed"
+
+
+@dataclass
+class GripperCalibration:
+    """Servo ticks at the closed and fully open fingertips, and the opening there in metres."""
+
+    closed_ticks: int = 1024
+    open_ticks: int = 3072
+    max_opening_m: float = 0.10
+
+    def __post_init__(self) -> None:
+        if self.closed_ticks == self.open_ticks:
+            raise CalibrationError(f"closed_ticks and open_ticks are both {self.closed_ticks}: no range")
+        if not self.max_opening_m > 0:
+            raise CalibrationError(f"max_opening_m={self.max_opening_m!r} must be > 0")
+
+    @property
+    def span_ticks(self) -> int:
+        return self.open_ticks - self.closed_ticks
+
+    def frac_from_ticks(self, ticks: float) -> float:
+        return (ticks - self.closed_ticks) / self.span_ticks
+
+    def ticks_from_frac(self, frac: float) -> int:
+        return round(self.closed_ticks + frac * self.span_ticks)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "GripperCalibration":
+        try:
+            return cls(int(d["closed_ticks"]), int(d["open_ticks"]), float(d.get("max_opening_m", 0.10)))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise CalibrationError(f"gripper calibration {d!r} is invalid: {exc}") from None
+
+
+class DynamixelGripper:
+    """A gripper on one MX-64 (Protocol 2.0 model 311 or Protocol 1.0 model 310).
+
+    ``port`` is a device path or URL, or an open :class:`DynamixelBus` shared with other servos.
+    Connecting pings the servo and checks its model; it never enables torque.
+    """
+
+    def __init__(
+        self,
+        port: str | DynamixelBus,
+        *,
+        dxl_id: int = 1,
+        protocol: int = 2,
+        baudrate: int | None = None,
+        calibration: GripperCalibration | None = None,
+        normalized: bool = False,
+        position_tolerance_m: float = 0.002,
+        poll_period_s: float = 0.02,
+        default_timeout_s: float = 5.0,
+        stall_window: int = 5,
+    ) -> None:
+        if isinstance(port, DynamixelBus):
+            self.bus = port
+            self._owns_bus = False
+        else:
+            self.bus = DynamixelBus(port, baudrate=baudrate or (1_000_000 if protocol == 2 else 57600),
+                                    protocol=protocol)
+            self._owns_bus = True
+        self.protocol = self.bus.protocol
+        self.id = dxl_id
+        self.device = self.bus.name(dxl_id)
+        self.clock = self.bus.clock
+        self.calibration = calibration or GripperCalibration()
+        self.normalized = normalized
+        self.position_tolerance_m = position_tolerance_m
+        self.poll_period_s = poll_period_s
+        self.default_timeout_s = default_timeout_s
+        self.stall_window = max(2, stall_window)
+        self.lifecycle = Lifecycle.CONNECTED
+        self.effort = 0.3
+        self._connect()
+
+    # -- lifecycle ------------------------------------------------------------------------------
+    def _connect(self) -> None:
+        try:
+            model = self.bus.ping(self.id)
+        except Exception:
+            if self._owns_bus:
+                self.bus.close()
+            raise
+        expected = self.bus.table.model_number
+        if model != expected:
+            raise NotConnected(f"model number {model} is not an MX-64 on Protocol {self.protocol} "
+                               f"(expected {expected})", device=self.device)
+        if self.protocol == 2:
+            self.current_limit_a = self.bus.read(self.id, "Current Limit") * ct.P2_CURRENT_A_PER_UNIT
+        else:
+            self.max_torque = self.bus.read(self.id, "Max Torque")
+            self.current_limit_a = STALL_CURRENT_A * self.max_torque / 1023
+        if self.bus.hardware_errors.get(self.id):
+            self.lifecycle = Lifecycle.FAULT
+
+    def activate(self, effort: float | None = None) -> None:
+        """Enable torque holding the measured position (current-based position mode on P2)."""
+        self._require_open()
+        if self.lifecycle == Lifecycle.FAULT or self.bus.hardware_errors.get(self.id):
+            self.lifecycle = Lifecycle.FAULT
+            raise self.bus.fault_error(self.id, "activate")
+        if effort is not None:
+            self.effort = check_range("effort", effort, 0.0, 1.0)
+        b, i = self.bus, self.id
+        b.write(i, "Torque Enable", 0)
+        present = b.read(i, "Present Position")
+        if self.protocol == 2:
+            if b.read(i, "Operating Mode") != ct.MODE_CURRENT_POSITION:
+                b.write(i, "Operating Mode", ct.MODE_CURRENT_POSITION)
+            b.write(i, "Goal Current", self._goal_current_units(self.effort))
+            b.write(i, "Goal Position", present)
+        else:
+            b.write(i, "Torque Ctrl Mode Enable", 0)
+            b.write(i, "Goal Position", min(4095, max(0, present)))
+            b.write(i, "Torque Limit", self._torque_limit_units(self.effort))
+        b.write(i, "Torque Enable", 1)
+        self.lifecycle = Lifecycle.ACTIVE
+
+    def deactivate(self) -> None:
+        """Torque off (allowed while faulted)."""
+        self._require_open()
+        self.bus.write(self.id, "Torque Enable", 0, fault_ok=True)
+        if self.lifecycle == Lifecycle.ACTIVE:
+            self.lifecycle = Lifecycle.CONNECTED
+
+    def reboot(self) -> None:
+        """Reboot the servo: clears a latched fault; torque is off and the state is ``connected``."""
+        self._require_open()
+        self.bus.reboot(self.id)
+        self.clock.sleep(_REBOOT_WAIT_S)
+        self.bus.ping(self.id)
+        self.lifecycle = Lifecycle.CONNECTED
+
+    def close(self) -> None:
+        if self.lifecycle != Lifecycle.CLOSED and self._owns_bus:
+            self.bus.close()
+        self.lifecycle = Lifecycle.CLOSED
+
+    def __enter__(self) -> "DynamixelGripper":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _require_open(self) -> None:
+        if self.lifecycle == Lifecycle.CLOSED:
+            raise NotConnected("the gripper was closed", device=self.device)
+
+    # -- units ------------------------------------------------------------------------------------
+    def _goal_current_units(self, effort: float) -> int:
+        limit = self.bus.table["Current Limit"]
+        return round(effort * self.current_limit_a / ct.P2_CURRENT_A_PER_UNIT) if self.current_limit_a else limit.low
+
+    def _torque_limit_units(self, effort: float) -> int:
+        return round(effort * self.max_torque)
+
+    def goal_ticks(self, position: float) -> int:
+        """Servo ticks of an opening (metres, or 0-1 when ``normalized``); LimitError outside the range."""
+        cal = self.calibration
+        if self.normalized:
+            if not 0.0 <= position <= 1.0:
+                raise LimitError(f"position={position!r} is outside [0, 1] (normalized opening)", device=self.device)
+            return cal.ticks_from_frac(position)
+        if not 0.0 <= position <= cal.max_opening_m:
+            raise LimitError(f"position={position!r} m is outside the calibrated opening [0, {cal.max_opening_m}] m",
+                             device=self.device)
+        return cal.ticks_from_frac(position / cal.max_opening_m)
+
+    # -- motion -----------------------------------------------------------------------------------
+    def gripper_go(self, position: float, effort: float, *, blocking: bool = True,
+                   timeout_s: float | None = None) -> GripperOutcome:
+        """Move to ``position`` with at most ``effort`` × the current limit; see the module doc."""
+        self._require_open()
+        check_range("effort", effort, 0.0, 1.0)
+        goal = self.goal_ticks(position)
+        if self.lifecycle == Lifecycle.FAULT:
+            raise self.bus.fault_error(self.id, "gripper_go")
+        if self.lifecycle != Lifecycle.ACTIVE:
+            raise NotConnected("gripper_go before activate(): torque is off", device=self.device)
+        self.effort = effort
+        try:
+            if self.protocol == 2:
+                self.bus.write(self.id, "Goal Current", self._goal_current_units(effort))
+            else:
+                self.bus.write(self.id, "Torque Limit", self._torque_limit_units(effort))
+            self.bus.write(self.id, "Goal Position", goal)
+        except DeviceFault:
+            self.lifecycle = Lifecycle.FAULT
+            return GripperOutcome.FAULT
+        if not blocking:
+            return GripperOutcome.MOVING
+        return self.wait(goal, timeout_s)
+
+    def wait(self, goal_ticks: int, timeout_s: float | None = None) -> GripperOutcome:
+        """Poll the state until the move to ``goal_ticks`` ends; return how it ended."""
+        deadline = Deadline(self.clock, self.default_timeout_s if timeout_s is None else timeout_s)
+        cal = self.calibration
+        tol_ticks = max(1.0, self.position_tolerance_m / cal.max_opening_m * abs(cal.span_ticks))
+        cap_a = min(self.effort * self.current_limit_a, STALL_CURRENT_A)
+        recent: deque[int] = deque(maxlen=self.stall_window)
+        while True:
+            ticks, current_a, hw = self._poll()
+            if hw:
+                self.lifecycle = Lifecycle.FAULT
+                return GripperOutcome.FAULT
+            if abs(ticks - goal_ticks) <= tol_ticks:
+                return GripperOutcome.REACHED
+            recent.append(ticks)
+            if (len(recent) == recent.maxlen and max(recent) - min(recent) <= tol_ticks / 2
+                    and abs(current_a) >= 0.5 * cap_a):
+                return GripperOutcome.STALLED
+            if deadline.expired():
+                return GripperOutcome.TIMEOUT
+            self.clock.sleep(self.poll_period_s)
+
+    def _poll(self) -> tuple[int, float, int]:
+        """(present ticks, current A, hardware error bits) in one read."""
+        if self.protocol == 2:
+            raw = self.bus.read_bytes(self.id, 126, 10, what="read present current/velocity/position")
+            current = int.from_bytes(raw[0:2], "little", signed=True) * ct.P2_CURRENT_A_PER_UNIT
+            ticks = int.from_bytes(raw[6:10], "little", signed=True)
+        else:
+            raw = self.bus.read_bytes(self.id, 36, 6, what="read present position/speed/load")
+            ticks = int.from_bytes(raw[0:2], "little")
+            load = int.from_bytes(raw[4:6], "little")
+            current = (-1 if load & 0x400 else 1) * (load & 0x3FF) / 1023 * STALL_CURRENT_A
+        return ticks, current, self.bus.hardware_errors.get(self.id, 0)
+
+    # -- state --------------------------------------------------------------------------------------
+    def state(self) -> GripperState:
+        """Position, velocity, current, effort, temperature and error bits, in one transaction."""
+        self._require_open()
+        cal = self.calibration
+        m_per_tick = cal.max_opening_m / cal.span_ticks
+        if self.protocol == 2:
+            base = 64
+            raw = self.bus.read_bytes(self.id, base, 147 - base, what="read state")
+
+            def f(addr: int, size: int, signed: bool = False) -> int:
+                return int.from_bytes(raw[addr - base:addr - base + size], "little", signed=signed)
+
+            torque, moving = f(64, 1), f(122, 1)
+            current_a = f(126, 2, True) * ct.P2_CURRENT_A_PER_UNIT
+            tps = f(128, 4, True) * ct.P2_RPM_PER_VELOCITY_UNIT * ct.TICKS_PER_REV / 60
+            ticks, temp = f(132, 4, True), f(146, 1)
+            hw = f(70, 1)
+            self.bus.hardware_errors[self.id] = hw
+        else:
+            base = 24
+            raw = self.bus.read_bytes(self.id, base, 70 - base, what="read state")
+
+            def f(addr: int, size: int) -> int:
+                return int.from_bytes(raw[addr - base:addr - base + size], "little")
+
+            torque, moving, ticks, temp = f(24, 1), f(46, 1), f(36, 2), f(43, 1)
+            speed = f(38, 2)
+            tps = (-1 if speed & 0x400 else 1) * (speed & 0x3FF) * ct.P1_RPM_PER_SPEED_UNIT * ct.TICKS_PER_REV / 60
+            current_a = (f(68, 2) - ct.P1_CURRENT_OFFSET) * ct.P1_CURRENT_A_PER_UNIT
+            hw = self.bus.hardware_errors.get(self.id, 0)
+        if hw and self.lifecycle == Lifecycle.ACTIVE:
+            self.lifecycle = Lifecycle.FAULT
+        frac = cal.frac_from_ticks(ticks)
+        return GripperState(
+            t_s=self.clock.now_s(),
+            opening_m=frac * cal.max_opening_m,
+            opening_frac=frac,
+            velocity_mps=tps * m_per_tick,
+            current_a=current_a,
+            effort_frac=abs(current_a) / self.current_limit_a if self.current_limit_a else 0.0,
+            temperature_c=float(temp),
+            hardware_error=hw,
+            moving=bool(moving),
+            active=bool(torque) and self.lifecycle == Lifecycle.ACTIVE,
+        )
+
+    # -- calibration -------------------------------------------------------------------------------
+    def calibrate(self, *, effort: float = 0.2, max_opening_m: float | None = None, closing_sign: int = -1,
+                  timeout_s: float = 10.0) -> GripperCalibration:
+        """Find the closed and open stops by driving into each with a low ``effort``.
+
+        ``closing_sign`` is the tick direction that closes the fingers (-1: decreasing ticks).
+        ``max_opening_m`` is the measured opening at the open stop (default: the current one).
+        Leaves the gripper active at the open stop.
+        """
+        if closing_sign not in (-1, 1):
+            raise ValueError(f"closing_sign={closing_sign!r} must be -1 or 1")
+        check_range("effort", effort, 0.01, 1.0)
+        if self.lifecycle != Lifecycle.ACTIVE:
+            self.activate(effort)
+        closed = self._drive_to_stop(closing_sign, effort, timeout_s)
+        opened = self._drive_to_stop(-closing_sign, effort, timeout_s)
+        if abs(opened - closed) < 50:
+            raise CalibrationError(f"the stops found are only {abs(opened - closed)} ticks apart "
+                                   f"(closed {closed}, open {opened}): is something blocking the fingers?",
+                                   device=self.device)
+        self.calibration = GripperCalibration(closed, opened, max_opening_m or self.calibration.max_opening_m)
+        return self.calibration
+
+    def _drive_to_stop(self, sign: int, effort: float, timeout_s: float) -> int:
+        present = self.bus.read(self.id, "Present Position")
+        if self.protocol == 2:
+            goal = present + sign * ct.TICKS_PER_REV
+            self.bus.write(self.id, "Goal Current", self._goal_current_units(effort))
+        else:
+            goal = 0 if sign < 0 else 4095
+            self.bus.write(self.id, "Torque Limit", self._torque_limit_units(effort))
+        self.effort = effort
+        self.bus.write(self.id, "Goal Position", goal)
+        outcome = self.wait(goal, timeout_s)
+        if outcome == GripperOutcome.FAULT:
+            raise self.bus.fault_error(self.id, "calibrate")
+        if outcome != GripperOutcome.STALLED:
+            raise CalibrationError(f"driving toward the {'closed' if sign < 0 else 'open'} stop ended as "
+                                   f"{outcome.value}, not on the stop", device=self.device)
+        stop = self.bus.read(self.id, "Present Position")
+        self.bus.write(self.id, "Goal Position", stop)  # hold there instead of pushing
+        return stop

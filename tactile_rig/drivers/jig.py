@@ -1,0 +1,618 @@
+"""Driver of the x-y-θ jig on GRBL 1.1 (θ on a configurable channel: Z on stock GRBL, A on grblHAL).
+
+:class:`Jig` survives the reset on open (banner wait, alarm-on-boot noted), homes (``$H``),
+unlocks (``$X``), moves (``move_to``), jogs and cancels jogs, sends feed hold / resume / soft reset
+as realtime bytes, parses status reports whatever fields ``$10`` enables (:func:`parse_status`),
+waits for Idle, reads and writes settings, and streams G-code with character counting (never more
+than GRBL's 128-byte receive buffer in flight). Every ``error:N`` becomes :class:`GrblError` and
+every ``ALARM:N`` :class:`GrblAlarm`, with GRBL's own message. It satisfies the controllers'
+``Motion`` protocol (``move_toward``, ``pose``, ``stop``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Callable, Iterable
+
+import serial
+
+from tactile_rig.clock import Clock, Deadline
+from tactile_rig.drivers import grbl_protocol as gp
+from tactile_rig.drivers.transport import SerialTransport
+from tactile_rig.errors import DeviceFault, DeviceTimeout, LimitError, LinkCorrupt, NotConnected, check_range
+
+log = logging.getLogger("tactile_rig.jig")
+
+
+# -- errors ------------------------------------------------------------------------------------------
+
+class GrblError(DeviceFault):
+    """GRBL answered ``error:N`` to a line; ``code`` is N, ``line`` the line it rejected."""
+
+    def __init__(self, code: int, *, device: str | None = None, line: str | None = None) -> None:
+        name, message = gp.ERRORS.get(code, ("Unknown error", f"error code {code} is not in GRBL 1.1's table"))
+        where = f" for line {line!r}" if line is not None else ""
+        super().__init__(f"error:{code} ({name}){where}: {message}", device=device, code=code, detail=message)
+        self.name = name
+        self.line = line
+
+
+class GrblAlarm(DeviceFault):
+    """GRBL reported ``ALARM:N``: motion has stopped and G-code is locked until ``$X`` or a reset."""
+
+    def __init__(self, code: int, *, device: str | None = None) -> None:
+        name, message = gp.ALARMS.get(code, ("Unknown alarm", f"alarm code {code} is not in GRBL 1.1's table"))
+        super().__init__(f"ALARM:{code} ({name}): {message}", device=device, code=code, detail=message)
+        self.name = name
+
+
+class GrblReset(DeviceFault):
+    """GRBL printed its banner when no reset was asked for (power glitch, DTR, watchdog)."""
+
+
+# -- status reports -----------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class GrblStatus:
+    """A parsed ``<...>`` report. Positions are tuples in mm (deg on the θ channel); fields the
+    ``$10`` mask or the refresh counters left out are None. ``wpos``/``mpos`` are filled from the
+    other and the last known WCO when only one is reported."""
+
+    state: str
+    substate: int | None = None
+    mpos: tuple[float, ...] | None = None
+    wpos: tuple[float, ...] | None = None
+    wco: tuple[float, ...] | None = None
+    feed_mm_per_min: float | None = None
+    spindle_rpm: float | None = None
+    planner_free: int | None = None
+    rx_free: int | None = None
+    line_number: int | None = None
+    pins: str = ""
+    overrides: tuple[int, int, int] | None = None
+    accessories: str | None = None
+    extras: dict[str, str] = field(default_factory=dict)
+    t_host_s: float = 0.0
+    raw: str = ""
+
+    @property
+    def idle(self) -> bool:
+        return self.state == "Idle"
+
+
+def _floats(name: str, text: str, line: str) -> tuple[float, ...]:
+    try:
+        vals = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise LinkCorrupt(f"status field {name}:{text!r} is not a list of numbers in {line!r}") from None
+    if not all(math.isfinite(v) for v in vals):
+        raise LinkCorrupt(f"status field {name}:{text!r} has a non-finite value in {line!r}")
+    return vals
+
+
+def parse_status(line: str, t_s: float = 0.0, wco: tuple[float, ...] | None = None) -> GrblStatus:
+    """Parse a GRBL 1.1 status report (any field order and presence); raise LinkCorrupt if malformed.
+
+    ``wco`` is the last work coordinate offset seen, used to derive the position not reported.
+    """
+    s = line.strip()
+    if len(s) < 3 or s[0] != "<" or s[-1] != ">":
+        raise LinkCorrupt(f"not a status report: {line!r} (expected '<State|...>')")
+    parts = s[1:-1].split("|")
+    state, _, sub = parts[0].partition(":")
+    if state not in gp.STATES:
+        raise LinkCorrupt(f"unknown machine state {parts[0]!r} in {line!r}; expected one of {gp.STATES}")
+    kw: dict = {"state": state, "raw": s, "t_host_s": t_s}
+    if sub:
+        if not sub.isdigit():
+            raise LinkCorrupt(f"bad substate {parts[0]!r} in {line!r}")
+        kw["substate"] = int(sub)
+    extras: dict[str, str] = {}
+    for part in parts[1:]:
+        name, sep, val = part.partition(":")
+        if not sep:
+            raise LinkCorrupt(f"status field {part!r} has no ':' in {line!r}")
+        if name in ("MPos", "WPos", "WCO"):
+            kw[name.lower()] = _floats(name, val, line)
+        elif name == "Bf":
+            v = _floats(name, val, line)
+            if len(v) != 2:
+                raise LinkCorrupt(f"Bf needs 2 values, got {val!r} in {line!r}")
+            kw["planner_free"], kw["rx_free"] = int(v[0]), int(v[1])
+        elif name == "Ln":
+            kw["line_number"] = int(_floats(name, val, line)[0])
+        elif name == "F":
+            kw["feed_mm_per_min"] = _floats(name, val, line)[0]
+        elif name == "FS":
+            v = _floats(name, val, line)
+            if len(v) != 2:
+                raise LinkCorrupt(f"FS needs 2 values, got {val!r} in {line!r}")
+            kw["feed_mm_per_min"], kw["spindle_rpm"] = v
+        elif name == "Pn":
+            if any(c not in gp.PIN_LETTERS + "BCUVW" for c in val):
+                raise LinkCorrupt(f"unknown pin letters in Pn:{val!r} in {line!r}")
+            kw["pins"] = val
+        elif name == "Ov":
+            v = _floats(name, val, line)
+            if len(v) != 3:
+                raise LinkCorrupt(f"Ov needs 3 values, got {val!r} in {line!r}")
+            kw["overrides"] = (int(v[0]), int(v[1]), int(v[2]))
+        elif name == "A":
+            kw["accessories"] = val
+        else:
+            extras[name] = val  # grblHAL adds fields; keep them
+    kw["extras"] = extras
+    offset = kw.get("wco") or wco
+    if offset is not None:
+        if "mpos" in kw and "wpos" not in kw and len(offset) == len(kw["mpos"]):
+            kw["wpos"] = tuple(m - o for m, o in zip(kw["mpos"], offset))
+        elif "wpos" in kw and "mpos" not in kw and len(offset) == len(kw["wpos"]):
+            kw["mpos"] = tuple(w + o for w, o in zip(kw["wpos"], offset))
+    return GrblStatus(**kw)
+
+
+# -- the driver ---------------------------------------------------------------------------------------
+
+@dataclass
+class StreamResult:
+    """What a character-counted stream did: lines sent, ``ok`` count, and rejected lines (number, code)."""
+
+    sent: int = 0
+    ok: int = 0
+    errors: list[tuple[int, int, str]] = field(default_factory=list)
+
+
+@dataclass
+class _Outstanding:
+    ident: int
+    line: str
+    nbytes: int
+
+
+def clean_gcode_line(line: str) -> str:
+    """A G-code line as worth sending: comments and surrounding whitespace removed."""
+    out = []
+    depth = 0
+    for ch in line:
+        if ch == "(":
+            depth += 1
+        elif ch == ")" and depth:
+            depth -= 1
+        elif ch == ";" and not depth:
+            break
+        elif not depth:
+            out.append(ch)
+    return "".join(out).strip()
+
+
+class Jig:
+    """The jig's GRBL controller on ``port`` (path or URL), opened here.
+
+    ``theta_axis`` is the GRBL channel θ rides on (``"Z"`` on stock GRBL 1.1, ``"A"`` on grblHAL; its
+    steps/mm setting holds steps per degree). ``x_range_mm`` / ``y_range_mm`` / ``theta_range_deg``
+    (optional) are checked before a move is sent; the firmware's own soft limits apply as well.
+    """
+
+    def __init__(
+        self,
+        port: str,
+        *,
+        baudrate: int = gp.BAUD,
+        theta_axis: str = "Z",
+        clock: Clock | None = None,
+        boot_timeout_s: float = 3.0,
+        x_range_mm: tuple[float, float] | None = None,
+        y_range_mm: tuple[float, float] | None = None,
+        theta_range_deg: tuple[float, float] | None = None,
+        device: str | None = None,
+    ) -> None:
+        theta_axis = theta_axis.upper()
+        if theta_axis not in ("Z", "A"):
+            raise ValueError(f"theta_axis={theta_axis!r}: expected 'Z' (stock GRBL 1.1) or 'A' (grblHAL)")
+        self.port = port
+        self.theta_axis = theta_axis
+        self.device = device or f"jig@{port}"
+        self.ranges = {"x_mm": x_range_mm, "y_mm": y_range_mm, "theta_deg": theta_range_deg}
+        self.transport = SerialTransport(port, baudrate=baudrate, device=self.device, clock=clock)
+        self.clock: Clock = self.transport.clock
+        self._rx = bytearray()
+        self._responses: deque[str] = deque()
+        self._outstanding: deque[_Outstanding] = deque()
+        self._results: dict[int, str] = {}
+        self._info: list[str] = []
+        self.messages: list[str] = []
+        self._alarms: deque[int] = deque()
+        self._statuses: deque[GrblStatus] = deque()
+        self._next_id = 0
+        self._expect_banner = True
+        self._unexpected_reset = False
+        self.banner: str | None = None
+        self.resets = 0
+        self.lines_lost = 0
+        self.alarm_on_boot = False
+        self.last_status: GrblStatus | None = None
+        self._wco: tuple[float, ...] | None = None
+        self._await_banner(boot_timeout_s)
+
+    # -- plumbing ---------------------------------------------------------------------------------------
+    def _await_banner(self, timeout_s: float) -> None:
+        dl = Deadline(self.clock, timeout_s)
+        nudged = False
+        while self._expect_banner:
+            if dl.expired():
+                if not nudged:
+                    # No reset on open (a board without auto-reset, or GRBL already running): ask for one.
+                    nudged = True
+                    self.transport.write(gp.RT_SOFT_RESET)
+                    dl = Deadline(self.clock, timeout_s)
+                    continue
+                raise DeviceTimeout(f"no GRBL banner ('{gp.BANNER_PREFIX}...') within {timeout_s:.3g} s of "
+                                   f"opening and a soft reset (check the port, the baud rate, and that "
+                                   f"the board runs GRBL)", device=self.device)
+            self._pump(dl.remaining_s() or 0.0)
+        # The unlock hint follows the banner by a line; give it a moment to arrive.
+        self._pump(0.02)
+        self._alarms.clear()
+
+    def _pump(self, wait_s: float) -> int:
+        data = self.transport.read_some(1, wait_s)
+        if data:
+            data += self.transport.read_available()
+        if not data:
+            return 0
+        self._rx += data
+        n = 0
+        t = self.clock.now_s()
+        while True:
+            idx = self._rx.find(b"\n")
+            if idx < 0:
+                break
+            raw = bytes(self._rx[:idx]).strip().decode("ascii", "replace")
+            del self._rx[: idx + 1]
+            if raw:
+                self._on_line(raw, t)
+                n += 1
+        return n
+
+    def _on_line(self, line: str, t_s: float) -> None:
+        if line == "ok" or line.startswith("error:"):
+            if self._outstanding:
+                item = self._outstanding.popleft()
+                self._results[item.ident] = line
+            else:
+                log.warning("%s: %r with no line outstanding", self.device, line)
+        elif line.startswith("<"):
+            try:
+                st = parse_status(line, t_s, self._wco)
+            except LinkCorrupt as exc:
+                log.warning("%s: %s", self.device, exc)
+                return
+            if st.wco is not None:
+                self._wco = st.wco
+            self.last_status = st
+            self._statuses.append(st)
+        elif line.startswith("ALARM:"):
+            try:
+                self._alarms.append(int(line[6:]))
+            except ValueError:
+                log.warning("%s: bad alarm line %r", self.device, line)
+        elif line.startswith("Grbl"):
+            self.banner = line
+            self.lines_lost += len(self._outstanding)
+            self._outstanding.clear()  # a reset empties GRBL's buffers: those lines never run
+            if self._expect_banner:
+                self._expect_banner = False
+            else:
+                self.resets += 1
+                self._unexpected_reset = True
+        elif line.startswith("[MSG:"):
+            self.messages.append(line)
+            if "to unlock" in line:
+                self.alarm_on_boot = True
+        else:
+            self._info.append(line)
+
+    def _check_events(self) -> None:
+        if self._unexpected_reset:
+            self._unexpected_reset = False
+            raise GrblReset("GRBL reset unexpectedly (banner mid-session): buffered motion was lost",
+                            device=self.device)
+        if self._alarms:
+            raise GrblAlarm(self._alarms.popleft(), device=self.device)
+
+    def _send_line(self, line: str, deadline: Deadline) -> int:
+        """Send one line when GRBL's receive buffer has room for it (character counting)."""
+        data = line.encode("ascii") + b"\n"
+        if len(data) > gp.RX_BUFFER_SIZE:
+            raise ValueError(f"G-code line of {len(data)} bytes exceeds GRBL's {gp.RX_BUFFER_SIZE}-byte buffer: {line!r}")
+        while sum(o.nbytes for o in self._outstanding) + len(data) > gp.RX_BUFFER_SIZE:
+            self._check_events()
+            if deadline.expired():
+                raise DeviceTimeout(f"GRBL's receive buffer did not drain within {deadline.timeout_s:.3g} s",
+                                    device=self.device)
+            self._pump(deadline.remaining_s() or 0.0)
+        ident = self._next_id
+        self._next_id += 1
+        self._outstanding.append(_Outstanding(ident, line, len(data)))
+        self.transport.write(data)
+        return ident
+
+    def _await_result(self, ident: int, deadline: Deadline, what: str) -> str:
+        while ident not in self._results:
+            self._check_events()
+            if not any(o.ident == ident for o in self._outstanding):
+                raise GrblReset(f"{what} was lost: GRBL reset before answering", device=self.device)
+            if deadline.expired():
+                raise DeviceTimeout(f"no 'ok' or 'error' for {what} within {deadline.timeout_s:.3g} s",
+                                    device=self.device)
+            self._pump(deadline.remaining_s() or 0.0)
+        return self._results.pop(ident)
+
+    def command(self, line: str, timeout_s: float = 2.0) -> list[str]:
+        """Send one line, wait for its ``ok``; return the info lines it printed. ``error:N`` → GrblError."""
+        self._check_events()
+        dl = Deadline(self.clock, timeout_s)
+        self._info.clear()
+        ident = self._send_line(line, dl)
+        result = self._await_result(ident, dl, repr(line))
+        info = list(self._info)
+        self._info.clear()
+        if result != "ok":
+            raise GrblError(_error_code(result), device=self.device, line=line)
+        return info
+
+    # -- status and waiting ---------------------------------------------------------------------------------
+    def status(self, timeout_s: float = 0.5) -> GrblStatus:
+        """Ask for a status report (``?``) and return it parsed."""
+        self._statuses.clear()
+        self.transport.write(gp.RT_STATUS)
+        dl = Deadline(self.clock, timeout_s)
+        while not self._statuses:
+            if dl.expired():
+                raise DeviceTimeout(f"no status report within {timeout_s:.3g} s of '?'", device=self.device)
+            self._pump(dl.remaining_s() or 0.0)
+        st = self._statuses.pop()
+        self._statuses.clear()
+        return st
+
+    def wait_idle(self, timeout_s: float = 30.0, poll_s: float = 0.05) -> GrblStatus:
+        """Poll until every sent line is answered and the machine is Idle; alarms raise GrblAlarm."""
+        dl = Deadline(self.clock, timeout_s)
+        while True:
+            self._check_events()
+            st = self.status(min(0.5, max(0.05, dl.remaining_s() or 0.05)))
+            self._check_events()
+            if st.state == "Idle" and not self._outstanding:
+                return st
+            if st.state == "Alarm":
+                raise GrblAlarm(self._alarms.popleft() if self._alarms else 0, device=self.device)
+            if dl.expired():
+                raise DeviceTimeout(f"not Idle within {timeout_s:.3g} s (state {st.state}, "
+                                    f"{len(self._outstanding)} line(s) unanswered)", device=self.device)
+            self.clock.sleep(min(poll_s, dl.remaining_s() or 0.0))
+            self._pump(0.0)
+
+    # -- machine commands -------------------------------------------------------------------------------------
+    def home(self, timeout_s: float = 60.0) -> None:
+        """Run the homing cycle (``$H``); returns when GRBL answers ``ok`` (the cycle is done)."""
+        self.command("$H", timeout_s)
+        self.alarm_on_boot = False
+
+    def unlock(self) -> None:
+        """Clear an alarm lock without homing (``$X``): only if you know where the stage is."""
+        self.command("$X")
+        self.alarm_on_boot = False
+
+    def feed_hold(self) -> None:
+        """Decelerate to a stop, keeping the rest of the program (``!``); ``resume`` continues."""
+        self.transport.write(gp.RT_FEED_HOLD)
+
+    def resume(self) -> None:
+        """Cycle start / resume after a feed hold (``~``)."""
+        self.transport.write(gp.RT_CYCLE_START)
+
+    def jog_cancel(self) -> None:
+        """Stop a jog and drop the queued jog motions (0x85)."""
+        self.transport.write(gp.RT_JOG_CANCEL)
+
+    def soft_reset(self, timeout_s: float = 2.0) -> None:
+        """Ctrl-X: GRBL stops at once and reboots; waits for the banner. Unanswered lines are lost
+        (counted in ``lines_lost``); a reset while moving leaves ALARM:3 (reported by ``status``)."""
+        self._expect_banner = True
+        self.transport.write(gp.RT_SOFT_RESET)
+        dl = Deadline(self.clock, timeout_s)
+        while self._expect_banner:
+            if dl.expired():
+                raise DeviceTimeout(f"no banner within {timeout_s:.3g} s of a soft reset", device=self.device)
+            self._pump(dl.remaining_s() or 0.0)
+        self._pump(0.02)
+        self._alarms.clear()
+        self._results.clear()
+
+    def _axis_words(self, x_mm: float | None, y_mm: float | None, theta_deg: float | None) -> str:
+        words = []
+        for letter, name, v in (("X", "x_mm", x_mm), ("Y", "y_mm", y_mm), (self.theta_axis, "theta_deg", theta_deg)):
+            if v is None:
+                continue
+            if not math.isfinite(v):
+                raise ValueError(f"{name}={v!r} must be a finite number")
+            words.append(f"{letter}{v:.3f}")
+        return "".join(words)
+
+    def _check_ranges(self, **pose: float | None) -> None:
+        for name, v in pose.items():
+            rng = self.ranges.get(name)
+            if v is not None and rng is not None and not (rng[0] <= v <= rng[1]):
+                unit = "deg" if name == "theta_deg" else "mm"
+                raise LimitError(f"{name}={v!r} {unit} is outside the jig's travel [{rng[0]}, {rng[1]}] {unit}",
+                                 device=self.device)
+
+    def move_to(self, x_mm: float | None = None, y_mm: float | None = None, theta_deg: float | None = None,
+                feed_mm_per_min: float | None = None, *, wait: bool = False, timeout_s: float = 60.0) -> None:
+        """Go to a work-coordinate pose (None: that axis stays). ``feed_mm_per_min`` None: a rapid (G0),
+        each axis at its own maximum rate. With ``wait`` returns when Idle there."""
+        self._check_ranges(x_mm=x_mm, y_mm=y_mm, theta_deg=theta_deg)
+        words = self._axis_words(x_mm, y_mm, theta_deg)
+        if not words:
+            return
+        if feed_mm_per_min is None:
+            line = f"G90G0{words}"
+        else:
+            check_range("feed_mm_per_min", feed_mm_per_min, 1e-3, 1e6, "mm/min")
+            line = f"G90G1{words}F{feed_mm_per_min:.1f}"
+        self.command(line, timeout_s)
+        if wait:
+            self.wait_idle(timeout_s)
+
+    def jog(self, dx_mm: float = 0.0, dy_mm: float = 0.0, dtheta_deg: float = 0.0, *,
+            feed_mm_per_min: float, relative: bool = True) -> None:
+        """Jog (``$J=``): relative by default; absolute work coordinates with ``relative=False``.
+        A jog past the soft limits is refused by GRBL (error:15 → GrblError)."""
+        check_range("feed_mm_per_min", feed_mm_per_min, 1e-3, 1e6, "mm/min")
+        if not relative:
+            self._check_ranges(x_mm=dx_mm, y_mm=dy_mm, theta_deg=dtheta_deg)
+        words = self._axis_words(dx_mm, dy_mm, dtheta_deg)
+        self.command(f"$J={'G91' if relative else 'G90'}{words}F{feed_mm_per_min:.1f}")
+
+    # -- settings --------------------------------------------------------------------------------------------------
+    def read_settings(self) -> dict[int, float]:
+        """``$$`` → {setting number: value}."""
+        out: dict[int, float] = {}
+        for line in self.command("$$"):
+            if line.startswith("$") and "=" in line:
+                key, _, val = line[1:].partition("=")
+                try:
+                    out[int(key)] = float(val.split(" ")[0])
+                except ValueError:
+                    continue
+        return out
+
+    def write_setting(self, number: int, value: float) -> None:
+        """``$N=value`` (persists in GRBL's EEPROM); unknown numbers are refused here, bad values by GRBL."""
+        if number not in gp.SETTINGS:
+            raise ValueError(f"GRBL setting ${number} does not exist; known: {sorted(gp.SETTINGS)}")
+        text = str(int(value)) if number in gp.INTEGER_SETTINGS else f"{float(value):.3f}"
+        self.command(f"${number}={text}")
+
+    def build_info(self) -> list[str]:
+        return self.command("$I")
+
+    def parser_state(self) -> list[str]:
+        return self.command("$G")
+
+    # -- streaming ------------------------------------------------------------------------------------------------------
+    def stream(self, lines: Iterable[str], *, timeout_s: float = 600.0, stop_on_error: bool = True,
+               on_progress: Callable[[int, str, str], None] | None = None) -> StreamResult:
+        """Stream G-code with character counting; returns when every sent line is answered.
+
+        On ``error:N`` with ``stop_on_error`` nothing more is sent and :class:`GrblError` is raised
+        (naming the line) once the lines already in GRBL's buffer are answered.
+        """
+        self._check_events()
+        dl = Deadline(self.clock, timeout_s)
+        res = StreamResult()
+        pending: deque[tuple[int, int, str]] = deque()  # (ident, line number, text)
+        first_error: GrblError | None = None
+
+        def collect() -> None:
+            nonlocal first_error
+            while pending and pending[0][0] in self._results:
+                ident, no, text = pending.popleft()
+                r = self._results.pop(ident)
+                if on_progress is not None:
+                    on_progress(no, text, r)
+                if r == "ok":
+                    res.ok += 1
+                else:
+                    code = _error_code(r)
+                    res.errors.append((no, code, text))
+                    if first_error is None:
+                        first_error = GrblError(code, device=self.device, line=f"{no}: {text}")
+
+        for no, raw in enumerate(lines, start=1):
+            text = clean_gcode_line(raw)
+            if not text:
+                continue
+            collect()
+            if first_error is not None and stop_on_error:
+                break
+            pending.append((self._send_line(text, dl), no, text))
+            res.sent += 1
+            self._pump(0.0)
+        while pending:
+            collect()
+            if not pending:
+                break
+            self._check_events()
+            if dl.expired():
+                raise DeviceTimeout(f"{len(pending)} streamed line(s) unanswered after {timeout_s:.3g} s",
+                                    device=self.device)
+            self._pump(dl.remaining_s() or 0.0)
+        if first_error is not None and stop_on_error:
+            raise first_error
+        return res
+
+    # -- Motion protocol -------------------------------------------------------------------------------------------------
+    def move_toward(self, target, speed_mps: float) -> None:  # target: control.protocols.Pose
+        """Start moving toward ``target`` (a Pose: x_mm, y_mm, theta_deg) at ``speed_mps`` (mm/s × 1000
+        along the combined path, θ counted in degrees as GRBL does). A newer call replaces an older one."""
+        check_range("speed_mps", speed_mps, 1e-6, 10.0, "m/s")
+        self._check_ranges(x_mm=target.x_mm, y_mm=target.y_mm, theta_deg=target.theta_deg)
+        st = self.last_status
+        if st is not None and st.state == "Jog":
+            self.jog_cancel()
+        words = self._axis_words(target.x_mm, target.y_mm, target.theta_deg)
+        self.command(f"$J=G90{words}F{speed_mps * 60000.0:.1f}")
+
+    def pose(self):
+        """The work-coordinate pose now (a control.protocols.Pose-compatible object)."""
+        from tactile_rig.control.protocols import Pose  # a plain dataclass; no controller logic
+
+        st = self.status()
+        return self.pose_from_status(st, Pose)
+
+    def pose_from_status(self, st: GrblStatus, pose_type=None):
+        pos = st.wpos or st.mpos
+        if pos is None:
+            raise LinkCorrupt(f"status report has no position: {st.raw!r}", device=self.device)
+        idx = gp.AXIS_LETTERS.index(self.theta_axis)
+        if idx >= len(pos):
+            raise LinkCorrupt(f"status reports {len(pos)} axes; θ is on {self.theta_axis}: {st.raw!r}",
+                              device=self.device)
+        if pose_type is None:
+            from tactile_rig.control.protocols import Pose as pose_type
+        return pose_type(x_mm=pos[0], y_mm=pos[1], z_mm=0.0, theta_deg=pos[idx])
+
+    def stop(self) -> None:
+        """Stop as fast as GRBL allows: jog cancel when jogging, else feed hold, then flush the plan
+        with a soft reset once stopped (position is kept; no alarm)."""
+        st = self.status()
+        if st.state == "Jog":
+            self.jog_cancel()
+            return
+        if st.state in ("Run", "Hold"):
+            self.feed_hold()
+            dl = Deadline(self.clock, 5.0)
+            while not (st.state == "Hold" and st.substate == 0) and st.state != "Idle" and not dl.expired():
+                self.clock.sleep(0.01)
+                st = self.status()
+            self.soft_reset()
+
+    def close(self) -> None:
+        self.transport.close()
+
+    def __enter__(self) -> "Jig":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _error_code(line: str) -> int:
+    try:
+        return int(line.split(":", 1)[1])
+    except (IndexError, ValueError):
+        raise LinkCorrupt(f"unreadable GRBL error line {line!r}") from None

@@ -1,0 +1,408 @@
+"""A simulated UVC fingertip camera, and a fake ``cv2.VideoCapture`` with the V4L2 backend's quirks.
+
+:class:`SimulatedCamera` is a :class:`~tactile_rig.drivers.camera.FrameSource`: a UVC control table
+(Logitech C310 values: ranges, steps, menus, manual controls inactive while their auto switch is on,
+controls reset by a format change), frames paced at the configured fps on a :class:`Clock`,
+exposure/gain/white balance applied to the rendered image, optional auto-exposure and
+white-balance drift (so a test proves the driver locked them), and faults: freeze, stall,
+unplug/replug, controls the firmware silently ignores, duplicated frames, RGB channel order.
+
+:class:`FakeVideoCapture` wraps one in the ``cv2.VideoCapture`` API the way the V4L2 backend
+behaves: FOURCC re-initialises the stream, width and height apply as a pair, unsupported props
+return False/-1, ``read()`` has no timeout, and after an unplug ``isOpened()`` stays True while
+``read()`` returns ``(False, None)``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import cv2
+import numpy as np
+
+from tactile_rig.clock import Clock, RealClock
+from tactile_rig.drivers.camera import RawFrame, canonical_control, fourcc_text
+from tactile_rig.errors import NotConnected
+
+__all__ = ["UvcControl", "C310_CONTROLS", "C310_MODES", "UvcControlTable", "SimulatedCamera", "FakeVideoCapture"]
+
+
+@dataclass(frozen=True)
+class UvcControl:
+    """One V4L2 control: ``kind`` is int, bool or menu; ``active_when`` = (switch, value) for manual controls."""
+
+    name: str
+    cid: int
+    kind: str
+    minimum: int
+    maximum: int
+    default: int
+    step: int = 1
+    menu: tuple[int, ...] = ()
+    active_when: tuple[str, int] | None = None
+
+
+C310_CONTROLS: tuple[UvcControl, ...] = (
+    UvcControl("brightness", 0x00980900, "int", 0, 255, 128),
+    UvcControl("contrast", 0x00980901, "int", 0, 255, 32),
+    UvcControl("saturation", 0x00980902, "int", 0, 255, 32),
+    UvcControl("white_balance_automatic", 0x0098090C, "bool", 0, 1, 1),
+    UvcControl("gain", 0x00980913, "int", 0, 255, 64),
+    UvcControl("power_line_frequency", 0x00980918, "menu", 0, 2, 2, menu=(0, 1, 2)),
+    UvcControl("white_balance_temperature", 0x0098091A, "int", 0, 10000, 4000, step=10,
+               active_when=("white_balance_automatic", 0)),
+    UvcControl("sharpness", 0x0098091B, "int", 0, 255, 24),
+    UvcControl("backlight_compensation", 0x0098091C, "int", 0, 1, 0),
+    UvcControl("auto_exposure", 0x009A0901, "menu", 1, 3, 3, menu=(1, 3)),
+    UvcControl("exposure_time_absolute", 0x009A0902, "int", 1, 10000, 166, active_when=("auto_exposure", 1)),
+    UvcControl("exposure_dynamic_framerate", 0x009A0903, "bool", 0, 1, 0),
+)
+
+# (fourcc, width, height) -> max fps (C310: YUYV large modes only at low fps).
+C310_MODES: dict[tuple[str, int, int], float] = {
+    ("MJPG", 160, 120): 30, ("MJPG", 320, 240): 30, ("MJPG", 640, 480): 30, ("MJPG", 1280, 720): 30,
+    ("MJPG", 1280, 960): 30, ("YUYV", 160, 120): 30, ("YUYV", 320, 240): 30, ("YUYV", 640, 480): 30,
+    ("YUYV", 1280, 720): 7.5, ("YUYV", 1280, 960): 5,
+}
+
+
+class UvcControlTable:
+    """Values of a control table with the kernel's rules: clamp ints to range and step, reject bad
+    menu values and writes to inactive controls."""
+
+    def __init__(self, controls: tuple[UvcControl, ...] = C310_CONTROLS) -> None:
+        self.controls = {c.name: c for c in controls}
+        self.values: dict[str, int] = {}
+        self.reset()
+
+    def reset(self) -> None:
+        self.values = {c.name: c.default for c in self.controls.values()}
+
+    def is_active(self, name: str) -> bool:
+        c = self.controls[name]
+        return c.active_when is None or self.values[c.active_when[0]] == c.active_when[1]
+
+    def set(self, name: str, value: float) -> bool:
+        name = canonical_control(name)
+        c = self.controls.get(name)
+        if c is None or not math.isfinite(value) or not self.is_active(name):
+            return False
+        v = int(round(value))
+        if c.kind == "menu":
+            if v not in c.menu:
+                return False
+        else:
+            v = min(max(v, c.minimum), c.maximum)
+            v = c.minimum + (v - c.minimum) // c.step * c.step
+        self.values[name] = v
+        return True
+
+    def get(self, name: str) -> int | None:
+        return self.values.get(canonical_control(name))
+
+
+def _renderer_from_url(url: str, world: Any) -> Any:
+    """``rigsim://camera?model=gelsight``: the renderer model of that name in ``world`` (default: the
+    only model with ``render_now``); no world: the test pattern."""
+    from urllib.parse import parse_qs, urlsplit
+
+    parts = urlsplit(url)
+    if parts.scheme != "rigsim":
+        raise ValueError(f"simulated camera URL {url!r} must start with rigsim://")
+    model = parse_qs(parts.query).get("model", [None])[0]
+    if world is None:
+        if model is not None:
+            raise ValueError(f"{url!r} names model {model!r} but no world (scene) was given")
+        return None
+    if model is not None:
+        return world.require(model, f"camera {url}")
+    renderers = [n for n in world if hasattr(world.get(n), "render_now")]
+    if len(renderers) != 1:
+        raise ValueError(f"{url!r}: say which renderer with ?model=NAME; the scene has {renderers or 'none'}")
+    return world.get(renderers[0])
+
+
+def moving_bar_pattern(shape_px: tuple[int, int]) -> Callable[[float], np.ndarray]:
+    """A default scene: a grey gradient with a bar moving at 1 cycle/s (consecutive frames differ)."""
+    rows, cols = shape_px
+    base = np.tile(np.linspace(60, 190, cols, dtype=np.float32), (rows, 1))
+
+    def render(t_s: float) -> np.ndarray:
+        img = base.copy()
+        x = int((t_s % 1.0) * cols)
+        img[:, x:x + max(1, cols // 16)] = 230
+        return np.repeat(img[..., None], 3, axis=2).astype(np.uint8)
+
+    return render
+
+
+class SimulatedCamera:
+    """A UVC camera that renders ``render(t_s) -> BGR`` (or a renderer model's ``render_now()``)."""
+
+    def __init__(self, render: Callable[[float], np.ndarray] | Any | None = None, *, clock: Clock | None = None,
+                 name: str = "simcam", fourcc: str = "MJPG", width: int = 320, height: int = 240, fps: float = 30.0,
+                 modes: dict[tuple[str, int, int], float] | None = None,
+                 controls: tuple[UvcControl, ...] = C310_CONTROLS, auto_drift: bool = True,
+                 reset_controls_on_format: bool = True, ignore_controls: tuple[str, ...] = (),
+                 channel_order: str = "BGR", noise_sigma: float = 1.0, seed: int = 0, world: Any = None) -> None:
+        """``render``: a function ``t_s -> BGR``, a renderer model (``render_now()``), None (a test
+        pattern), or a ``rigsim://camera?model=NAME`` URL naming the renderer model in ``world``."""
+        if isinstance(render, str):
+            render = _renderer_from_url(render, world)
+        self.name = name
+        self.clock = clock or RealClock()
+        self.modes = dict(modes) if modes is not None else dict(C310_MODES)
+        self.modes.setdefault((fourcc, int(width), int(height)), float(fps))  # the format it was built for
+        self.table = UvcControlTable(controls)
+        self.auto_drift = auto_drift
+        self.reset_controls_on_format = reset_controls_on_format
+        self.ignore_controls = {canonical_control(n) for n in ignore_controls}
+        self.channel_order = channel_order
+        self._render_fn = render
+        self._rng = np.random.default_rng(seed)
+        self.noise_sigma = float(noise_sigma)  # read noise: no two live frames are byte-identical
+        self.fourcc, self.width, self.height, self.fps = fourcc, width, height, fps
+        self._open = False
+        self._t0 = self.clock.now_s()
+        self._k_last = -1
+        self._last_image: np.ndarray | None = None
+        self._last_t_dev: float | None = None
+        # Faults: intervals of clock time [start, end).
+        self.freezes: list[tuple[float, float]] = []
+        self.stalls: list[tuple[float, float]] = []
+        self.unplugged: list[tuple[float, float]] = []
+        self._replugs_seen = 0
+        self.duplicate_every = 0  # every n-th frame is sent twice (same timestamp), 0 = never
+
+    # -- faults ---------------------------------------------------------------------------------
+    def freeze(self, start_s: float, end_s: float = math.inf) -> None:
+        self.freezes.append((start_s, end_s))
+
+    def stall(self, start_s: float, end_s: float = math.inf) -> None:
+        self.stalls.append((start_s, end_s))
+
+    def unplug(self, start_s: float, end_s: float = math.inf) -> None:
+        self.unplugged.append((start_s, end_s))
+
+    @staticmethod
+    def _in(intervals: list[tuple[float, float]], t: float) -> bool:
+        return any(a <= t < b for a, b in intervals)
+
+    # -- FrameSource ----------------------------------------------------------------------------
+    @property
+    def is_open(self) -> bool:
+        return self._open
+
+    def open(self) -> None:
+        now = self.clock.now_s()
+        if self._in(self.unplugged, now):
+            raise NotConnected("no such device (unplugged)", device=self.name)
+        replugs = sum(1 for _, b in self.unplugged if b <= now)
+        if replugs > self._replugs_seen:
+            self.table.reset()  # a replugged camera powers up with its default controls
+            self._replugs_seen = replugs
+        self._open = True
+
+    def close(self) -> None:
+        self._open = False
+
+    def _check(self) -> None:
+        if not self._open:
+            raise NotConnected("camera is not open", device=self.name)
+        if self._in(self.unplugged, self.clock.now_s()):
+            self._open = False
+            raise NotConnected("device disappeared (ENODEV)", device=self.name)
+
+    def set_format(self, fourcc: str, width: int, height: int, fps: float) -> tuple[str, int, int, float]:
+        self._check()
+        key = (fourcc, int(width), int(height))
+        if key not in self.modes:  # the driver snaps to the closest mode of that fourcc (or any)
+            cands = [m for m in self.modes if m[0] == fourcc] or list(self.modes)
+            key = min(cands, key=lambda m: abs(m[1] * m[2] - int(width) * int(height)))
+        self.fourcc, self.width, self.height = key
+        self.fps = min(float(fps), self.modes[key]) if fps > 0 else self.modes[key]
+        if self.reset_controls_on_format:
+            self.table.reset()
+        self._t0, self._k_last = self.clock.now_s(), -1
+        return self.fourcc, self.width, self.height, self.fps
+
+    def set_control(self, name: str, value: float) -> bool:
+        self._check()
+        if canonical_control(name) in self.ignore_controls:
+            return True  # the firmware acknowledges, and keeps its own value
+        return self.table.set(name, value)
+
+    def get_control(self, name: str) -> float | None:
+        self._check()
+        v = self.table.get(name)
+        return None if v is None else float(v)
+
+    def read(self, timeout_s: float | None = 1.0) -> RawFrame | None:
+        self._check()
+        now = self.clock.now_s()
+        period = 1.0 / self.fps
+        k = max(self._k_last + 1, math.ceil((now - self._t0) / period - 1e-9))
+        t_frame = self._t0 + k * period
+        limit = math.inf if timeout_s is None else now + max(0.0, timeout_s)
+        while True:
+            if t_frame > limit:
+                self.clock.sleep(limit - self.clock.now_s())
+                return None
+            self.clock.sleep(t_frame - self.clock.now_s())
+            self._check()  # raises if unplugged (or closed by another thread) meanwhile
+            if not self._in(self.stalls, t_frame):
+                break
+            k += 1
+            t_frame = self._t0 + k * period
+        if self.duplicate_every and self._last_image is not None and k % self.duplicate_every == 0:
+            self._k_last = k
+            return RawFrame(self._last_image, self._last_t_dev, k)
+        if self._in(self.freezes, t_frame) and self._last_image is not None:
+            img = self._last_image
+        else:
+            img = self._expose(self._render(t_frame), t_frame)
+        self._k_last, self._last_image, self._last_t_dev = k, img, t_frame - self._t0
+        out = img[..., ::-1].copy() if self.channel_order == "RGB" else img
+        return RawFrame(out, t_frame - self._t0, k)
+
+    # -- image formation ------------------------------------------------------------------------
+    def _render(self, t_s: float) -> np.ndarray:
+        fn = self._render_fn
+        if fn is None:
+            self._render_fn = fn = moving_bar_pattern((self.height, self.width))
+        img = fn.render_now() if hasattr(fn, "render_now") else fn(t_s)
+        if img.shape[:2] != (self.height, self.width):
+            img = cv2.resize(img, (self.width, self.height), interpolation=cv2.INTER_AREA)
+        return img
+
+    def effective_exposure(self, t_s: float) -> float:
+        """Exposure (100 µs units) in use: the manual value, or auto exposure's drifting choice."""
+        if self.table.get("auto_exposure") == 1:
+            return float(self.table.get("exposure_time_absolute"))
+        drift = 0.25 * math.sin(2 * math.pi * t_s / 7.0) if self.auto_drift else 0.0
+        return 166.0 * (1.0 + drift)
+
+    def channel_gains(self, t_s: float) -> np.ndarray:
+        """BGR gains from white balance: manual temperature, or auto WB's drifting choice."""
+        if self.table.get("white_balance_automatic") == 0:
+            shift = (self.table.get("white_balance_temperature") - 4000.0) / 20000.0
+        else:
+            shift = 0.08 * math.sin(2 * math.pi * t_s / 5.0) if self.auto_drift else 0.0
+        return np.array([1.0 + shift, 1.0, 1.0 - shift], dtype=np.float32)
+
+    def _expose(self, img: np.ndarray, t_s: float) -> np.ndarray:
+        gain = (self.effective_exposure(t_s) / 166.0) * (self.table.get("gain") / 64.0) ** 0.5
+        bright = (self.table.get("brightness") - 128) * 0.5
+        if (abs(gain - 1.0) < 1e-6 and bright == 0 and np.allclose(self.channel_gains(t_s), 1.0)
+                and self.noise_sigma <= 0):
+            return img
+        out = img.astype(np.float32) * (gain * self.channel_gains(t_s)) + bright
+        if self.noise_sigma > 0:
+            out += self._rng.standard_normal(out.shape, dtype=np.float32) * self.noise_sigma
+        return np.clip(out + 0.5, 0, 255).astype(np.uint8)
+
+
+class FakeVideoCapture:
+    """``cv2.VideoCapture`` over a :class:`SimulatedCamera`, with the V4L2 backend's behaviour.
+
+    Construct with ``FakeVideoCapture.factory({"/dev/v4l/by-id/...": sim})`` and pass that as
+    ``OpenCVSource(capture_factory=...)``.
+    """
+
+    _PROPS = {
+        cv2.CAP_PROP_AUTO_EXPOSURE: "auto_exposure", cv2.CAP_PROP_EXPOSURE: "exposure_time_absolute",
+        cv2.CAP_PROP_AUTO_WB: "white_balance_automatic", cv2.CAP_PROP_WB_TEMPERATURE: "white_balance_temperature",
+        cv2.CAP_PROP_GAIN: "gain", cv2.CAP_PROP_BRIGHTNESS: "brightness", cv2.CAP_PROP_CONTRAST: "contrast",
+        cv2.CAP_PROP_SATURATION: "saturation", cv2.CAP_PROP_SHARPNESS: "sharpness",
+        cv2.CAP_PROP_BACKLIGHT: "backlight_compensation",
+    }
+
+    def __init__(self, sim: SimulatedCamera | None) -> None:
+        self.sim = sim
+        self._pending_width: int | None = None
+        self._released = sim is None
+        self._t_ms = 0.0
+        self.buffersize = 4
+        if sim is not None:
+            try:
+                sim.open()
+            except NotConnected:
+                self._released = True
+
+    @classmethod
+    def factory(cls, devices: dict[str | int, SimulatedCamera]) -> Callable[..., FakeVideoCapture]:
+        def make(device: str | int, api: int | None = None) -> FakeVideoCapture:
+            if api is not None and api != cv2.CAP_V4L2:
+                raise AssertionError(f"FakeVideoCapture emulates CAP_V4L2 only, got api={api}")
+            return cls(devices.get(device))
+
+        return make
+
+    def isOpened(self) -> bool:  # noqa: N802  (cv2 API)
+        return not self._released  # stays True after an unplug, as the V4L2 backend does
+
+    def release(self) -> None:
+        self._released = True
+        if self.sim is not None:
+            self.sim.close()
+
+    def set(self, prop: int, value: float) -> bool:
+        if self._released or self.sim is None or not self.sim.is_open:
+            return False
+        s = self.sim
+        if prop == cv2.CAP_PROP_FOURCC:
+            s.set_format(fourcc_text(value), s.width, s.height, s.fps)  # re-inits the stream: controls reset
+            return True
+        if prop == cv2.CAP_PROP_FRAME_WIDTH:
+            self._pending_width = int(value)  # applied together with the height
+            return True
+        if prop == cv2.CAP_PROP_FRAME_HEIGHT:
+            s.set_format(s.fourcc, self._pending_width or s.width, int(value), s.fps)
+            self._pending_width = None
+            return True
+        if prop == cv2.CAP_PROP_FPS:
+            s.set_format(s.fourcc, s.width, s.height, float(value))
+            return True
+        if prop == cv2.CAP_PROP_BUFFERSIZE:
+            self.buffersize = int(value)
+            return 1 <= value <= 10
+        name = self._PROPS.get(prop)
+        if name is None:
+            return False  # "VIDEOIO ERROR: V4L2: property ... is not supported"
+        return s.set_control(name, value)
+
+    def get(self, prop: int) -> float:
+        if self._released or self.sim is None or not self.sim.is_open:
+            return -1.0 if prop not in (cv2.CAP_PROP_FRAME_WIDTH, cv2.CAP_PROP_FRAME_HEIGHT) else 0.0
+        s = self.sim
+        if prop == cv2.CAP_PROP_FOURCC:
+            return float(int(cv2.VideoWriter_fourcc(*s.fourcc)))
+        if prop == cv2.CAP_PROP_FRAME_WIDTH:
+            return float(s.width)
+        if prop == cv2.CAP_PROP_FRAME_HEIGHT:
+            return float(s.height)
+        if prop == cv2.CAP_PROP_FPS:
+            return float(s.fps)
+        if prop == cv2.CAP_PROP_POS_MSEC:
+            return self._t_ms
+        if prop == cv2.CAP_PROP_BUFFERSIZE:
+            return float(self.buffersize)
+        name = self._PROPS.get(prop)
+        v = None if name is None else s.get_control(name)
+        return -1.0 if v is None else float(v)
+
+    def read(self) -> tuple[bool, np.ndarray | None]:
+        """Blocks until a frame comes (no timeout, as in cap_v4l); (False, None) when gone."""
+        if self._released or self.sim is None:
+            return False, None
+        try:
+            raw = self.sim.read(None)
+        except NotConnected:
+            return False, None
+        if raw is None:
+            return False, None
+        self._t_ms = (raw.t_device_s or 0.0) * 1000.0
+        img = raw.image[..., ::-1].copy() if self.sim.channel_order == "RGB" else raw.image
+        return True, img
