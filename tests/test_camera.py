@@ -288,3 +288,37 @@ def test_driver_accepts_a_device_path_and_overrides():
     assert isinstance(cam.source, OpenCVSource)
     assert (cam.config.width, cam.config.height, cam.config.fps) == (320, 240, 25)
     assert cam.config.controls == PHOTOMETRIC_CONTROLS
+
+
+@given(st.lists(st.tuples(st.sampled_from(["stall", "unplug", "freeze"]), st.floats(0.0, 3.0), st.floats(0.01, 2.0)),
+                max_size=4))
+def test_any_fault_schedule_gives_frames_or_typed_errors(faults):
+    clock, sim, cam = make()
+    cam.config.frozen_after = 6
+    cam.open()
+    t0 = clock.now_s()
+    for kind, start, length in faults:
+        getattr(sim, kind)(t0 + start, t0 + start + length)
+    last_seq, last_dev, gave_up = -1, -1.0, False
+    while clock.now_s() < t0 + 6.0:
+        before = clock.now_s()
+        try:
+            f = cam.read(timeout_s=0.5)
+        except NotConnected:
+            gave_up = True
+            continue
+        except DeviceTimeout:  # includes FrozenStream
+            assert not gave_up
+            assert clock.now_s() - before <= 0.5 + 1.6 + 1e-6  # timeout (+ a reopen's backoff)
+            if clock.now_s() == before:
+                clock.advance(0.1)  # a frozen stream raises at once; let time pass
+            continue
+        assert not gave_up  # once given up, the error sticks
+        assert f.seq > last_seq and f.t_device_s is not None
+        if not f.duplicate:
+            assert f.t_device_s + sim._t0 > last_dev
+        last_seq, last_dev = f.seq, f.t_device_s + sim._t0
+    long_unplug = any(k == "unplug" and length > 1.0 for k, _, length in faults)
+    if not long_unplug:
+        assert not gave_up
+        assert cam.read(timeout_s=1.0).t_device_s + sim._t0 >= t0 + 5.0  # recovered after every fault

@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import json
 import os
+import tempfile
 
 import pytest
 import usb.core
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from tactile_rig.cli import main
 from tactile_rig.drivers.discovery import KNOWN_DEVICES, discover, match_kind
@@ -42,6 +45,8 @@ def test_discover_maps_devices_to_nodes_and_stable_links(tree):
     assert cam.video == [str(dev / "video0")]  # video1 is the metadata node
     assert len(cam.by_id) == 1 and cam.by_id[0].endswith("-video-index0")
     assert os.path.realpath(cam.by_id[0]) == str((dev / "video0").resolve())
+    assert cam.by_path == [str(dev / "v4l/by-path/pci-0000:00:14.0-usb-0:1.4:1.0-video-index0")]
+    assert found["ch340"].by_path == [str(dev / "serial/by-path/pci-0000:00:14.0-usb-0:1.3:1.0-port0")]
 
 
 def test_sysfs_fallback_finds_the_same(tree):
@@ -93,3 +98,48 @@ def test_cli_on_an_empty_tree(tmp_path, capsys):
     assert main(["devices", "--sysfs-root", str(tmp_path), "--dev-root", str(tmp_path), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert isinstance(out["devices"], list)
+
+
+@st.composite
+def usb_worlds(draw):
+    """A random set of devices on distinct ports: known and unknown ids, ttys and cameras."""
+    ids = [(0x0403, 0x6014), (0x2341, 0x0043), (0x2341, 0x8036), (0x1A86, 0x7523), (0x046D, 0x081B),
+           (0x046D, 0xC52B), (0x0403, 0x6001)]
+    n = draw(st.integers(0, 6))
+    ports = draw(st.lists(st.tuples(st.integers(1, 3), st.integers(1, 9), st.integers(1, 4)), min_size=n, max_size=n,
+                          unique=True))
+    devices, n_usb, n_acm, n_video = [], 0, 0, 0
+    for bus, p1, p2 in ports:
+        vid, pid = draw(st.sampled_from(ids))
+        serial = draw(st.sampled_from(["", "A1", "XYZ987"]))
+        tty, video = None, ()
+        if vid == 0x046D and pid == 0x081B:
+            video, n_video = (f"video{n_video}", f"video{n_video + 1}"), n_video + 2
+        elif vid == 0x2341:
+            tty, n_acm = f"ttyACM{n_acm}", n_acm + 1
+        elif vid != 0x046D:
+            tty, n_usb = f"ttyUSB{n_usb}", n_usb + 1
+        devices.append(FakeUsbDevice(vid, pid, bus, (p1, p2), serial, "Dev", "Maker", tty=tty, video=video))
+    return tuple(devices)
+
+
+@settings(max_examples=15)
+@given(usb_worlds())
+def test_discovery_finds_exactly_the_known_devices_and_their_nodes(devices):
+    with tempfile.TemporaryDirectory() as tmp:
+        sysfs, dev = build_fake_tree(tmp, devices)
+        found = discover(backend=FakeUsbBackend(devices), sysfs_root=sysfs, dev_root=dev)
+        expected = [d for d in devices if match_kind(d.vid, d.pid) is not None]
+        assert [f.port_path for f in found] == [d.port_path for d in expected]
+        for f, d in zip(found, expected):
+            assert f.tty == ([str(dev / d.tty)] if d.tty else [])
+            assert f.video == ([str(dev / d.video[0])] if d.video else [])
+            assert len(f.by_path) == (1 if (d.tty or d.video) else 0)  # unique per port
+            # udev names by-id links from the USB strings: devices with equal strings share one name
+            kind = (d.tty or "")[:6] + ("video" if d.video else "")
+            twins = [e for e in devices if (e.manufacturer, e.product, e.serial, (e.tty or "")[:6] + (
+                "video" if e.video else "")) == (d.manufacturer, d.product, d.serial, kind)]
+            if len(twins) == 1:
+                assert len(f.by_id) == (1 if (d.tty or d.video) else 0)
+            assert len(f.by_id) <= 1
+            assert f.serial == (d.serial or None)

@@ -79,6 +79,16 @@ def test_p2_status_round_trip(pkt: Packet) -> None:
     assert decode(encode_p2_status(pkt.id, pkt.error, pkt.params), 2, status=True) == pkt
 
 
+@pytest.mark.parametrize("inst", [0x03, 0xFF, 0xFD])
+def test_header_bytes_at_every_boundary_round_trip(inst: int) -> None:
+    base = bytes(range(1, 9))
+    for frag in (b"\xff\xff\xfd", b"\xff\xff\xfd\xfd", b"\xff\xff", b"\xfd"):
+        for k in range(len(base) + 1):
+            params = base[:k] + frag + base[k:]
+            assert decode(encode_p2(7, inst, params), 2) == Packet(2, 7, inst, params)
+            assert decode(encode_p2_status(7, inst, params), 2, status=True) == Packet(2, 7, 0x55, params, inst)
+
+
 @given(stuffing_params(40))
 def test_unstuff_inverts_stuff(body: bytes) -> None:
     assert unstuff(stuff(body)) == body

@@ -36,6 +36,7 @@ def test_shear_direction_within_5_deg(angle_deg: float) -> None:
     assert not r.calibrating and r.n_markers == len(REST)
     got = math.degrees(math.atan2(r.force_px[1], r.force_px[0]))
     assert abs((got - angle_deg + 180) % 360 - 180) <= 5.0
+    assert r.contact  # 2 px of shear
     assert isinstance(r, FingerVisionResult) and r.force_px.shape == (3,) and r.torque_px2.shape == (3,)
     assert set(r.timings_ms) >= {"contrast", "track", "force", "proximity", "total"}
 
@@ -53,6 +54,7 @@ def test_object_orientation_and_slip_through_the_processor() -> None:
                for r in reports)
     assert [r.slip for r in reports] == [False] * 4 + [True] * 4
     assert abs(reports[-1].slip_direction_deg) <= 10.0
+    assert reports[-1].slip_magnitude == reports[-1].slip_magnitude_px == pytest.approx(1.0, abs=0.3)
 
 
 @pytest.mark.parametrize("level", [0, 255])
@@ -62,7 +64,7 @@ def test_black_or_saturated_frame_loses_markers_without_nan(level: int) -> None:
     for _ in range(p.n_reset):
         r = fv.process(np.full((240, 320, 3), level, np.uint8))
     assert r.n_markers == 0 and not r.marker_valid.any()
-    assert np.all(r.force_px == 0) and np.all(r.torque_px2 == 0)
+    assert np.all(r.force_px == 0) and np.all(r.torque_px2 == 0) and not r.contact
     assert r.object_area_px == 0 and r.object_centroid_px is None and not r.slip
 
 
@@ -72,6 +74,7 @@ def test_calibrate_explicitly_and_frame_shape_checks() -> None:
     assert len(base) == len(REST)
     r = fv.process(render(REST, seed=9))
     assert not r.calibrating and r.n_markers == len(REST)
+    assert not r.contact and np.linalg.norm(r.force_px) < 0.1  # nothing moved
     with pytest.raises(ValueError, match="frame shape"):
         fv.process(np.zeros((120, 160, 3), np.uint8))
     with pytest.raises(ValueError, match="at least one frame"):

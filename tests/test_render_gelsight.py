@@ -73,6 +73,24 @@ def test_rendered_ball_presses_have_real_colour_statistics():
     assert np.median(np.array(corr), axis=0).min() > 0.8
 
 
+def test_noise_level_matches_the_real_sensor():
+    presses = taxim_presses()
+    bg = cv2.imread(str(presses / "background.png")).astype(np.float32)
+    yy, xx = np.mgrid[0:bg.shape[0], 0:bg.shape[1]]
+
+    def hp_std(diff: np.ndarray, row: dict) -> np.ndarray:
+        far = (xx - row["center_x_px"]) ** 2 + (yy - row["center_y_px"]) ** 2 > 40**2
+        return (diff - cv2.GaussianBlur(diff, (0, 0), 2.0))[far].std(axis=0)
+
+    r = GelSightRenderer("taxim", MM_PER_PX, seed=4)
+    real, ren = [], []
+    for row in read_labels(presses)[:10]:
+        real.append(hp_std(cv2.imread(str(presses / row["file"])).astype(np.float32) - bg, row))
+        ren.append(hp_std(r.render(None).astype(np.float32) - r.render(None).astype(np.float32), row))
+    ratio = np.median(ren, axis=0) / np.median(real, axis=0)  # frame-to-frame noise, per channel
+    assert np.all((ratio > 0.8) & (ratio < 1.25)), ratio
+
+
 def test_default_lighting_is_what_the_fit_gives():
     presses = taxim_presses()
     fitted = fit_lighting(presses, files=[f"press_{i:02d}.png" for i in range(15)])

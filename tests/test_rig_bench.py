@@ -142,6 +142,9 @@ def test_env_overrides_replace_keys_and_typos_are_named() -> None:
     assert b.devices["scale"].baud == 57600
     assert b.devices["camera_left"].mm_per_px_x == 0.07
     assert b.devices["gripper"].port == "rigsim://dynamixel?ids=3"
+    b = load_bench(text=GOOD, env={"TACTILE_RIG_BENCH__SEED": "7", "TACTILE_RIG_CAMERA_RIGHT__PORT": "rigsim://camera",
+                                   "TACTILE_RIG_CAMERA_RIGHT__SENSOR": "fingervision"})
+    assert b.seed == 7 and b.devices["camera_right"].sensor == "fingervision"  # a device added from the env
     err = _problems(GOOD, env={"TACTILE_RIG_SCAEL__BAUD": "1"})
     assert "TACTILE_RIG_SCAEL__BAUD" in str(err) and "TACTILE_RIG_SCALE__BAUD" in str(err)
     err = _problems(GOOD, env={"TACTILE_RIG_SCALE__BAUD": "fast"})
@@ -165,7 +168,7 @@ def test_bench_from_args(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Non
 
 
 @given(st.dictionaries(st.from_regex(r"[a-z][a-z_]{0,8}", fullmatch=True),
-                       st.one_of(st.integers(-5, 5), st.text("ab #=[]", max_size=4), st.lists(st.integers(0, 3))),
+                       st.one_of(st.integers(-5, 5), st.text("ab #=[]\\\"'", max_size=4), st.lists(st.integers(0, 3))),
                        max_size=6),
        st.integers(0, 3))
 def test_line_index_finds_every_key(values: dict, blank_lines: int) -> None:
@@ -212,7 +215,7 @@ def test_connect_reports_every_failed_device_and_closes_the_others() -> None:
         connect_bench(b, connectors={"gripper": ok, "scale": fail, "camera": boom})
     errs = ei.value.errors
     assert set(errs) == {"scale", "camera_left"}
-    assert "rigsim://scale" in str(errs["scale"])
+    assert "rigsim://scale" in str(errs["scale"]) and isinstance(errs["scale"], NotConnected)
     assert "permission denied" in str(errs["camera_left"]) and "rigsim://camera" in str(errs["camera_left"])
     assert "2 device(s) failed" in str(ei.value)
     assert closed == ["gripper"]
@@ -263,3 +266,23 @@ def test_unknown_mock_kind_is_a_connect_error_for_that_device() -> None:
         connect_bench(b)
     assert set(ei.value.errors) == {"scale"}
     assert "nosuchkind" in str(ei.value)
+
+
+def test_builtin_mock_bench_connects_every_driver_on_one_clock() -> None:
+    """The drivers of the built-in bench reach their firmware mocks through rigsim://@mock.<device>."""
+    rig = connect_bench(load_bench(mock_bench_path(), env={}))
+    try:
+        assert set(rig.devices) == {"gripper", "scale", "jig", "camera"}
+        assert rig.clock.is_virtual
+        assert rig.gripper.clock is rig.scale.transport.clock is rig.jig.clock is rig.clock
+        t0 = rig.clock.now_s()
+        rig.scale.read()
+        frame = rig.cameras["camera"].read(timeout_s=1.0)
+        assert frame.image.shape == (240, 320, 3)
+        assert rig.clock.now_s() > t0  # reading advanced the one shared virtual time
+    finally:
+        rig.close()
+    from tactile_rig.mocks.registry import device_from_url
+
+    with pytest.raises(ValueError, match="no mock instance"):
+        device_from_url("rigsim://@mock.scale")  # closing the rig unregisters its mocks

@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.cli.replay import extras_as_errors
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -18,6 +20,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     csub = p.add_subparsers(dest="calibrate_command", metavar="SESSION")
     for reg in (_register_force_map, _register_substance):
         reg(csub)
+    from tactile_rig.cli.calibrate_sessions import register_sessions  # gelsight, fingervision, scale, gripper
+
+    register_sessions(csub)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
@@ -33,16 +38,18 @@ def _source_arguments(p: argparse.ArgumentParser) -> None:
     add_json_flag(p)
 
 
-def _check_source(args: argparse.Namespace, what: str) -> None:
-    """Mocks simulate the session; a hardware bench needs a recording of it (live collection: TODO)."""
-    if args.from_recording or getattr(args, "mock", False) or not getattr(args, "bench", None):
-        return
+def _check_source(args: argparse.Namespace, what: str) -> Any:
+    """The bench (or None). Mocks simulate the session; on hardware the session is learned from a
+    recording of it (live guided collection is not available yet)."""
+    if not (getattr(args, "mock", False) or getattr(args, "bench", None)):
+        return None
     from tactile_rig.rig.bench import bench_from_args
 
     bench = bench_from_args(args, check_files=False)
-    if not bench.is_mock:
+    if not bench.is_mock and not args.from_recording:
         raise ValueError(f"{what} on hardware: record the session (tactile-rig replay reads it) and pass "
                          f"--from-recording FILE.mcap; live guided collection is not available yet")
+    return bench
 
 
 # -- force map ---------------------------------------------------------------------------------
@@ -61,10 +68,11 @@ def _register_force_map(csub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_force_map)
 
 
+@extras_as_errors
 def _force_map(args: argparse.Namespace) -> int:
     from tactile_rig.rig.learning import DEFAULT_GAMMA, force_map_session
 
-    _check_source(args, "force-map")
+    bench = _check_source(args, "force-map")
     if args.trials < 2:
         raise ValueError(f"--trials {args.trials} must be >= 2 (one trial is held out)")
     if not args.max_force > 0:
@@ -72,7 +80,7 @@ def _force_map(args: argparse.Namespace) -> int:
     report = force_map_session(Path(args.out), n_trials=args.trials, max_force_n=args.max_force, seed=args.seed,
                                recording=args.from_recording, holdout=args.holdout, alpha=args.alpha,
                                gamma=DEFAULT_GAMMA if args.gamma is None else args.gamma, camera=args.camera,
-                               figures=not args.no_figures)
+                               bench=bench, figures=not args.no_figures)
     if args.json:
         print_json(report)
     else:
@@ -96,6 +104,7 @@ def _register_substance(csub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_substance)
 
 
+@extras_as_errors
 def _substance(args: argparse.Namespace) -> int:
     from tactile_rig.rig.learning import substance_session
 

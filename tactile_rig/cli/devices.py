@@ -30,6 +30,7 @@ def run(args: argparse.Namespace) -> int:
                 d.tty = [p.replace(str(dev), "/dev") for p in d.tty]
                 d.video = [p.replace(str(dev), "/dev") for p in d.video]
                 d.by_id = [p.replace(str(dev), "/dev") for p in d.by_id]
+                d.by_path = [p.replace(str(dev), "/dev") for p in d.by_path]
     else:
         found = discover(sysfs_root=args.sysfs_root, dev_root=args.dev_root)
     if args.json:
@@ -41,6 +42,6 @@ def run(args: argparse.Namespace) -> int:
     for d in found:
         nodes = ", ".join(d.tty + d.video) or "(no node)"
         print(f"{d.kind:12s} {d.usb_id}  {d.port_path:8s} serial={d.serial or '-'}  {nodes}")
-        for link in d.by_id:
+        for link in d.by_id or d.by_path:  # by-id when the device has a serial number, else by-path
             print(f"{'':12s} {link}")
     return 0

@@ -118,6 +118,7 @@ def _record(i: int, name: str, r) -> dict[str, Any]:
         "slip": r.slip,
         "slip_magnitude_px": r.slip_magnitude_px,
         "slip_direction_deg": r.slip_direction_deg,
+        "contact": r.contact,
         "object": {
             "area_px": r.object_area_px,
             "centroid_px": r.object_centroid_px,

@@ -25,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     common(st)
     st.set_defaults(func=_state)
 
-    go = gsub.add_parser("go", help="activate and move to an opening with an effort cap")
+    go = gsub.add_parser("go", help="activate and move to an opening with an effort cap (torque stays on)")
     common(go)
     go.add_argument("position", type=float, help="opening in metres (or 0-1 with --normalized)")
     go.add_argument("--effort", type=float, default=0.3, help="fraction of the current limit, 0-1 (default 0.3)")
@@ -74,7 +74,7 @@ def _print_state(args: argparse.Namespace, state, extra: dict | None = None) -> 
     print(f"temperature_c    {state.temperature_c:.0f}")
     errs = decode_hardware_error(state.hardware_error)
     print(f"hardware_error   0x{state.hardware_error:02x} {', '.join(errs) or 'none'}")
-    print(f"torque           {'on' if state.active else 'off'}")
+    print(f"active           {'yes' if state.active else 'no'}")
 
 
 def _state(args: argparse.Namespace) -> int:

@@ -3,8 +3,25 @@
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 from tactile_rig.cli.common import add_json_flag, print_json
+
+
+def extras_as_errors(handler: Any) -> Any:
+    """A missing optional extra (mcap, scikit-learn, matplotlib) is one line naming the pip extra
+    (shared by the command modules that need extras)."""
+    import functools
+
+    @functools.wraps(handler)
+    def run(args: argparse.Namespace) -> int:
+        try:
+            return handler(args)
+        except ModuleNotFoundError as exc:
+            raise ValueError(str(exc) if "pip install" in str(exc) else
+                             f"{exc}: pip install 'tactile-rig[all]' for the optional extras") from None
+
+    return run
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -17,17 +34,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_replay)
 
 
+@extras_as_errors
 def _replay(args: argparse.Namespace) -> int:
     from tactile_rig.rig.replay import dump, summarize
 
     if args.topic or args.dump:
         n = 0
-        for row in dump(args.file, topic=args.topic, include_images=args.images):
-            n += 1
-            if args.json:
-                print_json(row)
-            else:
-                print(f"{row['t_s']:12.6f}  {row['topic']:<28} {_short(row['data'])}")
+        try:
+            for row in dump(args.file, topic=args.topic, include_images=args.images):
+                n += 1
+                if args.json:
+                    print_json(row)
+                else:
+                    print(f"{row['t_s']:12.6f}  {row['topic']:<28} {_short(row['data'])}")
+        except BrokenPipeError:  # `| head`: the reader has seen enough
+            return 0
         if n == 0 and args.topic:
             topics = summarize(args.file)["topics"]
             raise ValueError(f"{args.file}: no messages on topic {args.topic!r}; topics: "

@@ -17,18 +17,7 @@ from typing import Any
 
 from tactile_rig.cli.common import add_json_flag, print_json
 
-DEFAULT_OUT = "runs/jig-accuracy"
-
-
-def _range(text: str) -> tuple[float, float, float]:
-    """``START:STOP:STEP`` → floats (argparse type)."""
-    parts = text.split(":")
-    if len(parts) != 3:
-        raise argparse.ArgumentTypeError(f"{text!r} must be START:STOP:STEP, e.g. -90:90:10")
-    try:
-        return float(parts[0]), float(parts[1]), float(parts[2])
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} must be three numbers START:STOP:STEP") from None
+DEFAULT_OUT_ROOT = "runs/jig-accuracy"
 
 
 def register(subparsers: Any) -> None:
@@ -43,17 +32,18 @@ def register(subparsers: Any) -> None:
     add_bench_arguments(p)
     p.add_argument("--sweep", choices=["rotation", "translation", "both"], default="both",
                    help="which sweep(s) to run (default: both)")
-    p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
-                   help=f"output folder: points.jsonl, summary.json, run.mcap, figures, report.md "
-                        f"(default: {DEFAULT_OUT})")
+    p.add_argument("--out", metavar="DIR",
+                   help=f"output folder: points.jsonl, summary.json, run.mcap, figures, report.md (default: "
+                        f"{DEFAULT_OUT_ROOT}/<mock|bench>-<sweep>-<config fingerprint>, so the same command resumes)")
     p.add_argument("--seed", type=int, default=0, help="seed of the mock world (default 0)")
     p.add_argument("--resume", action="store_true",
                    help="continue the partial run in --out (automatic when the options match)")
     p.add_argument("--overwrite", action="store_true", help="discard any run in --out and start again")
-    p.add_argument("--rotations", type=_range, default=(-90.0, 90.0, 10.0), metavar="START:STOP:STEP",
-                   help="rotation sweep in degrees (default -90:90:10)")
-    p.add_argument("--shifts", type=_range, default=(-6.0, 6.0, 1.0), metavar="START:STOP:STEP",
-                   help="translation sweep in mm (default -6:6:1)")
+    p.add_argument("--rotations", type=float, nargs=3, default=(-90.0, 90.0, 10.0),
+                   metavar=("START", "STOP", "STEP"), help="rotation sweep in degrees, stop included "
+                   "(default -90 90 10)")
+    p.add_argument("--shifts", type=float, nargs=3, default=(-6.0, 6.0, 1.0), metavar=("START", "STOP", "STEP"),
+                   help="translation sweep in mm, stop included (default -6 6 1)")
     p.add_argument("--shift-axis", choices=["x", "y"], default="x", help="jig axis of the shifts (default x)")
     p.add_argument("--calibration", metavar="FILE",
                    help="GelSight calibration (.json/.npz); default: the bench camera's, or on --mock one "
@@ -74,9 +64,11 @@ def _jig_accuracy(args: argparse.Namespace) -> int:
     from tactile_rig.rig.bench import bench_from_args
     from tactile_rig.rig.jig_accuracy import JigAccuracyConfig, execute_jig_accuracy, format_table, plan_points
 
-    cfg = JigAccuracyConfig(sweep=args.sweep, rotations_deg=args.rotations, shifts_mm=args.shifts,
+    cfg = JigAccuracyConfig(sweep=args.sweep, rotations_deg=tuple(args.rotations), shifts_mm=tuple(args.shifts),
                             shift_axis=args.shift_axis, seed=args.seed)
     bench = None if args.mock else bench_from_args(args)
+    kind = "mock" if bench is None else "bench"
+    out_dir = args.out or str(Path(DEFAULT_OUT_ROOT) / f"{kind}-{cfg.sweep}-{cfg.fingerprint()[:8]}")
     total = len(plan_points(cfg))
     progress = None
     if not args.json:
@@ -92,7 +84,7 @@ def _jig_accuracy(args: argparse.Namespace) -> int:
             progress.update(1)
 
     try:
-        outcome = execute_jig_accuracy(cfg, args.out, bench=bench, calibration=args.calibration, camera=args.camera,
+        outcome = execute_jig_accuracy(cfg, out_dir, bench=bench, calibration=args.calibration, camera=args.camera,
                                        resume=True if args.resume else None, overwrite=args.overwrite,
                                        record=not args.no_record, report=not args.no_report, on_point=on_point)
     finally:
@@ -103,7 +95,9 @@ def _jig_accuracy(args: argparse.Namespace) -> int:
         print_json({**s, "out": str(outcome.out_dir), "resumed_from": outcome.resumed_from, "files": outcome.files})
     else:
         print(format_table(outcome.results, s))
-        if outcome.resumed_from:
+        if outcome.resumed_from >= s["n_points"]:
+            print("(this run was already complete: nothing was measured again; --overwrite to repeat it)")
+        elif outcome.resumed_from:
             print(f"(resumed: points 0..{outcome.resumed_from - 1} come from the interrupted run)")
         print(f"results in {outcome.out_dir}/: " + ", ".join(sorted(Path(v).name for k, v in outcome.files.items()
                                                                 if k != "figures" and not v.startswith("skipped"))))

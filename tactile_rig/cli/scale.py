@@ -70,7 +70,8 @@ def _read(args: argparse.Namespace) -> int:
 def _tare(args: argparse.Namespace) -> int:
     with _open(args) as scale:
         scale.tare()
-        r = scale.latest()
+        scale.poll()  # readings from before the confirmation are not tared
+        r = scale.read()
         if args.json:
             print_json({"tared": True, "grams": r.grams, **_summary(scale)})
         else:

@@ -30,16 +30,27 @@ class InHandRotationParams:
 
     target_deg: float = 90.0  # rotation to reach, measured from the start angle
     mode: str = "slip"  # "slip" (orientation feedback) or "torque" (torque-estimated angle)
-    open_rate_mps: float = 0.002  # how fast the fingers open while rotating
+    open_rate_mps: float = 0.0005  # how fast the fingers open while nothing turns
+    close_rate_mps: float = 0.005  # how fast they close again when the turn gets too fast
+    rate_max_dps: float = 40.0  # above this angular rate, close (tame the stick-slip burst)
+    rate_frames: int = 4  # frames the angular rate is measured over
     max_open_m: float = 0.004  # never open more than this past the start opening (drop guard)
     regrip_m: float = 0.002  # re-grip this much tighter than the start opening to stop the turn
+    resume_back_m: float = 0.0003  # after a re-grip, open again from this much short of the last turn
     effort: float = 0.5
     lookahead_s: float = 0.12  # anticipate the turn by this much of the measured rate (slip mode)
-    tolerance_deg: float = 3.0  # torque mode: done when the estimate is this close
+    torque_mode_slip_frames: int = 5  # torque mode: re-grip after this many slipping frames in a row
+    tolerance_deg: float = 3.0  # done when the settled angle is this close (else open again)
+    stall_s: float = 3.0  # at the squeeze floor with no progress this long: stop where it is
+    accept_deg: float = 5.0  # a stalled rotation this close to the target still counts as reached
     settle_s: float = 0.3  # wait after a re-grip before measuring the final angle
+    baseline_frames: int = 5  # frames averaged for the start angle, torque and load
     start_angle_deg: float = 0.0  # the object's angle from horizontal at the start (torque mode)
-    slip_limit_mm: float = 8.0  # translational slide allowed before the controller re-grips for good
-    duration_s: float = 15.0
+    min_normal_frac_of_load: float = 0.5  # keep the squeeze ≥ this × the object's weight (drop guard)
+    slide_floor_margin: float = 1.3  # after a slide, keep the squeeze ≥ this × the squeeze it slid at
+    slide_threshold_mm: float = 0.1  # a frame's slide above this: re-grip at once, then carry on
+    slip_limit_mm: float = 12.0  # total slide allowed before giving up (keep below the finger length)
+    duration_s: float = 30.0
     frame_timeout_s: float = 0.5
 
 
@@ -55,10 +66,17 @@ class InHandRotation:
         self.clock = clock
         self.p = params or InHandRotationParams()
         self.trace = Trace()
-        self.integrator = LeakyIntegrator(self.p.open_rate_mps, 0.0, g_max_m=self.p.max_open_m)
+        # g: opening past the start (m); driven in m/s: open slowly, hold while it slips, close if it turns fast
+        self.integrator = LeakyIntegrator(1.0, 0.0, g_max_m=self.p.max_open_m, g_min_m=-self.p.regrip_m)
         self._angle0: float | None = None
         self._tau0: float | None = None
-        self._prev: tuple[float, float] | None = None
+        self._recent: list[tuple[float, float]] = []  # (t_s, angle_deg) of the last frames
+        self._resume_m = 0.0
+        self._load_n = 0.0
+        self._slide_floor_n = 0.0
+        self._floor_limited = False
+        self._slip_run = 0
+        self._prev_normal_n = 0.0
         self.rate_dps = 0.0
         self.slid_mm = 0.0
 
@@ -70,8 +88,8 @@ class InHandRotation:
             c0 = math.cos(math.radians(self.p.start_angle_deg))
             ratio = r.torque_nmm[2] / self._tau0 * c0 if self._tau0 else 0.0
             return math.degrees(math.acos(max(-1.0, min(1.0, ratio)))) - self.p.start_angle_deg
-        if r.object_orientation_deg is None:
-            raise ValueError("the sensor reports no object orientation: use mode='torque'")
+        if r.object_orientation_deg is None:  # the object is out of view (lost)
+            return math.nan
         assert self._angle0 is not None
         return float(r.object_orientation_deg) - self._angle0
 
@@ -82,19 +100,32 @@ class InHandRotation:
         """One frame of opening: returns the reading and the angle estimate."""
         r = self._read()
         ang = self.angle_deg(r)
-        if self._prev is not None and r.t_s > self._prev[0]:
-            inst = (ang - self._prev[1]) / (r.t_s - self._prev[0])
-            self.rate_dps = 0.5 * self.rate_dps + 0.5 * inst
-            dt = r.t_s - self._prev[0]
+        dt = r.t_s - self._recent[-1][0] if self._recent else 0.0
+        self._recent = (self._recent + [(r.t_s, ang)])[-self.p.rate_frames:]
+        if len(self._recent) >= 2 and self._recent[-1][0] > self._recent[0][0]:
+            # a slope over a few frames: one frame's difference is mostly angle noise
+            (t0, a0), (t1, a1) = self._recent[0], self._recent[-1]
+            self.rate_dps = (a1 - a0) / (t1 - t0)
         else:
-            dt = 0.0
-        self._prev = (r.t_s, ang)
-        if r.slip and abs(r.slip_mm) > 0:
-            self.slid_mm += abs(r.slip_mm)
-        g = self.integrator.step(1.0, dt)  # g: how far past the start opening the fingers are
+            self.rate_dps = 0.0
+        self.slid_mm += abs(r.slip_mm)
+        floor = max(self.p.min_normal_frac_of_load * self._load_n, self._slide_floor_n)
+        self._floor_limited = r.force_n[2] < floor
+        if r.force_n[2] < 0.9 * floor:
+            u = -self.p.close_rate_mps  # about to lose the object: tighten
+        elif r.force_n[2] < floor:
+            u = 0.0
+        elif self.p.mode == "slip" and self.rate_dps > self.p.rate_max_dps:
+            u = -self.p.close_rate_mps
+        elif r.slip:
+            u = 0.0
+        else:
+            u = self.p.open_rate_mps
+        g = self.integrator.step(u, dt)
         self.gripper.gripper_go(y_start + g, self.p.effort, blocking=False)
         self.trace.append(self.clock.now_s(), frame_t_s=r.t_s, angle_deg=ang, rate_dps=self.rate_dps,
-                          torque_nmm=r.torque_nmm[2], open_m=g, slip=float(r.slip))
+                          torque_nmm=r.torque_nmm[2], fz_n=r.force_n[2], open_m=g, slip=float(r.slip),
+                          slide_mm=r.slip_mm)
         return r, ang
 
     # -- run -------------------------------------------------------------------------------------
@@ -103,8 +134,14 @@ class InHandRotation:
         return guarded(self._run, self.trace, gripper=self.gripper, gripper_action="hold")
 
     def _regrip(self, y_start: float) -> None:
+        # remember where it turned: the next opening resumes just short of it, not from the start
+        self._resume_m = max(0.0, self.integrator.g_m - self.p.resume_back_m)
         self.gripper.gripper_go(max(0.0, y_start - self.p.regrip_m), self.p.effort, blocking=False)
-        self.integrator.g_m = 0.0
+        self.integrator.g_m = -self.p.regrip_m
+
+    def _resume(self, y_start: float) -> None:
+        self.integrator.g_m = self._resume_m
+        self.gripper.gripper_go(y_start + self._resume_m, self.p.effort, blocking=False)
 
     def _settled_angle(self) -> tuple[float, TouchReading]:
         t_end = self.clock.now_s() + self.p.settle_s
@@ -115,35 +152,62 @@ class InHandRotation:
 
     def _run(self) -> ControllerResult:
         y_start = self.gripper.state().opening_m
-        r0 = self._read()
+        first = [self._read() for _ in range(max(1, self.p.baseline_frames))]
+        r0 = first[-1]
         if not r0.contact:
             return ControllerResult(Outcome.FAILED, self.trace, {}, "no object in the fingers")
-        self._angle0 = float(r0.object_orientation_deg or 0.0)
-        self._tau0 = r0.torque_nmm[2]
+        if self.p.mode == "slip" and r0.object_orientation_deg is None:
+            raise ValueError("the sensor reports no object orientation: use mode='torque'")
+        self._angle0 = sum(float(r.object_orientation_deg or 0.0) for r in first) / len(first)
+        self._tau0 = sum(r.torque_nmm[2] for r in first) / len(first)
+        # while stuck, the two skins carry the weight: twice this one's shear
+        self._load_n = 2.0 * sum(math.hypot(r.force_n[0], r.force_n[1]) for r in first) / len(first)
         if self.p.mode == "torque" and abs(self._tau0) < 1e-6:
             return ControllerResult(Outcome.FAILED, self.trace, {}, "no torque to estimate the angle from")
         t_end = self.clock.now_s() + self.p.duration_s
         target = self.p.target_deg
         regrips = 0
+        best = (-math.inf, self.clock.now_s())  # (angle, when it was last beaten by 1°)
         while self.clock.now_s() < t_end:
             r, ang = self.step(y_start)
+            if ang > best[0] + 1.0:
+                best = (ang, self.clock.now_s())
+            elif self._floor_limited and self.clock.now_s() - best[1] > self.p.stall_s:
+                # the squeeze is at its floor and nothing turns: this is as far as it goes
+                self._regrip(y_start)
+                ang, r = self._settled_angle()
+                ok = abs(ang - target) <= self.p.accept_deg
+                return ControllerResult(Outcome.SUCCESS if ok else Outcome.FAILED, self.trace,
+                                        self._figures(ang, regrips),
+                                        f"stalled at {ang:.1f}°: cannot turn further without sliding")
             if not r.contact:
                 return ControllerResult(Outcome.FAILED, self.trace, self._figures(ang, regrips), "dropped")
             ahead = ang + (max(0.0, self.rate_dps) * self.p.lookahead_s if self.p.mode == "slip" else 0.0)
-            if ahead >= target or self.slid_mm > self.p.slip_limit_mm:
+            sliding = abs(r.slip_mm) > self.p.slide_threshold_mm
+            if sliding:
+                # it slid at about this squeeze: never open that far again (the learned floor)
+                self._slide_floor_n = max(self._slide_floor_n, self.p.slide_floor_margin * self._prev_normal_n)
+            self._prev_normal_n = r.force_n[2]
+            if self.p.mode == "slip":
+                too_fast = self.rate_dps > self.p.rate_max_dps
+            else:  # a torque-estimated angle is too noisy to differentiate: a long slip is the cue
+                self._slip_run = self._slip_run + 1 if r.slip else 0
+                too_fast = self._slip_run >= self.p.torque_mode_slip_frames
+            if ahead >= target or sliding or too_fast or self.slid_mm > self.p.slip_limit_mm:
                 self._regrip(y_start)
                 regrips += 1
                 ang, r = self._settled_angle()
-                self._prev = None
+                self._recent = []
                 self.rate_dps = 0.0
                 if not r.contact:
                     return ControllerResult(Outcome.FAILED, self.trace, self._figures(ang, regrips), "dropped")
                 if self.slid_mm > self.p.slip_limit_mm:
                     return ControllerResult(Outcome.FAILED, self.trace, self._figures(ang, regrips),
                                             f"slid {self.slid_mm:.1f} mm: stopped before a drop")
-                if self.p.mode == "slip" or ang >= target - self.p.tolerance_deg:
+                if ang >= target - self.p.tolerance_deg:
                     return ControllerResult(Outcome.SUCCESS, self.trace, self._figures(ang, regrips),
                                             f"rotated to {ang:.1f}°")
+                self._resume(y_start)
         self._regrip(y_start)
         return ControllerResult(Outcome.TIMEOUT, self.trace, self._figures(math.nan, regrips),
                                 f"target {target}° not reached in {self.p.duration_s} s")

@@ -385,7 +385,8 @@ class FingertipCamera:
                     self._cond.wait(timeout=remaining)
                     continue
             if self.threaded:  # a thread captures on a virtual clock: let time pass in small steps
-                self.clock.sleep(min(remaining or 0.0, 0.25 / self.config.fps))
+                step = 0.25 / self.config.fps
+                self.clock.sleep(step if remaining is None else min(remaining, step))
             else:
                 self._pump(remaining)
 

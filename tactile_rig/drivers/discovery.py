@@ -3,7 +3,8 @@
 :func:`discover` lists the known devices (U2D2, Arduinos, CH340 adapters, the C310 camera; the
 table is a parameter) with their bus location, serial number and nodes: ``/dev/ttyUSBn`` or
 ``/dev/ttyACMn``, ``/dev/videoN`` (capture node only, ``index`` 0), and the stable
-``/dev/serial/by-id`` and ``/dev/v4l/by-id`` links. sysfs and /dev roots are parameters, so a fake
+``/dev/serial/by-id`` and ``/dev/v4l/by-id`` links (unique per serial number; two adapters without
+one collide, as udev names them alike) and the ``by-path`` links (unique per USB port). sysfs and /dev roots are parameters, so a fake
 tree (:mod:`tactile_rig.mocks.usb`) makes it testable; without a libusb backend it falls back to
 reading the USB devices from sysfs alone.
 """
@@ -40,6 +41,7 @@ class UsbDevice:
     tty: list[str] = field(default_factory=list)
     video: list[str] = field(default_factory=list)
     by_id: list[str] = field(default_factory=list)
+    by_path: list[str] = field(default_factory=list)
 
     @property
     def usb_id(self) -> str:
@@ -124,7 +126,7 @@ def discover(*, backend: Any = None, sysfs_root: str | Path = "/sys", dev_root: 
             owner = _owner(entry, usb_dirs)
             if owner:
                 owners.setdefault(owner, []).append((kind, entry.name))
-    serial_links, v4l_links = _links(dev, "serial/by-id"), _links(dev, "v4l/by-id")
+    links = {k: _links(dev, k) for k in ("serial/by-id", "v4l/by-id", "serial/by-path", "v4l/by-path")}
     result = []
     for vid, pid, bus, port_path in found:
         kind = match_kind(vid, pid, table)
@@ -136,6 +138,8 @@ def discover(*, backend: Any = None, sysfs_root: str | Path = "/sys", dev_root: 
                       product=_read(udir / "product") if udir else None)
         for nkind, node in owners.get(port_path, []):
             (u.tty if nkind == "tty" else u.video).append(str(dev / node))
-            u.by_id += (serial_links if nkind == "tty" else v4l_links).get(node, [])
+            family = "serial" if nkind == "tty" else "v4l"
+            u.by_id += links[f"{family}/by-id"].get(node, [])
+            u.by_path += links[f"{family}/by-path"].get(node, [])
         result.append(u)
     return result

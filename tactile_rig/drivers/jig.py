@@ -43,9 +43,10 @@ class GrblError(DeviceFault):
 class GrblAlarm(DeviceFault):
     """GRBL reported ``ALARM:N``: motion has stopped and G-code is locked until ``$X`` or a reset."""
 
-    def __init__(self, code: int, *, device: str | None = None) -> None:
+    def __init__(self, code: int, *, device: str | None = None, hint: str = "") -> None:
         name, message = gp.ALARMS.get(code, ("Unknown alarm", f"alarm code {code} is not in GRBL 1.1's table"))
-        super().__init__(f"ALARM:{code} ({name}): {message}", device=device, code=code, detail=message)
+        super().__init__(f"ALARM:{code} ({name}): {message}" + (f" ({hint})" if hint else ""),
+                         device=device, code=code, detail=message)
         self.name = name
 
 
@@ -233,6 +234,8 @@ class Jig:
         self.resets = 0
         self.lines_lost = 0
         self.alarm_on_boot = False
+        self.needs_reset = False
+        self.last_alarm: int | None = None
         self.last_status: GrblStatus | None = None
         self._wco: tuple[float, ...] | None = None
         self._await_banner(boot_timeout_s)
@@ -297,10 +300,12 @@ class Jig:
         elif line.startswith("ALARM:"):
             try:
                 self._alarms.append(int(line[6:]))
+                self.last_alarm = self._alarms[-1]
             except ValueError:
                 log.warning("%s: bad alarm line %r", self.device, line)
         elif line.startswith("Grbl"):
             self.banner = line
+            self.needs_reset = False
             self.lines_lost += len(self._outstanding)
             self._outstanding.clear()  # a reset empties GRBL's buffers: those lines never run
             if self._expect_banner:
@@ -310,6 +315,8 @@ class Jig:
                 self._unexpected_reset = True
         elif line.startswith("[MSG:"):
             self.messages.append(line)
+            if "Reset to continue" in line:
+                self.needs_reset = True  # a critical alarm: GRBL reads no line until a soft reset
             if "to unlock" in line:
                 self.alarm_on_boot = True
         else:
@@ -354,6 +361,9 @@ class Jig:
     def command(self, line: str, timeout_s: float = 2.0) -> list[str]:
         """Send one line, wait for its ``ok``; return the info lines it printed. ``error:N`` → GrblError."""
         self._check_events()
+        if self.needs_reset:
+            raise GrblAlarm(self.last_alarm or 0, device=self.device, hint=f"{line!r} not sent: only a soft "
+                            "reset (soft_reset()) clears this alarm")
         dl = Deadline(self.clock, timeout_s)
         self._info.clear()
         ident = self._send_line(line, dl)
@@ -496,6 +506,20 @@ class Jig:
             raise ValueError(f"GRBL setting ${number} does not exist; known: {sorted(gp.SETTINGS)}")
         text = str(int(value)) if number in gp.INTEGER_SETTINGS else f"{float(value):.3f}"
         self.command(f"${number}={text}")
+
+    def set_check_mode(self, enabled: bool, timeout_s: float = 2.0) -> None:
+        """Enter or leave check mode (``$C``: lines are parsed and answered but nothing moves).
+        Leaving it soft-resets GRBL, as the firmware does; this waits for that banner."""
+        if (self.status().state == "Check") == bool(enabled):
+            return
+        if not enabled:
+            self._expect_banner = True
+        self.command("$C", timeout_s)
+        dl = Deadline(self.clock, timeout_s)
+        while self._expect_banner:
+            if dl.expired():
+                raise DeviceTimeout(f"no banner within {timeout_s:.3g} s of leaving check mode", device=self.device)
+            self._pump(dl.remaining_s() or 0.0)
 
     def build_info(self) -> list[str]:
         return self.command("$I")

@@ -501,7 +501,9 @@ class Scale:
             self._pump(dl.remaining_s() or 0.0)
 
     def tare(self, timeout_s: float | None = None) -> None:
-        """Zero the scale with what is on it now; returns when the sketch confirms (one smoothing window)."""
+        """Zero the scale with what is on it now; returns when the sketch confirms (one smoothing window).
+
+        Readings queued before the confirmation are not tared; the ones after it are."""
         timeout = timeout_s if timeout_s is not None else 2 * self._window_s() + 1.0
         self._replies.clear()
         self.transport.write(sp.CMD_TARE)  # type: ignore[union-attr]

@@ -25,6 +25,7 @@ import numpy as np
 from tactile_rig.clock import Clock, RealClock
 from tactile_rig.drivers.camera import RawFrame, canonical_control, fourcc_text
 from tactile_rig.errors import NotConnected
+from tactile_rig.mocks.world.gelsight_render import SensorNoise
 
 __all__ = ["UvcControl", "C310_CONTROLS", "C310_MODES", "UvcControlTable", "SimulatedCamera", "FakeVideoCapture"]
 
@@ -146,7 +147,7 @@ class SimulatedCamera:
                  modes: dict[tuple[str, int, int], float] | None = None,
                  controls: tuple[UvcControl, ...] = C310_CONTROLS, auto_drift: bool = True,
                  reset_controls_on_format: bool = True, ignore_controls: tuple[str, ...] = (),
-                 channel_order: str = "BGR", noise_sigma: float = 1.0, seed: int = 0, world: Any = None) -> None:
+                 channel_order: str = "BGR", noise_sigma: float = 0.5, seed: int = 0, world: Any = None) -> None:
         """``render``: a function ``t_s -> BGR``, a renderer model (``render_now()``), None (a test
         pattern), or a ``rigsim://camera?model=NAME`` URL naming the renderer model in ``world``."""
         if isinstance(render, str):
@@ -163,6 +164,7 @@ class SimulatedCamera:
         self._render_fn = render
         self._rng = np.random.default_rng(seed)
         self.noise_sigma = float(noise_sigma)  # read noise: no two live frames are byte-identical
+        self._noise: SensorNoise | None = None
         self.fourcc, self.width, self.height, self.fps = fourcc, width, height, fps
         self._open = False
         self._t0 = self.clock.now_s()
@@ -293,15 +295,20 @@ class SimulatedCamera:
         return np.array([1.0 + shift, 1.0, 1.0 - shift], dtype=np.float32)
 
     def _expose(self, img: np.ndarray, t_s: float) -> np.ndarray:
+        """Exposure x gain x white balance, brightness offset, read noise; saturating 8-bit arithmetic."""
         gain = (self.effective_exposure(t_s) / 166.0) * (self.table.get("gain") / 64.0) ** 0.5
+        wb = self.channel_gains(t_s) * gain
         bright = (self.table.get("brightness") - 128) * 0.5
-        if (abs(gain - 1.0) < 1e-6 and bright == 0 and np.allclose(self.channel_gains(t_s), 1.0)
-                and self.noise_sigma <= 0):
-            return img
-        out = img.astype(np.float32) * (gain * self.channel_gains(t_s)) + bright
+        out = img
+        if not np.allclose(wb, 1.0):
+            out = cv2.multiply(out, (float(wb[0]), float(wb[1]), float(wb[2]), 0.0))
+        if bright != 0:
+            out = cv2.add(out, (bright, bright, bright, 0.0))
         if self.noise_sigma > 0:
-            out += self._rng.standard_normal(out.shape, dtype=np.float32) * self.noise_sigma
-        return np.clip(out + 0.5, 0, 255).astype(np.uint8)
+            if self._noise is None or self._noise.shape != out.shape:
+                self._noise = SensorNoise(out.shape, self.noise_sigma, self._rng)
+            out = cv2.add(out, self._noise.sample(), dtype=cv2.CV_8U)
+        return out
 
 
 class FakeVideoCapture:

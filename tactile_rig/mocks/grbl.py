@@ -114,6 +114,7 @@ class GrblMock(SerialDevice):
         self.homed = False
         self.faults: list[tuple[float, str]] = []
         self.rx_overflow_bytes = 0
+        self.rx_high_water = 0  # most bytes ever waiting in the receive buffer
         self.lines_executed = 0
         self._fail_next_homing = False
         self._power_up(0.0 if clock is None else clock.now_s(), first=True)
@@ -190,7 +191,8 @@ class GrblMock(SerialDevice):
         self.emit(out, t_s, reply=False)
 
     def inject(self, fault: str, *, axis: str = "X", t_s: float | None = None) -> None:
-        """``hard_limit`` (a switch trips now, on ``axis``), ``homing_fail`` (the next $H finds no switch)."""
+        """``hard_limit`` (a switch trips now, on ``axis``), ``homing_fail`` (the next $H finds no
+        switch), ``reset`` (a brown-out or DTR glitch: the board reboots and prints its banner)."""
         t = t_s if t_s is not None else (self.clock.now_s() if self.clock is not None else self._t_now)
         self.advance_to(t)
         self.faults.append((t, fault))
@@ -199,8 +201,11 @@ class GrblMock(SerialDevice):
                 self._hard_limit(t, self.letters.index(axis))
         elif fault == "homing_fail":
             self._fail_next_homing = True
+        elif fault == "reset":
+            self._halt()
+            self.on_open(t)
         else:
-            raise ValueError(f"jig mock: unknown fault {fault!r}; known: hard_limit, homing_fail")
+            raise ValueError(f"jig mock: unknown fault {fault!r}; known: hard_limit, homing_fail, reset")
 
     # -- bytes in --------------------------------------------------------------------------------
     def on_bytes(self, data: bytes, t_s: float) -> None:
@@ -211,6 +216,7 @@ class GrblMock(SerialDevice):
                 self._realtime(b, t_s)
             elif len(self.rx) < gp.RX_BUFFER_SIZE:
                 self.rx.append(b)
+                self.rx_high_water = max(self.rx_high_water, len(self.rx))
             else:
                 self.rx_overflow_bytes += 1  # the ring is full: the AVR drops the byte
         self._process(t_s)
@@ -418,6 +424,8 @@ class GrblMock(SerialDevice):
                 gwords.append(value)
             elif letter == "M":
                 mwords.append(value)
+            elif letter not in "FIJKLNPRSTXYZABC":
+                return "error:20"  # a word GRBL does not know (Q, D, H, ...)
             elif letter in words:
                 return "error:25"
             else:

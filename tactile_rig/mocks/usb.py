@@ -5,7 +5,7 @@
 and VID/PID filtering work unchanged. :func:`build_fake_tree` writes the matching sysfs layout
 (``bus/usb/devices/<bus>-<ports>`` with ``idVendor``/``idProduct``/``serial``/``product``,
 interfaces, ``class/tty/*/device`` and ``class/video4linux/*/{device,index,name}`` links) and the
-``/dev/serial/by-id`` and ``/dev/v4l/by-id`` symlinks, so :func:`tactile_rig.drivers.discovery.discover`
+``/dev/serial/by-id``, ``/dev/serial/by-path``, ``/dev/v4l/by-id`` and ``/dev/v4l/by-path`` symlinks, so :func:`tactile_rig.drivers.discovery.discover`
 runs end to end on it.
 """
 
@@ -88,11 +88,16 @@ def _by_id_name(d: FakeUsbDevice) -> str:
     return f"usb-{d.manufacturer.split()[0]}_{d.product.replace(' ', '_')}_{d.serial or 'noserial'}"
 
 
+def _by_path_prefix(d: FakeUsbDevice) -> str:
+    return f"pci-0000:00:14.{d.bus - 1}-usb-0:{'.'.join(map(str, d.ports))}"  # one controller per bus
+
+
 def build_fake_tree(root: str | Path, devices: tuple[FakeUsbDevice, ...] = MOCK_DEVICES) -> tuple[Path, Path]:
     """Write a fake sysfs and /dev for ``devices`` under ``root``; returns (sysfs_root, dev_root)."""
     root = Path(root)
     sysfs, dev = root / "sys", root / "dev"
     devices_dir = sysfs / "devices" / "pci0000:00" / "0000:00:14.0"
+    dev.mkdir(parents=True, exist_ok=True)
     for d in devices:
         real = devices_dir / f"usb{d.bus}" / d.port_path
         real.mkdir(parents=True, exist_ok=True)
@@ -111,10 +116,12 @@ def build_fake_tree(root: str | Path, devices: tuple[FakeUsbDevice, ...] = MOCK_
             cls = sysfs / "class" / "tty" / d.tty
             cls.mkdir(parents=True, exist_ok=True)
             _link(parent, cls / "device")
-            (dev / d.tty).parent.mkdir(parents=True, exist_ok=True)
             (dev / d.tty).touch()
             suffix = "-if00-port0" if d.tty.startswith("ttyUSB") else "-if00"
+            # Like udev: two adapters without a serial number get the same by-id name (the last one
+            # wins); the by-path name, from the USB port, is always unique.
             _link(dev / d.tty, dev / "serial" / "by-id" / (_by_id_name(d) + suffix))
+            _link(dev / d.tty, dev / "serial" / "by-path" / f"{_by_path_prefix(d)}:1.0{suffix[5:] or ''}")
         for index, node in enumerate(d.video):
             cls = sysfs / "class" / "video4linux" / node
             cls.mkdir(parents=True, exist_ok=True)
@@ -123,4 +130,5 @@ def build_fake_tree(root: str | Path, devices: tuple[FakeUsbDevice, ...] = MOCK_
             (cls / "name").write_text(d.product + "\n")
             (dev / node).touch()
             _link(dev / node, dev / "v4l" / "by-id" / f"{_by_id_name(d)}-video-index{index}")
+            _link(dev / node, dev / "v4l" / "by-path" / f"{_by_path_prefix(d)}:1.0-video-index{index}")
     return sysfs, dev

@@ -29,7 +29,7 @@
     theta_limits_deg = [-90.0, 90.0]
 
     [camera]                       # any table named camera or camera_<name>
-    port = "/dev/video0"
+    port = "/dev/video0"           # or "run.mcap#/camera/left/image": a recording as the camera
     sensor = "gelsight"            # gelsight | fingervision
     mm_per_px_x = 0.0634
     mm_per_px_y = 0.0634
@@ -218,6 +218,7 @@ class Bench:
 # -- line numbers -----------------------------------------------------------------------------
 _HEADER_RE = re.compile(r"^\s*\[\s*([A-Za-z0-9_.\-\" ]+?)\s*\]\s*(#.*)?$")
 _KEY_RE = re.compile(r"^\s*([A-Za-z0-9_\-]+|\"[^\"]*\")\s*=")
+_STRING_RE = re.compile(r'"(?:[^"\\]|\\.)*"|\'[^\']*\'')
 
 
 def line_index(text: str) -> tuple[dict[str, int], dict[tuple[str, str], int]]:
@@ -227,7 +228,7 @@ def line_index(text: str) -> tuple[dict[str, int], dict[tuple[str, str], int]]:
     current = ""
     depth = 0  # bracket depth of a multi-line array: its lines hold no keys
     for n, raw in enumerate(text.splitlines(), start=1):
-        line = raw.split("#", 1)[0] if '"' not in raw else raw
+        code = raw
         if depth == 0:
             m = _HEADER_RE.match(raw)
             if m:
@@ -237,8 +238,10 @@ def line_index(text: str) -> tuple[dict[str, int], dict[tuple[str, str], int]]:
             k = _KEY_RE.match(raw)
             if k:
                 keys.setdefault((current, k.group(1).strip('"')), n)
-                line = line.split("=", 1)[1]
-        depth = max(0, depth + line.count("[") - line.count("]"))
+                code = raw[k.end():]
+        # Brackets inside strings and comments do not open arrays.
+        code = _STRING_RE.sub('""', code).split("#", 1)[0]
+        depth = max(0, depth + code.count("[") - code.count("]"))
     return tables, keys
 
 
@@ -443,7 +446,7 @@ def _validate_device(cfg: DeviceConfig, line_of: Callable[..., int | None], wher
     def bad(key: str, msg: str) -> None:
         problems.append((line_of(t, key), f"[{t}] {key}{where(t, key)} {msg}"))
 
-    if check_ports and "://" not in cfg.port and not Path(cfg.port).exists():
+    if check_ports and "://" not in cfg.port and not Path(cfg.port.partition("#")[0]).exists():
         avail = _available_cameras() if isinstance(cfg, CameraConfig) else _available_ports()
         listing = f"ports present: {', '.join(avail)}" if avail else "no such ports are present"
         problems.append((line_of(t, "port"),
@@ -620,6 +623,12 @@ def _port_for(cfg: DeviceConfig, ctx: ConnectContext, instances: list[str]) -> s
     raw.pop("clock", None)  # the bench's clock wins: one time for every device
     raw.pop("scene", None)
     raw.pop("seed", None)
+    # The mock runs as the bench says the real device is set up, unless the URL says otherwise.
+    if cfg.baud:
+        raw.setdefault("baud", str(cfg.baud))
+    if isinstance(cfg, GripperConfig):
+        raw.setdefault("ids", ",".join(str(i) for i in cfg.ids))
+        raw.setdefault("protocol", str(cfg.protocol))
     device = create_device(kind, Params(raw, source=f"{ctx.bench.source} [{cfg.name}] port"),
                            clock=ctx.clock, world=ctx.world)
     name = f"{ctx.bench.name}.{cfg.name}"
@@ -628,32 +637,56 @@ def _port_for(cfg: DeviceConfig, ctx: ConnectContext, instances: list[str]) -> s
 
 
 def _connect_gripper(cfg: DeviceConfig, ctx: ConnectContext) -> Any:
-    from tactile_rig.drivers.dynamixel import Gripper  # type: ignore[attr-defined]
+    assert isinstance(cfg, GripperConfig)
+    from tactile_rig.drivers.dynamixel.gripper import DynamixelGripper, GripperCalibration
 
-    return Gripper(cfg.port, baudrate=cfg.baud, ids=cfg.ids, protocol=cfg.protocol)  # type: ignore[attr-defined]
+    cal = None
+    if cfg.calibration is not None:
+        import json
+
+        from tactile_rig.errors import CalibrationError
+
+        try:
+            d = json.loads(cfg.calibration.read_text(encoding="utf-8"))
+            cal = GripperCalibration.from_dict(d.get("calibration", d) if isinstance(d, dict) else d)
+        except (OSError, ValueError, TypeError, KeyError, AttributeError) as exc:
+            raise CalibrationError(f"gripper calibration {cfg.calibration} is unreadable: {exc}; re-make it "
+                                   f"with: {CALIBRATION_COMMANDS['gripper']}", device=cfg.name) from None
+    return DynamixelGripper(cfg.port, dxl_id=cfg.ids[0], protocol=cfg.protocol, baudrate=cfg.baud, calibration=cal)
 
 
 def _connect_scale(cfg: DeviceConfig, ctx: ConnectContext) -> Any:
-    from tactile_rig.drivers.scale import Scale  # type: ignore[import-not-found]
+    from tactile_rig.drivers.scale import Scale
 
-    return Scale(cfg.port, baudrate=cfg.baud)
+    return Scale(cfg.port, baudrate=cfg.baud, device=cfg.name)
 
 
 def _connect_jig(cfg: DeviceConfig, ctx: ConnectContext) -> Any:
-    from tactile_rig.drivers.jig import Jig  # type: ignore[import-not-found]
+    assert isinstance(cfg, JigConfig)
+    from tactile_rig.drivers.jig import Jig
 
-    return Jig(cfg.port, baudrate=cfg.baud)
+    return Jig(cfg.port, baudrate=cfg.baud, x_range_mm=cfg.x_limits_mm, y_range_mm=cfg.y_limits_mm,
+               theta_range_deg=cfg.theta_limits_deg, device=cfg.name)
 
 
 def _connect_camera(cfg: DeviceConfig, ctx: ConnectContext) -> Any:
+    """A V4L2 camera, or for ``rigsim://camera?model=NAME`` a camera rendering the bench's world."""
     assert isinstance(cfg, CameraConfig)
+    from tactile_rig.drivers.camera import FingertipCamera
+
+    fmt = {"fourcc": cfg.fourcc, "width": cfg.width, "height": cfg.height, "fps": cfg.fps}
+    path, _, topic = cfg.port.partition("#")
+    if path.endswith(".mcap"):  # a recording served as the camera: "run.mcap" or "run.mcap#/camera/left/image"
+        from tactile_rig.rig.replay import RecordedFrameSource
+
+        src = RecordedFrameSource(path, topic=topic or None, clock=ctx.clock)
+        return FingertipCamera(src, clock=ctx.clock, name=cfg.name, **fmt).open()
     if cfg.port.startswith("rigsim://"):
-        from tactile_rig.mocks.camera import SimulatedCamera  # type: ignore[import-not-found]
+        from tactile_rig.mocks.camera import SimulatedCamera
 
-        return SimulatedCamera(cfg.port, clock=ctx.clock, world=ctx.world)
-    from tactile_rig.drivers.camera import FingertipCamera  # type: ignore[import-not-found]
-
-    return FingertipCamera(cfg.port, width=cfg.width, height=cfg.height, fps=cfg.fps)
+        sim = SimulatedCamera(cfg.port, clock=ctx.clock, name=cfg.name, world=ctx.world, seed=ctx.bench.seed, **fmt)
+        return FingertipCamera(sim, clock=ctx.clock, name=cfg.name, **fmt).open()
+    return FingertipCamera(cfg.port, name=cfg.name, **fmt).open()
 
 
 CONNECTORS: dict[str, Connector] = {
@@ -716,11 +749,17 @@ def _with_port(cfg: DeviceConfig, port: str) -> DeviceConfig:
 
 
 def _name_port(cfg: DeviceConfig, exc: BaseException) -> BaseException:
-    """Make sure the reported error says which port the device was on."""
+    """Make sure the reported error says which port the device was on (keeping the error's class
+    when it is one of the plain ones, so callers can still tell a timeout from a missing port)."""
+    from tactile_rig.errors import CalibrationError, DeviceTimeout, LimitError, LinkCorrupt, NotConnected
+
     if cfg.port in str(exc):
         return exc
-    wrapped = type(exc)(f"{exc} (port {cfg.port})") if isinstance(exc, RigError) else \
-        RigError(f"{type(exc).__name__}: {exc} (port {cfg.port})", device=cfg.name)
-    if isinstance(exc, RigError):
-        wrapped.device = exc.device or cfg.name
+    plain = (RigError, NotConnected, DeviceTimeout, LinkCorrupt, LimitError, CalibrationError)
+    if type(exc) in plain:
+        assert isinstance(exc, RigError)
+        wrapped: RigError = type(exc)(f"{exc} (port {cfg.port})", device=exc.device or cfg.name)
+    else:
+        wrapped = RigError(f"{type(exc).__name__}: {exc} (port {cfg.port})", device=cfg.name)
+    wrapped.__cause__ = exc
     return wrapped

@@ -5,6 +5,11 @@ elsewhere (no prompt when stdin is not a TTY; every input has a command-line val
 writes ``<out>.json`` (or, for GelSight, ``<out>.npz`` + ``<out>.json`` from
 :meth:`GelSightCalibration.save`) and a report ``<out>.report.json`` + ``<out>.report.md``.
 
+* **Scale** (:func:`scale_session`): tare the empty scale, put a known mass on it, calibrate
+  (the factor is stored in the sketch's EEPROM and in the file), read it back as a check.
+* **Gripper** (:func:`gripper_session`): find the closed and open stops at a low effort.
+* **FingerVision** (:func:`fingervision_session`): marker rest positions (baseline) and the
+  proximity-vision background histogram from no-contact frames.
 * **GelSight** (:func:`gelsight_session`): a ball pressed into the gel is moved by the jig over a
   grid of positions; the no-contact frame is taken with the ball moved out of the field of view.
   Labels: the contact centre is the jig position in pixels plus the ball's offset at the jig's home
@@ -44,7 +49,12 @@ __all__ = [
     "press_positions",
     "collect_ball_presses",
     "contact_centroid_px",
+    "even_colour_direction",
     "gelsight_session",
+    "scale_session",
+    "gripper_session",
+    "fingervision_session",
+    "wait_for_load",
 ]
 
 CALIBRATION_FORMAT = "tactile_rig.calibration"
@@ -102,21 +112,28 @@ def _utc_now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
 
 
+_ENVELOPE = ("format", "version", "kind", "created", "device", "report")
+
+
 def write_calibration(path: str | Path, kind: str, values: dict[str, Any], report: dict[str, Any], *,
                       device: str | None = None) -> tuple[Path, Path]:
     """Write a JSON calibration (``path``) and its report (``<stem>.report.json`` and ``.md``).
 
-    Returns (calibration path, report path). The envelope carries ``format``, ``version`` and
-    ``kind`` so a reader refuses a file of another kind or version (:func:`read_calibration`).
+    The file is flat: the envelope keys (``format``, ``version``, ``kind``, ``created``, ``device``),
+    the values at the top level (so a driver's ``from_dict`` reads it as it is, e.g.
+    ``GripperCalibration.from_dict``) and the ``report``. Returns (calibration path, report path).
     """
     from tactile_rig.cli.common import to_jsonable
 
+    clash = sorted(set(values) & set(_ENVELOPE))
+    if clash:
+        raise ValueError(f"calibration values may not be named {', '.join(clash)} (envelope keys)")
     p = Path(path)
     if p.suffix != ".json":
         p = p.with_suffix(".json")
     p.parent.mkdir(parents=True, exist_ok=True)
     doc = {"format": CALIBRATION_FORMAT, "version": CALIBRATION_VERSION, "kind": kind, "created": _utc_now(),
-           "device": device, "values": to_jsonable(values), "report": to_jsonable(report)}
+           "device": device, **to_jsonable(values), "report": to_jsonable(report)}
     p.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
     rpath = p.with_name(p.stem + ".report.json")
     rpath.write_text(json.dumps(to_jsonable({"kind": kind, **report}), indent=2) + "\n", encoding="utf-8")
@@ -125,7 +142,7 @@ def write_calibration(path: str | Path, kind: str, values: dict[str, Any], repor
 
 
 def read_calibration(path: str | Path, kind: str) -> dict[str, Any]:
-    """The ``values`` of a JSON calibration of ``kind``; raises CalibrationError naming the problem."""
+    """The values of a JSON calibration of ``kind``; raises CalibrationError naming the problem."""
     p = Path(path)
     try:
         doc = json.loads(p.read_text(encoding="utf-8"))
@@ -134,13 +151,13 @@ def read_calibration(path: str | Path, kind: str) -> dict[str, Any]:
                                device=kind) from None
     except (OSError, json.JSONDecodeError) as exc:
         raise CalibrationError(f"{p} is not a readable calibration ({exc})", device=kind) from None
-    if doc.get("format") != CALIBRATION_FORMAT or doc.get("kind") != kind:
-        raise CalibrationError(f"{p} is not a {kind} calibration (format {doc.get('format')!r}, "
-                               f"kind {doc.get('kind')!r})", device=kind)
+    if not isinstance(doc, dict) or doc.get("format") != CALIBRATION_FORMAT or doc.get("kind") != kind:
+        got = (doc.get("format"), doc.get("kind")) if isinstance(doc, dict) else (type(doc).__name__, None)
+        raise CalibrationError(f"{p} is not a {kind} calibration (format {got[0]!r}, kind {got[1]!r})", device=kind)
     if doc.get("version") != CALIBRATION_VERSION:
         raise CalibrationError(f"{p}: calibration version {doc.get('version')!r}, this code reads "
                                f"version {CALIBRATION_VERSION}", device=kind)
-    return dict(doc["values"])
+    return {k: v for k, v in doc.items() if k not in _ENVELOPE}
 
 
 def _write_report_md(path: Path, kind: str, cal_path: Path, values: dict[str, Any], report: dict[str, Any]) -> None:
@@ -177,7 +194,8 @@ class BallPressPlan:
     ``background_mm`` is a jig position with the ball out of the field of view (the no-contact
     frame). ``press_depth_mm`` is how far the ball is pressed past first contact (the bench's z
     setting; the mock scene uses 0.6 mm) and ``ball_radius_mm`` its radius. ``method`` is the
-    colour-to-gradient model ("lut", "poly" or "mlp").
+    colour-to-gradient model ("lut", "poly" or "mlp"); ``background_frames`` no-contact frames are
+    averaged into the background.
     """
 
     ball_radius_mm: float = 2.0
@@ -187,6 +205,7 @@ class BallPressPlan:
     background_mm: tuple[float, float] = (16.0, 0.0)
     method: str = "lut"
     folds: int = 4
+    background_frames: int = 8
 
     def __post_init__(self) -> None:
         check_range("ball_radius_mm", float(self.ball_radius_mm), 0.1, 50.0, "mm")
@@ -196,6 +215,7 @@ class BallPressPlan:
                 raise ValueError(f"{name}={g!r} must be (start, stop, count) with start <= stop and count >= 1")
         if int(self.grid_x_mm[2]) * int(self.grid_y_mm[2]) < 3:
             raise ValueError("a GelSight calibration needs at least 3 presses (grid_x count x grid_y count)")
+        check_range("background_frames", float(self.background_frames), 1, 1000)
         if self.method not in ("lut", "poly", "mlp"):
             raise ValueError(f"method={self.method!r} must be 'lut', 'poly' or 'mlp'")
 
@@ -212,15 +232,16 @@ def press_positions(plan: BallPressPlan) -> list[tuple[float, float]]:
     return [(round(float(x), 6), round(float(y), 6)) for y in ys for x in xs]
 
 
-def contact_centroid_px(frame_bgr: np.ndarray, background_bgr: np.ndarray,
-                        min_diff: float = 12.0) -> tuple[float, float] | None:
+def contact_centroid_px(frame_bgr: np.ndarray, background_bgr: np.ndarray, min_diff: float = 12.0,
+                        direction_bgr: np.ndarray | None = None) -> tuple[float, float] | None:
     """Centre (x, y) px of the largest region that differs from the background, or None.
 
-    Weighted by the colour difference; the elastomer's blur is symmetric, so the centroid of a ball
-    press is the contact centre.
+    Weighted by the colour difference: ``sum |Δ|`` over the channels, or ``|Δ · direction_bgr|``
+    when a colour direction is given (see :func:`even_colour_direction`: with it the weights are
+    symmetric about a ball's centre, so the centroid is the contact centre).
     """
-    d = np.abs(frame_bgr.astype(np.float32) - background_bgr.astype(np.float32)).sum(axis=2)
-    d = cv2.GaussianBlur(d, (0, 0), 2.0)
+    diff = frame_bgr.astype(np.float32) - background_bgr.astype(np.float32)
+    d = cv2.GaussianBlur(np.abs(diff).sum(axis=2), (0, 0), 2.0)
     mask = (d > min_diff).astype(np.uint8)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     if n <= 1:
@@ -228,10 +249,44 @@ def contact_centroid_px(frame_bgr: np.ndarray, background_bgr: np.ndarray,
     k = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
     if stats[k, cv2.CC_STAT_AREA] < 20:
         return None
-    w = np.where(labels == k, d, 0.0)
+    region = labels == k
+    if direction_bgr is not None:
+        # The region is found on all the colour change; the weights use only its even part.
+        d = cv2.GaussianBlur(np.abs(diff @ np.asarray(direction_bgr, np.float32).reshape(3)), (0, 0), 2.0)
+        region = cv2.dilate(region.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
+    w = np.where(region, d, 0.0)
     total = float(w.sum())
+    if not total > 0:
+        return None
     ys, xs = np.mgrid[0:d.shape[0], 0:d.shape[1]]
     return float((w * xs).sum() / total), float((w * ys).sum() / total)
+
+
+def even_colour_direction(frames: Sequence[np.ndarray], background_bgr: np.ndarray,
+                          centres_px: Sequence[Sequence[float]], radius_px: float) -> np.ndarray:
+    """The colour direction (unit BGR vector) blind to the surface slopes' odd part.
+
+    Under the LEDs a press changes the colour by ``gx·a + gy·b + (n_z − 1)·c``; ``gx, gy`` are odd
+    about the contact centre and ``n_z − 1`` even. ``a`` and ``b`` are estimated as the colour
+    changes' first moments along x and y around approximate centres; the direction ``a × b`` keeps
+    only the even part, so a centroid weighted by it is not pulled toward the brighter LED.
+    """
+    bg = background_bgr.astype(np.float32)
+    u = np.zeros(3)
+    v = np.zeros(3)
+    h, w = bg.shape[:2]
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    for f, c in zip(frames, centres_px):
+        dx, dy = xs - float(c[0]), ys - float(c[1])
+        m = dx * dx + dy * dy < (1.5 * radius_px) ** 2
+        d = (f.astype(np.float32) - bg)[m]
+        u += (d * dx[m][:, None]).sum(axis=0)
+        v += (d * dy[m][:, None]).sum(axis=0)
+    n = np.cross(u, v)
+    norm = float(np.linalg.norm(n))
+    if not np.isfinite(norm) or norm == 0:
+        return np.ones(3) / math.sqrt(3.0)
+    return n / norm
 
 
 def collect_ball_presses(rig: PressRig, plan: BallPressPlan, mm_per_px: float, out_dir: str | Path | None = None,
@@ -251,7 +306,10 @@ def collect_ball_presses(rig: PressRig, plan: BallPressPlan, mm_per_px: float, o
     bx, by = plan.background_mm
     guide.say(f"moving the ball out of view ({bx:+.1f}, {by:+.1f}) mm for the no-contact frame")
     rig.move_to(make_pose(float(bx), float(by), 0.0))
-    background = np.ascontiguousarray(rig.touch())
+    # The mean of several no-contact frames: the sensor noise and the lamp flicker of one frame would
+    # otherwise be subtracted from every later frame as a false colour change.
+    stack = np.stack([rig.touch() for _ in range(int(plan.background_frames))]).astype(np.float32)
+    background = np.ascontiguousarray(np.clip(stack.mean(axis=0) + 0.5, 0, 255).astype(np.uint8))
     positions = press_positions(plan)
     frames: list[np.ndarray] = []
     guide.say(f"pressing at {len(positions)} jig positions")
@@ -261,17 +319,23 @@ def collect_ball_presses(rig: PressRig, plan: BallPressPlan, mm_per_px: float, o
     rows, cols = background.shape[:2]
     centre = np.array([(cols - 1) / 2.0, (rows - 1) / 2.0])
     commanded_px = np.array([[x / mm_per_px, y / mm_per_px] for x, y in positions]) + centre
-    offsets = []
-    for f, c in zip(frames, commanded_px):
-        m = contact_centroid_px(f, background)
-        if m is not None:
-            offsets.append(np.array(m) - c)
-    if len(offsets) < max(3, len(frames) // 2):
-        raise CalibrationError(f"only {len(offsets)} of {len(frames)} presses show a contact: is the ball under "
-                               "the sensor and pressed?", device="gelsight.calibration")
-    offset = np.median(np.array(offsets), axis=0)
-    centers = commanded_px + offset
     radius_px = plan.contact_radius_mm / mm_per_px
+
+    def measured_offset(direction: np.ndarray | None) -> np.ndarray:
+        offsets = []
+        for f, c in zip(frames, commanded_px):
+            m = contact_centroid_px(f, background, direction_bgr=direction)
+            if m is not None:
+                offsets.append(np.array(m) - c)
+        if len(offsets) < max(3, len(frames) // 2):
+            raise CalibrationError(f"only {len(offsets)} of {len(frames)} presses show a contact: is the ball "
+                                   "under the sensor and pressed?", device="gelsight.calibration")
+        return np.median(np.array(offsets), axis=0)
+
+    offset = measured_offset(None)
+    for _ in range(2):  # the even colour direction needs centres; refine them with it
+        offset = measured_offset(even_colour_direction(frames, background, commanded_px + offset, radius_px))
+    centers = commanded_px + offset
     keep = [i for i, c in enumerate(centers)
             if radius_px <= c[0] <= cols - 1 - radius_px and radius_px <= c[1] <= rows - 1 - radius_px]
     if len(keep) < 3:
@@ -336,5 +400,140 @@ def gelsight_session(rig: PressRig, plan: BallPressPlan, mm_per_px: float, out: 
                            "presses": str(base.parent / f"{base.name}_presses")})
 
 
-def _first(values: Sequence[Any]) -> Any:
-    return values[0] if values else None
+# -- scale: tare and known mass -----------------------------------------------------------------
+def _grams(readings: Sequence[Any]) -> np.ndarray:
+    return np.array([float(r.grams) for r in readings], dtype=np.float64)
+
+
+def wait_for_load(scale: Any, empty_g: float, noise_g: float, *, timeout_s: float = 60.0, window: int = 8,
+                  clock: Any = None) -> np.ndarray:
+    """Wait until the scale reads a load that is clearly there (> 20 noise σ and > 1 g above the
+    empty reading) and steady (σ of the last ``window`` readings < 3 noise σ + 0.05 g); return those
+    readings in grams. For scripted sessions: whoever places the mass has ``timeout_s`` to do it."""
+    from tactile_rig.clock import Deadline
+    from tactile_rig.errors import DeviceTimeout
+
+    dl = Deadline(clock or scale.clock, timeout_s)
+    recent: list[float] = []
+    while not dl.expired():
+        recent.append(float(scale.read().grams))
+        recent = recent[-window:]
+        if len(recent) == window:
+            a = np.array(recent)
+            if abs(a.mean() - empty_g) > max(20 * noise_g, 1.0) and a.std() < 3 * noise_g + 0.05:
+                return a
+    raise DeviceTimeout(f"no steady load on the scale within {timeout_s:.3g} s (place the known mass)",
+                        device="scale")
+
+
+def scale_session(scale: Any, known_mass_g: float, out: str | Path, *, place_mass: Callable[[float], None] | None = None,
+                  guide: Guide | None = None, samples: int = 20, wait_timeout_s: float = 60.0) -> SessionOutcome:
+    """Tare the empty scale, calibrate it with ``known_mass_g``, verify, write the calibration and report.
+
+    ``place_mass(grams)`` puts a mass on the scale (mocks: the world's load cell; 0 removes it);
+    without it the operator does (a prompt on a terminal; otherwise the session waits up to
+    ``wait_timeout_s`` for a steady load).
+    """
+    guide = guide or Guide(False, quiet=True)
+    check_range("known_mass_g", float(known_mass_g), 1e-3, 1e6, "g")
+    check_range("samples", float(samples), 3, 10000)
+    if place_mass is not None:
+        place_mass(0.0)
+    guide.step("empty the scale")
+    scale.tare()
+    scale.poll()  # readings queued before the tare was confirmed are not tared
+    empty = _grams(scale.read_many(int(samples)))
+    noise_g = float(empty.std())
+    if place_mass is not None:
+        place_mass(float(known_mass_g))
+        scale.poll()
+        scale.read_many(int(samples))  # the sketch's moving average settles on the new load
+    elif guide.interactive:
+        guide.step(f"place the {known_mass_g:g} g mass on the scale")
+    else:
+        guide.say(f"waiting up to {wait_timeout_s:g} s for the {known_mass_g:g} g mass")
+        wait_for_load(scale, float(empty.mean()), noise_g, timeout_s=wait_timeout_s)
+    factor = float(scale.calibrate(float(known_mass_g)))
+    scale.poll()
+    loaded = _grams(scale.read_many(int(samples)))
+    error_g = float(loaded.mean() - known_mass_g)
+    values = {"cal_factor_counts_per_g": factor, "known_mass_g": float(known_mass_g)}
+    info = getattr(scale, "info", None)
+    report = {"empty_mean_g": float(empty.mean()), "empty_noise_g": noise_g, "loaded_mean_g": float(loaded.mean()),
+              "loaded_noise_g": float(loaded.std()), "verify_error_g": error_g,
+              "verify_error_percent": 100.0 * error_g / float(known_mass_g), "samples": int(samples),
+              "firmware": None if info is None else f"{info.firmware} {info.version}"}
+    cal, rpath = write_calibration(out, "scale", values, report, device=str(getattr(scale, "port", "scale")))
+    guide.say(f"scale: factor {factor:.4g} counts/g; with the mass it reads {loaded.mean():.3f} g "
+              f"({error_g:+.3f} g), empty noise {noise_g:.3f} g -> {cal}")
+    if place_mass is not None:
+        place_mass(0.0)
+    return SessionOutcome("scale", cal, rpath, {**values, **report})
+
+
+# -- gripper: closed and open stops --------------------------------------------------------------
+def gripper_session(gripper: Any, out: str | Path, *, effort: float = 0.2, max_opening_m: float | None = None,
+                    closing_sign: int = -1, guide: Guide | None = None) -> SessionOutcome:
+    """Find the gripper's closed and open stops at a low effort and write them (``GripperCalibration``
+    fields at the top level, so ``tactile-rig gripper --calibration`` reads the file as it is)."""
+    guide = guide or Guide(False, quiet=True)
+    guide.step("clear the fingers: the gripper will close and open fully")
+    cal = gripper.calibrate(effort=effort, max_opening_m=max_opening_m, closing_sign=closing_sign)
+    values = dict(cal.to_dict())
+    span = int(values["open_ticks"]) - int(values["closed_ticks"])
+    report = {"span_ticks": span, "effort": float(effort), "closing_sign": int(closing_sign),
+              "m_per_tick": float(values["max_opening_m"]) / abs(span) if span else None}
+    path, rpath = write_calibration(out, "gripper", values, report, device=str(getattr(gripper, "device", "gripper")))
+    guide.say(f"gripper: closed {values['closed_ticks']} ticks, open {values['open_ticks']} ticks -> {path}")
+    return SessionOutcome("gripper", path, rpath, {**values, **report})
+
+
+# -- FingerVision: marker baseline and proximity-vision histograms --------------------------------
+def fingervision_session(camera: Any, out: str | Path, *, frames: int = 10, guide: Guide | None = None,
+                         params: Any = None) -> SessionOutcome:
+    """Average ``frames`` no-contact frames into the marker baseline (rest positions, sizes, valid
+    flags) and the proximity-vision background histogram; write ``<out>.npz`` (arrays) and
+    ``<out>.json`` (versioned, with the report)."""
+    from tactile_rig.perception.fingervision import FingerVision, FingerVisionParams
+
+    guide = guide or Guide(False, quiet=True)
+    check_range("frames", float(frames), 1, 1000)
+    guide.step("nothing in contact with the skin and nothing behind it")
+    imgs = []
+    for _ in range(int(frames)):
+        fr = camera.read(timeout_s=2.0)
+        imgs.append(np.ascontiguousarray(getattr(fr, "image", fr)))
+    fv = FingerVision(params or FingerVisionParams())
+    base = fv.calibrate(imgs)
+    n, n_valid = len(base), int(np.count_nonzero(base.valid))
+    if n_valid < 3:
+        raise CalibrationError(f"only {n_valid} stable markers in {frames} frames: check focus and lighting",
+                               device="fingervision.calibration")
+    p = Path(out)
+    if p.suffix in (".json", ".npz"):
+        p = p.with_suffix("")
+    p.parent.mkdir(parents=True, exist_ok=True)
+    npz = p.with_suffix(".npz")
+    bg_hist = fv.proximity.bg_hist
+    np.savez_compressed(npz, positions_px=base.positions_px, sizes_px=base.sizes_px, valid=base.valid,
+                        bg_hist=np.zeros(0) if bg_hist is None else bg_hist)
+    # Repeatability: how far each frame's detections sit from the baseline (nearest valid marker).
+    from tactile_rig.perception.fingervision import detect_markers
+
+    jitter = []
+    for img in imgs:
+        det = detect_markers(img, fv.params.detector)
+        pts = np.asarray(det.positions_px, float).reshape(-1, 2)
+        if len(pts):
+            d = np.linalg.norm(pts[:, None, :] - base.positions_px[base.valid][None, :, :], axis=2).min(axis=1)
+            jitter.append(float(np.median(d)))
+    values = {"arrays": npz.name, "frame_shape": list(imgs[0].shape[:2]), "markers": n, "valid_markers": n_valid,
+              "bg_median_v": fv.proximity.bg_median_v}
+    report = {"frames": int(frames), "valid_fraction": n_valid / n if n else 0.0,
+              "median_marker_jitter_px": float(np.median(jitter)) if jitter else None,
+              "mean_marker_size_px": float(np.mean(base.sizes_px[base.valid])) if n_valid else None,
+              "background_histogram_bins": int(0 if bg_hist is None else np.size(bg_hist))}
+    path, rpath = write_calibration(p.with_suffix(".json"), "fingervision", values, report,
+                                    device=str(getattr(camera, "name", "camera")))
+    guide.say(f"FingerVision: {n_valid}/{n} stable markers, jitter {report['median_marker_jitter_px']} px -> {path}")
+    return SessionOutcome("fingervision", path, rpath, {**values, **report}, {"npz": str(npz), "json": str(path)})

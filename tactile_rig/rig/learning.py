@@ -50,6 +50,13 @@ def _sklearn() -> None:
                                   name=exc.name) from exc
 
 
+def _one_blas_thread() -> Any:
+    """Small dense problems run 10-30x slower when BLAS threads fight over a busy machine."""
+    from threadpoolctl import threadpool_limits  # a dependency of scikit-learn
+
+    return threadpool_limits(limits=1, user_api="blas")
+
+
 def _paths(path: str | Path) -> tuple[Path, Path]:
     p = Path(path)
     stem = p.with_suffix("") if p.suffix in (".npz", ".json") else p
@@ -162,7 +169,7 @@ def fit_force_map(X: np.ndarray, y: np.ndarray, *, alpha: float = 0.02, gamma: f
         raise ValueError(f"gamma={gamma!r} must be > 0")
     scaler = RobustScaler().fit(x)
     xs = scaler.transform(x)
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), _one_blas_thread():
         warnings.simplefilter("ignore")  # an ill-conditioned kernel is handled by the ridge term
         krr = KernelRidge(alpha=alpha, kernel="rbf", gamma=g).fit(xs, yy)
     return ForceMapModel(center=np.asarray(scaler.center_, float), scale=np.asarray(scaler.scale_, float),
@@ -435,7 +442,7 @@ def fit_substance(X: np.ndarray, labels: Sequence[str], *, seed: int = 0,
     scaler = RobustScaler().fit(x)
     mlp = MLPClassifier(hidden_layer_sizes=hidden_layer_sizes, activation="logistic", solver="lbfgs",
                         max_iter=max_iter, random_state=seed)
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), _one_blas_thread():
         warnings.simplefilter("ignore")  # lbfgs stopping at max_iter is reported by the held-out accuracy
         mlp.fit(scaler.transform(x), y)
     return SubstanceModel(center=np.asarray(scaler.center_, float), scale=np.asarray(scaler.scale_, float),

@@ -16,9 +16,9 @@ as attachments (the files as they were). Every message carries ``t_s`` (the sess
 or monotonic); the MCAP ``log_time`` is that time in nanoseconds (plus the Unix time at the start
 for wall-clock sessions, so Foxglove shows real dates).
 
-Crash safety: chunks are closed and the file flushed whenever the session clock has moved
-``flush_interval_s`` (default 1 s) past the last flush, and, on wall-clock sessions, by a
-background timer too, so idle periods do not hold data in memory. :func:`read_recording` reads a
+Crash safety: chunks are closed and the file flushed whenever the session clock or the wall
+clock has moved ``flush_interval_s`` (default 1 s) past the last flush, and, on wall-clock
+sessions, by a background timer too, so idle periods do not hold data in memory. :func:`read_recording` reads a
 file cut off anywhere (SIGKILL, full disk, power loss) and returns every complete chunk.
 
 ``mcap`` is the optional extra ``record``; it is imported only when a recording is opened.
@@ -83,6 +83,22 @@ def _jsonable(obj: Any) -> Any:
     return to_jsonable(obj)
 
 
+def _require_mcap() -> None:
+    try:
+        import mcap  # noqa: F401
+    except ModuleNotFoundError as exc:  # pragma: no cover - depends on the install
+        raise ModuleNotFoundError("recordings need the 'mcap' package: pip install 'tactile-rig[record]'",
+                                  name=exc.name) from exc
+
+
+def _fast_default(obj: Any) -> Any:
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    raise TypeError(type(obj).__name__)
+
+
 def _stamp(t_ns: int) -> dict[str, int]:
     return {"sec": max(0, t_ns) // 1_000_000_000, "nsec": max(0, t_ns) % 1_000_000_000}
 
@@ -98,12 +114,9 @@ class Recorder:
     def __init__(self, path: str | Path, *, clock: Clock | None = None, flush_interval_s: float = 1.0,
                  compression: str = "zstd", chunk_size: int = 256 * 1024,
                  background_flush: bool | None = None) -> None:
-        try:
-            from mcap.writer import CompressionType, Writer
-        except ModuleNotFoundError as exc:  # pragma: no cover - depends on the install
-            raise ModuleNotFoundError(
-                "recording needs the 'mcap' package: pip install 'tactile-rig[record]'", name=exc.name
-            ) from exc
+        _require_mcap()
+        from mcap.writer import CompressionType, Writer
+
         if not 0 < flush_interval_s <= 1.0:
             raise ValueError(f"flush_interval_s={flush_interval_s!r} must be in (0, 1] s "
                              "(a crash may lose at most one second)")
@@ -131,6 +144,7 @@ class Recorder:
         self._t0_s = self.clock.now_s()
         self._epoch_ns = 0 if self.clock.is_virtual else time.time_ns() - int(self._t0_s * 1e9)
         self._last_flush_s = self._t0_s
+        self._last_flush_wall_s = time.monotonic()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         if background_flush if background_flush is not None else not self.clock.is_virtual:
@@ -164,8 +178,14 @@ class Recorder:
         t = self.clock.now_s() if t_s is None else float(t_s)
         body = dict(payload)
         body.setdefault("t_s", t)
-        data = json.dumps(_jsonable(body), separators=(",", ":"), allow_nan=False).encode()
-        ns = self.log_time_ns(t)
+        try:  # fast path: plain values and numpy arrays/scalars
+            data = json.dumps(body, separators=(",", ":"), allow_nan=False, default=_fast_default).encode()
+        except (TypeError, ValueError):  # NaN/inf (→ null), dataclasses, enums...
+            data = json.dumps(_jsonable(body), separators=(",", ":"), allow_nan=False).encode()
+        self._add(topic, schema, data, t)
+
+    def _add(self, topic: str, schema: str, data: bytes, t_s: float) -> None:
+        ns = self.log_time_ns(t_s)
         with self._lock:
             if self._closed:
                 raise ValueError(f"recording {self.path} is closed")
@@ -174,7 +194,10 @@ class Recorder:
                                      sequence=self._seq[cid])
             self._seq[cid] += 1
             self._dirty = True
-            if self.clock.now_s() - self._last_flush_s >= self.flush_interval_s:
+            # Session time and wall time: a simulation slower than real time must not hold back
+            # more than a second of work either.
+            if (self.clock.now_s() - self._last_flush_s >= self.flush_interval_s
+                    or time.monotonic() - self._last_flush_wall_s >= self.flush_interval_s):
                 self._flush_locked()
 
     # -- typed channels ---------------------------------------------------------------------
@@ -204,10 +227,12 @@ class Recorder:
             return
         h, w = img.shape[:2]
         enc = "bgr8" if img.ndim == 3 else "mono8"
-        msg = {"timestamp": _stamp(self.log_time_ns(t)), "frame_id": camera, "width": w, "height": h,
-               "encoding": enc, "step": int(img.strides[0]),
-               "data": base64.b64encode(img.tobytes()).decode("ascii")}
-        self.write(topic, msg, t_s=t, schema="foxglove.RawImage")
+        head = {"timestamp": _stamp(self.log_time_ns(t)), "frame_id": camera, "width": w, "height": h,
+                "encoding": enc, "step": int(img.strides[0]), "t_s": t}
+        # base64 is plain ASCII: splice it in rather than have json scan a megabyte for escapes.
+        body = json.dumps(head, separators=(",", ":"))[:-1].encode() + b',"data":"' + \
+            base64.b64encode(img.tobytes()) + b'"}'
+        self._add(topic, "foxglove.RawImage", body, t)
 
     def write_perception(self, name: str, result: Any, *, t_s: float | None = None) -> None:
         self.write(f"/perception/{name}", _as_dict(result), t_s=t_s, schema="tactile_rig.Perception")
@@ -264,6 +289,7 @@ class Recorder:
             flush()  # mcap >= 1.2: closes the chunk in progress and flushes the stream
         self._file.flush()
         self._last_flush_s = self.clock.now_s()
+        self._last_flush_wall_s = time.monotonic()
         self._dirty = False
 
     def flush(self) -> None:
@@ -388,16 +414,26 @@ class Recording:
 
 def _records(path: Path, result: Recording) -> Iterator[Any]:
     """Every record of the file in order; a cut-off tail ends the iteration and sets ``truncated``."""
+    _require_mcap()
+    from mcap.exceptions import InvalidMagic
     from mcap.records import Footer
     from mcap.stream_reader import StreamReader
 
     with open(path, "rb") as f:
+        head = f.read(8)
+        f.seek(0)
+        if len(head) == 8 and not head.startswith(b"\x89MCAP"):
+            raise ValueError(f"{path} is not an MCAP recording (it starts with {head!r})")
         reader = StreamReader(f, skip_magic=False, emit_chunks=False)
         it = reader.records
         while True:
             try:
                 rec = next(it)
             except StopIteration:
+                return
+            except InvalidMagic as exc:  # the file's start is fine (checked above): a cut-off end magic
+                result.truncated = True
+                result.error = str(exc)
                 return
             except Exception as exc:  # noqa: BLE001 - any decode failure at the tail is a truncation
                 result.truncated = True

@@ -65,7 +65,8 @@ class RecordedFrameSource:
     returns a frame only once the clock has reached its recorded time (relative to the first frame
     and to when the source was opened), waiting on the clock for at most ``timeout_s``; without a
     clock, frames come one per read as fast as asked. ``loop`` restarts at the end; otherwise
-    the end of the recording reads as an unplugged camera (:class:`NotConnected`).
+    the end of the recording reads as a camera that stopped streaming (``read`` returns None after
+    waiting ``timeout_s``, so the driver raises ``DeviceTimeout``).
     """
 
     channel_order = "BGR"
@@ -115,7 +116,9 @@ class RecordedFrameSource:
         first = self._messages[0].image()
         span = self._messages[-1].t_s - self._messages[0].t_s
         rec_fps = (len(self._messages) - 1) / span if span > 0 else fps
-        self._format = (fourcc, int(first.shape[1]), int(first.shape[0]), float(rec_fps))
+        # Timestamps jitter: a requested rate within 10 % of the recorded one is what was recorded.
+        got_fps = fps if abs(rec_fps - fps) <= 0.1 * fps else rec_fps
+        self._format = (fourcc, int(first.shape[1]), int(first.shape[0]), float(got_fps))
         return self._format
 
     def set_control(self, name: str, value: float) -> bool:
@@ -138,7 +141,9 @@ class RecordedFrameSource:
             raise NotConnected("replay source is not open", device=self.name)
         if self._i >= len(self._messages):
             if not self.loop or not self._messages:
-                raise NotConnected(f"end of recording after {len(self._messages)} frames", device=self.name)
+                if self.clock is not None and timeout_s:
+                    self.clock.sleep(timeout_s)
+                return None
             self._i = 0
             self._t_open_s = self.clock.now_s() if self.clock is not None else 0.0
         m = self._messages[self._i]

@@ -5,9 +5,10 @@ stable hash of its parameters (and the target), runs with a seed derived from th
 ``OUT/<key>/result.json`` (plus whatever the target writes in its own folder, e.g. ``run.mcap``).
 A point whose result exists is skipped, so a sweep resumes after a crash.
 
-Targets: ``"module:function"`` (any importable callable) or ``"scene:<name>"`` (the scene runner,
-:mod:`tactile_rig.rig.scene_runner`, when it exists). A target is called as
-``fn(params: dict, *, seed: int, out_dir: Path) -> dict`` (a JSON-able result).
+Targets: ``"module:function"`` (any importable callable), called as
+``fn(params: dict, *, seed: int, out_dir: Path) -> dict`` (a JSON-able result), or
+``"scene:<name>"``: one episode of :mod:`tactile_rig.rig.scene_runner` per point, with parameters
+``<model>.<param>`` / ``controller.<param>`` / ``sensor.<param>`` / ``speed_mps`` overriding the scene.
 
 Executors: :class:`~concurrent.futures.ProcessPoolExecutor` locally (default), a
 ``ThreadPoolExecutor`` for debugging (``--executor thread``), or
@@ -120,9 +121,8 @@ def resolve_target(target: str) -> Callable[..., Any]:
             runner = importlib.import_module("tactile_rig.rig.scene_runner")
         except ModuleNotFoundError as exc:
             raise ValueError(f"sweep target {target!r}: the scene runner is not available ({exc})") from None
-        fn = getattr(runner, "sweep_point", None) or getattr(runner, "run_scene_point", None)
-        if fn is None:
-            raise ValueError(f"sweep target {target!r}: tactile_rig.rig.scene_runner has no sweep_point()")
+        fn = getattr(runner, "sweep_point", None) or _scene_episode
+        runner.resolve_scene_path(rest)  # an unknown scene fails before anything runs
         return _ScenePoint(rest, fn)
     try:
         module = importlib.import_module(kind)
@@ -145,6 +145,25 @@ class _ScenePoint:
 
     def __call__(self, params: dict[str, Any], *, seed: int, out_dir: Path) -> Any:
         return self.fn(self.scene, params, seed=seed, out_dir=out_dir)
+
+
+def _scene_episode(scene: str, params: dict[str, Any], *, seed: int, out_dir: Path) -> dict[str, Any]:
+    """One scene-runner episode: ``params`` keys ``<model>.<param>``, ``controller.<p>``, ``sensor.<p>``
+    override the scene (and its per-episode draws); ``speed_mps`` is the runner's speed argument."""
+    from tactile_rig.rig.scene_runner import run_episode
+
+    overrides: dict[str, dict[str, Any]] = {}
+    speed = params.get("speed_mps")
+    for k, v in params.items():
+        if k == "speed_mps":
+            continue
+        section, sep, key = k.partition(".")
+        if not sep or not key:
+            raise ValueError(f"scene sweep parameter {k!r} must be '<model>.<param>', 'controller.<param>', "
+                             "'sensor.<param>' or 'speed_mps'")
+        overrides.setdefault(section, {})[key] = v
+    report = run_episode(scene, seed, speed_mps=speed, overrides=overrides)
+    return report.to_json()
 
 
 # -- running ----------------------------------------------------------------------------------

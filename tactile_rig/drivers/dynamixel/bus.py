@@ -55,7 +55,15 @@ def check_latency_timer(port: str, *, sysfs_root: str | Path = "/sys") -> int | 
 
 
 class UrlPortHandler(sdk.PortHandler):
-    """The SDK's PortHandler, opening paths and pyserial URLs (``rigsim://``, ``rigfault://``)."""
+    """The SDK's PortHandler, opening paths and pyserial URLs (``rigsim://``, ``rigfault://``).
+
+    ``lock`` is the bus lock of the port (shared with every tactile-rig driver on it): hold it
+    around each SDK transaction when using the SDK directly from several threads.
+    """
+
+    def __init__(self, port_name: str) -> None:
+        super().__init__(port_name)
+        self.lock = transport.bus_lock(port_name)
 
     def setupPort(self, cflag_baud: int) -> bool:  # noqa: N802 - the SDK's name
         if self.is_open:
@@ -82,9 +90,9 @@ class DynamixelBus:
         self.protocol = protocol
         self.baudrate = baudrate
         self.table = ct.TABLES[protocol]
-        self.lock = transport.bus_lock(port)
         self.latency_timer_ms = check_latency_timer(port)
         self.port = UrlPortHandler(port)
+        self.lock = self.port.lock
         self.packet = sdk.PacketHandler(float(protocol))
         with self.lock:
             if not self.port.setBaudRate(baudrate):

@@ -201,14 +201,18 @@ class DynamixelGripper:
     def goal_ticks(self, position: float) -> int:
         """Servo ticks of an opening (metres, or 0-1 when ``normalized``); LimitError outside the range."""
         cal = self.calibration
+        # A measured opening fed back as a goal may lie a hair outside the calibrated range (an
+        # object squeezed past the closed stop's calibration): within the tolerance it is clamped.
         if self.normalized:
-            if not 0.0 <= position <= 1.0:
+            tol = self.position_tolerance_m / cal.max_opening_m
+            if not -tol <= position <= 1.0 + tol:
                 raise LimitError(f"position={position!r} is outside [0, 1] (normalized opening)", device=self.device)
-            return cal.ticks_from_frac(position)
-        if not 0.0 <= position <= cal.max_opening_m:
+            return cal.ticks_from_frac(min(1.0, max(0.0, position)))
+        tol = self.position_tolerance_m
+        if not -tol <= position <= cal.max_opening_m + tol:
             raise LimitError(f"position={position!r} m is outside the calibrated opening [0, {cal.max_opening_m}] m",
                              device=self.device)
-        return cal.ticks_from_frac(position / cal.max_opening_m)
+        return cal.ticks_from_frac(min(1.0, max(0.0, position / cal.max_opening_m)))
 
     # -- motion -----------------------------------------------------------------------------------
     def gripper_go(self, position: float, effort: float, *, blocking: bool = True,

@@ -79,7 +79,7 @@ class DynamixelBusDevice(SerialDevice):
             if isinstance(ev, ChecksumFailure):
                 self.checksum_failures += 1
                 s = self._target(ev.id, t_s)
-                if s is not None and s.status_return_level >= 1:
+                if s is not None:
                     self._status(s, de.CRC_ERROR if self.protocol == 2 else de.P1_CHECKSUM, b"", t_s)
                 continue
             self.packets_seen += 1
@@ -123,7 +123,7 @@ class DynamixelBusDevice(SerialDevice):
         targets = self._awake(t) if bcast else [s for s in [self._target(pkt.id, t)] if s is not None]
         for s in targets:
             if inst == P2_PING:
-                model = s.table.model_number
+                model = s.item("Model Number")
                 t = self._status(s, 0, bytes([model & 0xFF, model >> 8, s.item("Firmware Version")]), t, level=0)
             elif bcast and inst not in (WRITE, REG_WRITE, ACTION, FACTORY_RESET, REBOOT, CLEAR):
                 continue  # a broadcast read has no single answer: ignored

@@ -12,6 +12,7 @@ winding overheats or stalls at full current: Alert bit on every status, torque o
 from __future__ import annotations
 
 import math
+import struct
 
 from tactile_rig.drivers.dynamixel import control_table as ct
 from tactile_rig.drivers.dynamixel import errors as de
@@ -22,6 +23,13 @@ OVERLOAD_TIME_S = 2.0
 OVERLOAD_FRACTION = 0.95
 _FAULT_CHECK_S = 0.01  # the firmware's protection loop period
 _TPS_PER_RPM = TICKS_PER_REV / 60.0
+# P2 live registers 120-143: tick, moving, moving status, PWM, current, velocity, position,
+# velocity trajectory, position trajectory (addresses from control_table.MX64_P2)
+_P2_LIVE = struct.Struct("<HBBhhiiii")
+_HOMING_OFFSET = ct.MX64_P2["Homing Offset"].address
+_MOVING_THRESHOLD = ct.MX64_P2["Moving Threshold"].address
+_P2_OFFSET = struct.Struct("<i")
+_P2_U32 = struct.Struct("<I")
 
 
 class Servo:
@@ -31,6 +39,10 @@ class Servo:
                  baud: int | None = None, t_s: float = 0.0) -> None:
         self.protocol = protocol
         self.table = ct.TABLES[protocol]
+        self._temp_limit_addr = self.table["Temperature Limit"].address
+        self._shutdown_addr = self.table["Shutdown"].address
+        self._overheat_bit = de.HW_OVERHEATING if protocol == 2 else de.P1_OVERHEATING
+        self._overload_bit = de.HW_OVERLOAD if protocol == 2 else de.P1_OVERLOAD
         self.plant = plant
         self.mem = bytearray(self.table.size)
         plant.advance_to(t_s)  # a scene's plant may start at 0 while a real clock is far ahead
@@ -45,6 +57,7 @@ class Servo:
         if baud is not None:
             self._write_raw_item("Baud Rate", ct.code_from_baud(protocol, baud))
         self._sync_plant_from_registers()
+        self.refresh()
 
     # -- registers ------------------------------------------------------------------------------
     @property
@@ -90,6 +103,8 @@ class Servo:
             default = it.default
             if it.name == "Goal Position":
                 default = round(self.plant.position_ticks)
+                if self.protocol == 2:
+                    default += self.item("Homing Offset")  # EEPROM precedes RAM in address order
             if it.name in ("Goal Current", "Goal PWM"):
                 default = self._limit_for(it.name)
             elif it.name == "Torque Limit":
@@ -123,24 +138,15 @@ class Servo:
         p = self.plant
         stalled = abs(p.current_a) >= OVERLOAD_FRACTION * STALL_CURRENT_A and abs(p.velocity_tps) < 1.0
         self.stall_s = self.stall_s + dt if stalled and p.torque_on else 0.0
-        if self.protocol == 2:
-            found = 0
-            if p.temperature_c > self.item("Temperature Limit"):
-                found |= de.HW_OVERHEATING
-            if self.stall_s >= OVERLOAD_TIME_S:
-                found |= de.HW_OVERLOAD
-            found &= self.item("Shutdown")
-            if found:
-                self._latch(found)
-        else:
-            found = 0
-            if p.temperature_c > self.item("Temperature Limit"):
-                found |= de.P1_OVERHEATING
-            if self.stall_s >= OVERLOAD_TIME_S:
-                found |= de.P1_OVERLOAD
-            found &= self.item("Shutdown")
-            if found:
-                self._latch(found)
+        # single-byte registers read straight from memory: this runs every 10 ms of device time
+        found = 0
+        if p.temperature_c > self.mem[self._temp_limit_addr]:
+            found |= self._overheat_bit
+        if self.stall_s >= OVERLOAD_TIME_S:
+            found |= self._overload_bit
+        found &= self.mem[self._shutdown_addr]
+        if found:
+            self._latch(found)
 
     def inject_hardware_error(self, bits: int) -> None:
         """Latch hardware error ``bits`` now (P2 Hardware Error Status / P1 error bits), as the
@@ -172,20 +178,20 @@ class Servo:
         p = self.plant
         rpm = p.velocity_tps / _TPS_PER_RPM
         tick_ms = int(self.t_s * 1000) % 32768
-        moving = int(abs(p.velocity_tps) > 0.5 * _TPS_PER_RPM * 0.229 * max(1, self._threshold()))
         if self.protocol == 2:
-            self._write_raw_item("Present Position", round(p.position_ticks))
-            self._write_raw_item("Present Velocity", round(rpm / ct.P2_RPM_PER_VELOCITY_UNIT))
-            self._write_raw_item("Present Current", round(p.current_a / ct.P2_CURRENT_A_PER_UNIT))
-            self._write_raw_item("Present PWM", round(885 * max(-1.0, min(1.0, p.current_a / STALL_CURRENT_A))))
-            self._write_raw_item("Position Trajectory", round(p.trajectory_ticks))
-            self._write_raw_item("Velocity Trajectory", round(rpm / ct.P2_RPM_PER_VELOCITY_UNIT))
-            self._write_raw_item("Present Temperature", round(p.temperature_c))
-            self._write_raw_item("Realtime Tick", tick_ms)
-            self._write_raw_item("Moving", moving)
+            # One pack into the live block 120-143 (this runs on every position read).
+            offset = _P2_OFFSET.unpack_from(self.mem, _HOMING_OFFSET)[0]
+            threshold = _P2_U32.unpack_from(self.mem, _MOVING_THRESHOLD)[0]
+            moving = int(abs(rpm) > ct.P2_RPM_PER_VELOCITY_UNIT * threshold)
+            vel = round(rpm / ct.P2_RPM_PER_VELOCITY_UNIT)
             in_pos = abs(p.goal_ticks - p.position_ticks) < 2
             profile = p.trajectory_ticks != p.goal_ticks
-            self._write_raw_item("Moving Status", int(in_pos) | int(profile) << 1)
+            _P2_LIVE.pack_into(
+                self.mem, 120, tick_ms, moving, int(in_pos) | int(profile) << 1,
+                round(885 * max(-1.0, min(1.0, p.current_a / STALL_CURRENT_A))),
+                round(p.current_a / ct.P2_CURRENT_A_PER_UNIT), vel, round(p.position_ticks) + offset,
+                vel, round(p.trajectory_ticks) + offset)
+            self.mem[146] = max(0, min(255, round(p.temperature_c)))
         else:
             self._write_raw_item("Present Position", max(0, min(4095, round(p.position_ticks))))
             self._write_raw_item("Present Speed", _p1_signed(rpm / ct.P1_RPM_PER_SPEED_UNIT))
@@ -193,10 +199,7 @@ class Servo:
             self._write_raw_item("Current", max(0, min(4095, ct.P1_CURRENT_OFFSET + round(p.current_a / ct.P1_CURRENT_A_PER_UNIT))))
             self._write_raw_item("Present Temperature", round(p.temperature_c))
             self._write_raw_item("Realtime Tick", tick_ms)
-            self._write_raw_item("Moving", moving)
-
-    def _threshold(self) -> int:
-        return self.item("Moving Threshold") if self.protocol == 2 else 1
+            self._write_raw_item("Moving", int(abs(rpm) > ct.P1_RPM_PER_SPEED_UNIT))
 
     # -- read / write ---------------------------------------------------------------------------
     def read(self, address: int, length: int) -> tuple[int, bytes]:
@@ -204,15 +207,22 @@ class Servo:
         if length < 1 or address < 0 or address + length > self.table.size:
             return (de.DATA_LENGTH if address + length <= self.table.size else de.ACCESS_ERROR) \
                 if self.protocol == 2 else de.P1_RANGE, b""
-        self.refresh()
-        out = bytearray(self.mem[address:address + length])
-        if self.protocol == 2:
+        end = address + length
+        indirect = self.protocol == 2 and any(address < d0 + n and d0 < end for d0, _, n in ct.P2_INDIRECT_BLOCKS)
+        if indirect or any(address < hi and lo < end for lo, hi in self._live):
+            self.refresh()
+        out = bytearray(self.mem[address:end])
+        if indirect:
             for k in range(length):
                 src = self._indirect_source(address + k)
                 if src is not None:
-                    self.refresh()
                     out[k] = self.mem[src]
         return 0, bytes(out)
+
+    @property
+    def _live(self) -> tuple[tuple[int, int], ...]:
+        """Address ranges of the present-value registers (refreshed from the plant on read)."""
+        return ((120, 147),) if self.protocol == 2 else ((36, 52), (68, 70))
 
     def _indirect_source(self, address: int) -> int | None:
         for data0, addr0, count in ct.P2_INDIRECT_BLOCKS:
@@ -307,7 +317,7 @@ class Servo:
         if self.protocol == 2:
             mode = self.item("Operating Mode")
             limit_a = self.item("Current Limit") * ct.P2_CURRENT_A_PER_UNIT
-            goal = float(self.item("Goal Position"))
+            goal = float(self.item("Goal Position") - self.item("Homing Offset"))
             cap = limit_a
             rpm = self.item("Profile Velocity") * ct.P2_RPM_PER_VELOCITY_UNIT
             if mode == ct.MODE_CURRENT_POSITION:

@@ -29,6 +29,7 @@ import numpy as np
 
 from tactile_rig.errors import check_range
 from tactile_rig.mocks.world import register_model
+from tactile_rig.mocks.world.gelsight_render import SensorNoise
 
 __all__ = ["FvObject", "FingerVisionRenderer", "contact_shear_field", "FingerVisionRendererModel"]
 
@@ -83,7 +84,10 @@ class FingerVisionRenderer:
         self.noise_sigma = check_range("noise_sigma", float(noise_sigma), 0.0, 100.0)
         self._rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
         self.rest_px, self.radius_px = self._place_markers(grid_cols, grid_rows, jitter_px, size_jitter)
-        self.background_bgr = self._background()
+        self.background_bgr = np.clip(self._background() + 0.5, 0, 255).astype(np.uint8)
+        self._shade = (self.background_bgr.astype(np.float32).mean(axis=2) / 150.0).astype(np.float32)
+        self._ink = np.full((rows, cols, 3), 13, np.uint8)
+        self._noise = SensorNoise((rows, cols, 3), self.noise_sigma, self._rng, mono=True) if self.noise_sigma > 0 else None
 
     # -- geometry -------------------------------------------------------------------------
     def _distort(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -152,20 +156,7 @@ class FingerVisionRenderer:
         img = self.background_bgr.copy()
         truth: dict[str, Any] = {"object_centroid_px": None, "object_orientation_deg": None, "object_area_px": 0.0}
         if object is not None:
-            mask = np.zeros((rows, cols), np.uint8)
-            self._draw_object(mask, object)
-            area = float(np.count_nonzero(mask))
-            if area > 0:
-                m = cv2.moments(mask, binaryImage=True)
-                truth.update(object_centroid_px=(m["m10"] / m["m00"], m["m01"] / m["m00"]),
-                             object_orientation_deg=math.degrees(0.5 * math.atan2(2 * m["mu11"], m["mu20"] - m["mu02"])),
-                             object_area_px=area)
-                alpha = mask.astype(np.float32) * (0.85 / 255.0)
-                if object.blur_px > 0:
-                    alpha = cv2.GaussianBlur(alpha, (0, 0), object.blur_px)
-                colour = np.asarray(object.colour_bgr, dtype=np.float32)
-                shade = img.mean(axis=2, keepdims=True) / 150.0  # the object is lit like the background
-                img = img * (1.0 - alpha[..., None]) + alpha[..., None] * colour * shade
+            self._composite_object(img, object, truth)
         pos = self.marker_positions_px(markers_shift_px)
         radius = self.radius_px * (1.0 + self.load_growth * load)
         dots = np.zeros((rows, cols), np.uint8)
@@ -173,14 +164,37 @@ class FingerVisionRenderer:
             if -r <= x <= cols - 1 + r and -r <= y <= rows - 1 + r:
                 cv2.circle(dots, (int(round(x * 16)), int(round(y * 16))), max(1, int(round(r * 16))), 255,
                            -1, cv2.LINE_AA, shift=4)
-        a = cv2.GaussianBlur(dots, (0, 0), 0.7).astype(np.float32)[..., None] / 255.0
-        img = img * (1.0 - 0.9 * a) + 12.0 * a  # dark ink: V falls to ~15-30
-        img = img * float(light_gain)
-        if self.noise_sigma > 0:
-            img = img + self._rng.normal(0.0, self.noise_sigma, (rows, cols, 1)).astype(np.float32)
+        ink = cv2.GaussianBlur(dots, (0, 0), 0.7).astype(np.float32) * np.float32(0.9 / 255.0)
+        img = cv2.blendLinear(img, self._ink, 1.0 - ink, ink)  # dark ink: V falls to ~15-30
+        if light_gain != 1.0:
+            img = cv2.convertScaleAbs(img, alpha=float(light_gain))  # saturates at 255 like the sensor
+        if self._noise is not None:
+            img = cv2.add(img, self._noise.sample(), dtype=cv2.CV_8U)
         truth["markers_px"] = pos
         truth["marker_radius_px"] = radius
-        return np.clip(img + 0.5, 0, 255).astype(np.uint8), truth
+        return img, truth
+
+    def _composite_object(self, img: np.ndarray, obj: FvObject, truth: dict[str, Any]) -> None:
+        """Blend the object into ``img`` (in place, inside its bounding box) and fill its ground truth."""
+        rows, cols = self.shape_px
+        mask = np.zeros((rows, cols), np.uint8)
+        self._draw_object(mask, obj)
+        x, y, w, h = cv2.boundingRect(mask)
+        if w == 0 or h == 0:
+            return
+        m = cv2.moments(mask[y:y + h, x:x + w], binaryImage=True)
+        truth.update(object_centroid_px=(x + m["m10"] / m["m00"], y + m["m01"] / m["m00"]),
+                     object_orientation_deg=math.degrees(0.5 * math.atan2(2 * m["mu11"], m["mu20"] - m["mu02"])),
+                     object_area_px=float(m["m00"]))
+        pad = int(math.ceil(3 * obj.blur_px)) + 1
+        x0, y0, x1, y1 = max(0, x - pad), max(0, y - pad), min(cols, x + w + pad), min(rows, y + h + pad)
+        alpha = mask[y0:y1, x0:x1].astype(np.float32) * np.float32(0.85 / 255.0)
+        if obj.blur_px > 0:
+            alpha = cv2.GaussianBlur(alpha, (0, 0), obj.blur_px)
+        # The object is lit like the background it hides (same LEDs, same vignetting).
+        layer = self._shade[y0:y1, x0:x1, None] * np.asarray(obj.colour_bgr, dtype=np.float32)
+        layer = np.clip(layer, 0, 255).astype(np.uint8)
+        img[y0:y1, x0:x1] = cv2.blendLinear(img[y0:y1, x0:x1], layer, 1.0 - alpha, alpha)
 
     @staticmethod
     def _draw_object(mask: np.ndarray, obj: FvObject) -> None:

@@ -45,13 +45,16 @@ class _State:
 class GraspedObject:
     """The object between the fingers; see the module docstring for the physics."""
 
-    def __init__(self, world: Any, *, mass_kg: float = 0.1, mu_static: float = 0.6, mu_kinetic: float = 0.5,
+    def __init__(self, world: Any, *, mass_kg: float = 0.1, mu_static: float = 0.6, mu_kinetic: float | None = None,
+                 mu_kinetic_ratio: float = 0.85,
                  width_m: float = 0.03, contact_length_mm: float = 15.0, com_offset_mm: float = 0.0,
                  patch_radius_mm: float = 4.0, rot_damping_nmm_s_per_rad: float = 5.0,
                  start_angle_deg: float = 0.0, on_table: bool = False, gripper: str = "gripper",
                  hand: str | None = None, arm: str | None = None, dt_s: float = 0.001) -> None:
         check_range("grasped_object.mass_kg", mass_kg, 1e-4, 100.0, "kg")
         check_range("grasped_object.mu_static", mu_static, 1e-3, 5.0)
+        if mu_kinetic is None:
+            mu_kinetic = check_range("grasped_object.mu_kinetic_ratio", mu_kinetic_ratio, 0.05, 1.0) * mu_static
         check_range("grasped_object.mu_kinetic", mu_kinetic, 1e-3, mu_static)
         self.world = world
         self.mass_kg = float(mass_kg)
@@ -79,6 +82,8 @@ class GraspedObject:
         if self.present(self._t):
             self._s.squeeze_n = self._squeeze_n(self._t)
             self._s.present = 1.0
+            if self.r_mm > 0:  # the torque the skin carries from the start
+                self._rotate(0.0, self._s.squeeze_n, self.hand.holding_frac(self._t) if self.hand else 0.0)
         self.history.append(self._t, self._s.copy())
 
     # -- coupling --------------------------------------------------------------------------------
@@ -175,7 +180,8 @@ class GraspedObject:
                 s.slip_mm = lift
                 s.v_mmps = 0.0
         if present and not self.dropped and self.r_mm > 0:
-            self._rotate(dt, n, hand_frac)
+            # a contact that slides has no friction left to resist a turn (limit surface coupling)
+            self._rotate(dt, 0.0 if s.v_mmps != 0.0 else n, hand_frac)
         s.squeeze_n, s.press_n, s.present, s.friction_n, s.lift_mm = n, press, float(present), friction, lift
         if not self.dropped and present and hand_frac == 0.0 and not self.on_table and s.slip_mm > self.contact_length_mm:
             self.dropped = True

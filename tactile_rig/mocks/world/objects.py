@@ -227,18 +227,21 @@ def view_in_sensor(obj: HeightField, shape_px: tuple[int, int], sensor_mm_per_px
     for name, v in (("x_mm", x_mm), ("y_mm", y_mm), ("theta_deg", theta_deg)):
         if not math.isfinite(v):
             raise ValueError(f"{name}={v!r} must be finite")
-    xs = (np.arange(cols, dtype=np.float32) - (cols - 1) / 2.0) * sensor_mm_per_px - x_mm
-    ys = (np.arange(rows, dtype=np.float32) - (rows - 1) / 2.0) * sensor_mm_per_px - y_mm
-    px, py = np.meshgrid(xs, ys)
     t = math.radians(theta_deg)
-    c, s = math.cos(t), math.sin(t)
-    ox = c * px + s * py  # R(-theta) applied
-    oy = -s * px + c * py
+    c, sn = math.cos(t), math.sin(t)
+    k = sensor_mm_per_px / obj.mm_per_px
     orows, ocols = obj.height_mm.shape
-    map_x = (ox / obj.mm_per_px + (ocols - 1) / 2.0).astype(np.float32)
-    map_y = (oy / obj.mm_per_px + (orows - 1) / 2.0).astype(np.float32)
-    return cv2.remap(obj.height_mm, map_x, map_y, interpolation=cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+    # Sensor pixel (u, v) -> object pixel: an affine map, so one warpAffine does the sampling.
+    px0 = -(cols - 1) / 2.0 * sensor_mm_per_px - x_mm
+    py0 = -(rows - 1) / 2.0 * sensor_mm_per_px - y_mm
+    m = np.array([
+        [c * k, sn * k, (c * px0 + sn * py0) / obj.mm_per_px + (ocols - 1) / 2.0],
+        [-sn * k, c * k, (-sn * px0 + c * py0) / obj.mm_per_px + (orows - 1) / 2.0],
+    ], dtype=np.float64)
+    if not np.all(np.abs(m) < 1e9):
+        return np.zeros((rows, cols), np.float32)  # the object is astronomically far away
+    return cv2.warpAffine(obj.height_mm, m, (cols, rows), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                          borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
 
 
 def pressed_indentation_mm(object_height_mm: np.ndarray, press_depth_mm: float,
@@ -250,11 +253,17 @@ def pressed_indentation_mm(object_height_mm: np.ndarray, press_depth_mm: float,
     field of view reads as a uniform press, not as its visible maximum. The gel's own range limit
     and smoothing are the renderer's business.
     """
-    h = np.nan_to_num(np.asarray(object_height_mm, dtype=np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+    h = np.asarray(object_height_mm, dtype=np.float32)
     if not math.isfinite(press_depth_mm) or press_depth_mm <= 0 or h.size == 0:
-        return np.zeros_like(h)
-    top = float(h.max()) if top_height_mm is None else float(top_height_mm)
-    return np.maximum(h - (top - press_depth_mm), 0.0).astype(np.float32)
+        return np.zeros(h.shape, np.float32)
+    if top_height_mm is None:
+        finite = h[np.isfinite(h)]
+        top = float(finite.max()) if finite.size else 0.0
+    else:
+        top = float(top_height_mm)
+    out = np.fmax(h - np.float32(top - press_depth_mm), np.float32(0.0))  # NaN -> 0
+    out[np.isinf(out)] = 0.0
+    return out
 
 
 # --------------------------------------------------------------------------------------------

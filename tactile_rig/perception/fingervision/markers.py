@@ -45,6 +45,9 @@ class MarkerDetectorParams:
 
     background_kernel_px: int = 15
     """Diameter of the closing disc that estimates the local background; > largest marker diameter."""
+    background_square: bool = False
+    """Square closing element instead of a disc: ~5x faster closing (saves ~0.3 ms a frame) but a
+    little worse on the real frames (at 0.5x light: 8 instead of 4 false positives)."""
     background_floor: float = 40.0
     """Background values below this count as this (keeps the ratio sane on near-black regions)."""
     min_threshold: float = 60.0
@@ -149,14 +152,14 @@ def value_channel(frame_bgr: np.ndarray) -> np.ndarray:
     return cv2.max(cv2.max(frame_bgr[:, :, 0], frame_bgr[:, :, 1]), frame_bgr[:, :, 2])
 
 
-_KERNELS: dict[int, np.ndarray] = {}
+_KERNELS: dict[tuple[int, bool], np.ndarray] = {}
 
 
-def _disc(diameter_px: int) -> np.ndarray:
+def _element(diameter_px: int, square: bool) -> np.ndarray:
     d = max(3, int(diameter_px) | 1)
-    if d not in _KERNELS:
-        _KERNELS[d] = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (d, d))
-    return _KERNELS[d]
+    if (d, square) not in _KERNELS:
+        _KERNELS[(d, square)] = cv2.getStructuringElement(cv2.MORPH_RECT if square else cv2.MORPH_ELLIPSE, (d, d))
+    return _KERNELS[(d, square)]
 
 
 def contrast_map(
@@ -169,7 +172,8 @@ def contrast_map(
     """
     value = value_channel(frame_bgr)
     background = cv2.morphologyEx(
-        value, cv2.MORPH_CLOSE, _disc(params.background_kernel_px), borderType=cv2.BORDER_REPLICATE
+        value, cv2.MORPH_CLOSE, _element(params.background_kernel_px, params.background_square),
+        borderType=cv2.BORDER_REPLICATE,
     )
     bg = background.astype(np.float32)
     diff = cv2.subtract(background, value).astype(np.float32)

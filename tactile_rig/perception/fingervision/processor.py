@@ -3,8 +3,8 @@
 The first ``n_calib_frames`` frames (no contact, no object) build the marker baseline and the
 background histogram unless :meth:`FingerVision.calibrate` was called; meanwhile results carry
 ``calibrating=True`` and zero force. After that every frame costs one closing (the contrast map),
-one vectorised window centroid per marker, a back-projection on a half-size frame and a
-Lucas-Kanade step on a quarter-size frame; the full-frame blob detector runs only in calibration.
+one vectorised window centroid per marker, a back-projection on a half-size frame and a few
+Lucas-Kanade iterations on a half-size frame; the full-frame blob detector runs only in calibration.
 """
 
 from __future__ import annotations
@@ -51,6 +51,8 @@ class FingerVisionParams:
     """A marker found in fewer calibration frames than this fraction is flagged invalid."""
     marker_exclude_margin_px: float = 2.0
     """Marker discs (radius + margin) are left out of the slip estimate."""
+    contact_threshold_px: float = 0.3
+    """``contact`` is reported when |force_px| reaches this (force units: px unless scaled)."""
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any]) -> FingerVisionParams:
@@ -100,12 +102,20 @@ class FingerVisionResult:
     slip_magnitude_px: float
     """Object translation between this frame and the previous one, px per frame."""
     slip_direction_deg: float | None
+    """Direction of that translation, degrees from +x towards +y (clockwise on screen); None if none."""
+    contact: bool
+    """|force_px| >= FingerVisionParams.contact_threshold_px."""
     timings_ms: dict[str, float]
 
     @property
     def n_markers(self) -> int:
         """Markers measured in this frame."""
         return int(np.count_nonzero(self.marker_found))
+
+    @property
+    def slip_magnitude(self) -> float:
+        """Alias of ``slip_magnitude_px`` (px per frame)."""
+        return self.slip_magnitude_px
 
 
 class FingerVision:
@@ -178,7 +188,7 @@ class FingerVision:
             t2 = time.perf_counter()
             return FingerVisionResult(
                 t_s, True, np.full(n, -1), det.positions_px, det.sizes_px, np.zeros(n, bool), np.ones(n, bool),
-                np.zeros(3), np.zeros(3), 0.0, None, None, False, 0.0, None,
+                np.zeros(3), np.zeros(3), 0.0, None, None, False, 0.0, None, False,
                 {"contrast": (t1 - t0) * 1e3, "detect": (t2 - t1) * 1e3, "total": (t2 - t0) * 1e3},
             )
         st = self.tracker.update(contrast, t_s)
@@ -189,13 +199,14 @@ class FingerVision:
                                    st.valid, (w, h), self.params.force)
         t3 = time.perf_counter()
         radius = float(np.max(st.sizes_px, initial=0.0)) / 2 + self.params.marker_exclude_margin_px
-        prox = self.proximity.process(frame_bgr, st.positions_px, radius, value)
+        prox = self.proximity.process(frame_bgr, st.positions_px, radius)
         t4 = time.perf_counter()
         mom = prox.moments
         return FingerVisionResult(
             t_s, False, st.ids, st.positions_px, st.sizes_px, st.valid, st.found,
             ft.force, ft.torque, mom.area_px, mom.centroid_px, mom.orientation_deg,
             prox.slip, prox.slip_magnitude_px, prox.slip_direction_deg,
+            bool(np.linalg.norm(ft.force) >= self.params.contact_threshold_px),
             {"contrast": (t1 - t0) * 1e3, "track": (t2 - t1) * 1e3, "force": (t3 - t2) * 1e3,
              "proximity": (t4 - t3) * 1e3, "total": (t4 - t0) * 1e3},
         )

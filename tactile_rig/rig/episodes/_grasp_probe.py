@@ -14,8 +14,8 @@ def grasp_probe(obj: GraspedObject, frame_period_s: float, *, slip_threshold_mm:
                 touch_threshold_n: float = 0.05, area_px: float = 2500.0) -> Callable[[float], TouchReading]:
     """``probe(t_s)``: the reading of one fingertip at capture time ``t_s``.
 
-    Slip is the object's motion over the skin since the previous frame: its slide plus the arc its
-    rotation sweeps at the patch radius, thresholded at ``slip_threshold_mm``.
+    ``slip`` flags motion over the skin since the previous frame (the slide, or the arc the rotation
+    sweeps at the patch radius) above ``slip_threshold_mm``; ``slip_mm`` is the slide alone.
     """
 
     def probe(t_s: float) -> TouchReading:
@@ -24,12 +24,13 @@ def grasp_probe(obj: GraspedObject, frame_period_s: float, *, slip_threshold_mm:
         visible = bool(s.present)
         normal = s.squeeze_n + s.press_n
         touch = visible and normal > touch_threshold_n
-        moved = abs(s.slip_mm - prev.slip_mm) + obj.patch_mm * abs(math.radians(s.angle_deg - prev.angle_deg))
-        slip = visible and moved > slip_threshold_mm
+        slid = abs(s.slip_mm - prev.slip_mm)  # translation over the skin (FingerVision: centroid shift)
+        turned = obj.patch_mm * abs(math.radians(s.angle_deg - prev.angle_deg))  # arc at the patch edge
+        slip = visible and max(slid, turned) > slip_threshold_mm
         return TouchReading(
             t_s=t_s, force_n=(0.0, s.friction_n / 2.0 if touch else 0.0, normal if visible else 0.0),
             torque_nmm=(0.0, 0.0, s.torque_nmm / 2.0 if touch else 0.0), contact=touch, slip=slip,
-            slip_mm=moved if visible else 0.0, object_area_px=area_px if visible else 0.0,
+            slip_mm=slid if visible else 0.0, object_area_px=area_px if visible else 0.0,
             object_centroid_px=(80.0, 60.0) if visible else None,
             object_orientation_deg=s.angle_deg if visible else None)
 

@@ -1,0 +1,100 @@
+"""A stateful test: random jig command sequences against a model never lose position or state."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import settings, strategies as st
+from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, rule
+
+from tactile_rig.clock import VirtualClock
+from tactile_rig.drivers.jig import GrblAlarm, Jig
+from tactile_rig.mocks.grbl import GrblMock
+from tactile_rig.mocks.registry import register_instance, unregister_instance
+from tactile_rig.mocks.world.stage import Stage
+
+STEP_MM = 1 / 1600
+STEP_DEG = 1 / 35.556
+xy = st.integers(-150, 150).map(lambda v: v / 10.0)
+theta = st.integers(-170, 170).map(float)
+
+
+class JigMachine(RuleBasedStateMachine):
+    @initialize()
+    def connect(self) -> None:
+        self.clock = VirtualClock()
+        self.stage = Stage()
+        self.mock = GrblMock(clock=self.clock, stage=self.stage)
+        self.url = register_instance("jig-stateful", self.mock, self.clock)
+        self.jig = Jig(self.url)
+        self.jig.home()
+        self.model = [0.0, 0.0, 0.0]
+
+    def teardown(self) -> None:
+        if hasattr(self, "jig"):
+            self.jig.close()
+            unregister_instance("jig-stateful")
+
+    @rule(x=xy, y=xy, th=theta)
+    def move(self, x: float, y: float, th: float) -> None:
+        self.jig.move_to(x, y, th, wait=True, timeout_s=60.0)
+        self.model = [x, y, th]
+
+    @rule(x=st.sampled_from([-25.0, 21.0, 40.0]))
+    def move_past_soft_limit(self, x: float) -> None:
+        with pytest.raises(GrblAlarm) as info:
+            self.jig.move_to(x, 0.0, 0.0, wait=True)
+        assert info.value.code == 2
+        self.jig.soft_reset()
+        self.jig.unlock()  # the machine never moved: the position is still known
+
+    @rule(dx=st.integers(-30, 30).map(lambda v: v / 10.0), dth=st.integers(-20, 20).map(float))
+    def jog(self, dx: float, dth: float) -> None:
+        if abs(self.model[0] + dx) > 20 or abs(self.model[2] + dth) > 180:
+            return
+        self.jig.jog(dx_mm=dx, dtheta_deg=dth, feed_mm_per_min=600.0)
+        self.jig.wait_idle(30.0)
+        self.model = [self.model[0] + dx, self.model[1], self.model[2] + dth]
+
+    @rule(x=xy, th=theta, after_s=st.floats(0.05, 1.0))
+    def hold_then_resume(self, x: float, th: float, after_s: float) -> None:
+        self.jig.move_to(x, self.model[1], th)
+        self.clock.advance(after_s)
+        self.jig.feed_hold()
+        self.clock.advance(2.0)
+        st_ = self.jig.status()
+        assert st_.state in ("Hold", "Idle")
+        self.jig.resume()
+        self.jig.wait_idle(60.0)
+        self.model = [x, self.model[1], th]
+
+    @rule(x=xy, after_s=st.floats(0.05, 1.0))
+    def stop_part_way(self, x: float, after_s: float) -> None:
+        start = self.model[0]
+        self.jig.move_to(x, self.model[1], self.model[2])
+        self.clock.advance(after_s)
+        self.jig.stop()
+        p = self.jig.pose()
+        lo, hi = sorted((start, x))
+        assert lo - STEP_MM <= p.x_mm <= hi + STEP_MM  # stopped on the way, not past the target
+        self.model[0] = p.x_mm
+
+    @rule()
+    def soft_reset_when_idle(self) -> None:
+        self.jig.soft_reset()
+        assert self.jig.status().state == "Idle"  # homed and not moving: no alarm
+
+    @invariant()
+    def position_and_state_agree(self) -> None:
+        if not hasattr(self, "jig"):
+            return
+        st_ = self.jig.status()
+        assert st_.state == "Idle"
+        assert st_.mpos[0] == pytest.approx(self.model[0], abs=STEP_MM)
+        assert st_.mpos[1] == pytest.approx(self.model[1], abs=STEP_MM)
+        assert st_.mpos[2] == pytest.approx(self.model[2], abs=STEP_DEG)
+        self.stage.advance_to(self.clock.now_s())
+        assert self.stage.pose() == pytest.approx(st_.mpos, abs=1e-3)
+
+
+JigMachine.TestCase.settings = settings(max_examples=8, stateful_step_count=8, deadline=None)
+TestJigStateful = JigMachine.TestCase
