@@ -59,6 +59,28 @@ def test_orientation_wraps_at_plus_minus_90(angle: float) -> None:
     assert _angle_err(m.orientation_deg, angle) < 0.5
 
 
+@settings(deadline=None, max_examples=25)
+@given(angle=st.floats(80.0, 100.0), sign=st.sampled_from([1.0, -1.0]))
+def test_orientation_wrap_by_hypothesis(angle: float, sign: float) -> None:
+    m = object_moments(_ellipse_mask(Ellipse(160, 120, 70, 20, sign * angle)))
+    assert m.orientation_deg is not None and -90.0 < m.orientation_deg <= 90.0
+    assert _angle_err(m.orientation_deg, sign * angle) < 0.5
+
+
+@settings(deadline=None, max_examples=40)
+@given(seed=st.integers(0, 2**31 - 1), density=st.sampled_from([0.0, 0.001, 0.05, 0.5, 1.0]),
+       scale=st.sampled_from([1.0, 2.0, 4.0]))
+def test_moments_of_arbitrary_masks_are_finite(seed: int, density: float, scale: float) -> None:
+    mask = (np.random.default_rng(seed).random((30, 40)) < density).astype(np.uint8) * 255
+    m = object_moments(mask, scale)
+    if not mask.any():
+        assert m.area_px == 0 and m.centroid_px is None and m.orientation_deg is None
+    else:
+        assert m.area_px == pytest.approx(np.count_nonzero(mask) * scale * scale)
+        assert all(math.isfinite(v) for v in m.centroid_px)
+        assert m.orientation_deg is None or -90.0 < m.orientation_deg <= 90.0
+
+
 def test_histogram_update_rule(trained: ProximityVision) -> None:
     p = trained.params
     before = trained.obj_hist.copy()

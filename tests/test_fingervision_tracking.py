@@ -168,3 +168,20 @@ def test_kalman_follows_constant_velocity_without_lag_eventually() -> None:
         kb.update(np.array([[3.0 * k * dt, -1.5 * k * dt, 8.0]]), np.ones(1, bool))
     assert np.allclose(kb.vel[0], [3.0, -1.5], atol=0.05)
     assert np.allclose(kb.pos[0], [3.0 * 199 * dt, -1.5 * 199 * dt], atol=0.05)
+
+
+def test_kalman_all_markers_equals_subset_path() -> None:
+    """Selecting every marker (fast slice path) gives the same filter as a boolean subset."""
+    rng = np.random.default_rng(3)
+    a = KalmanBank(np.zeros((3, 2)), np.full(3, 8.0))
+    b = KalmanBank(np.zeros((4, 2)), np.full(4, 8.0))
+    sub = np.array([True, True, True, False])
+    for _ in range(10):
+        z = rng.normal(0, 2, (4, 3))
+        a.predict(0.07, np.ones(3, bool))
+        b.predict(0.07, sub)
+        a.update(z[:3], np.ones(3, bool))
+        b.update(z, sub)
+    assert np.allclose(a.pos, b.pos[:3]) and np.allclose(a.vel, b.vel[:3])
+    for i in range(3):
+        assert np.allclose(a.covariance(i), b.covariance(i))

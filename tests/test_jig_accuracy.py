@@ -219,3 +219,17 @@ def test_table_lists_every_point_and_the_papers_figures():
     assert "refused" in text and "1.15" in text and "0.14 mm" in text
     assert "-10.500" in text
     assert text.count("\n") >= 6
+
+
+@pytest.mark.hw
+def test_reduced_run_on_a_real_bench(request, tmp_path):
+    """On hardware (``pytest --hw-bench bench.toml``): a short run localizes within the paper's bounds."""
+    from tactile_rig.rig.bench import load_bench
+    from tactile_rig.rig.jig_accuracy import execute_jig_accuracy
+
+    bench = load_bench(request.config.getoption("--hw-bench"))
+    cfg = JigAccuracyConfig(rotations_deg=(-20.0, 20.0, 20.0), shifts_mm=(-2.0, 2.0, 2.0))
+    out = execute_jig_accuracy(cfg, tmp_path, bench=bench, report=False)
+    s = out.summary
+    assert s["complete"] and s["n_refused"] <= 1
+    assert s["rotation_mae_deg"] < 2.0 and s["translation_mae_mm"] < 0.3

@@ -167,3 +167,18 @@ def test_a_run_resumes_only_with_its_own_calibration(tmp_path, calibration):
     out = execute_jig_accuracy(cfg, tmp_path, record=False, report=False)
     assert out.resumed_from == 1 and out.summary["complete"]
     assert not (tmp_path / "calibration").exists()
+
+
+def test_a_bench_file_of_mocks_runs_on_its_own_seed(tmp_path, calibration, capsys):
+    from tactile_rig.cli import main
+
+    bench = tmp_path / "bench.toml"
+    bench.write_text('[bench]\nname = "mine"\nseed = 3\n\n[jig]\nport = "rigsim://jig"\n\n'
+                     '[camera]\nport = "rigsim://camera"\nsensor = "gelsight"\n')
+    out = tmp_path / "out"
+    assert main(["run", "jig-accuracy", "--bench", str(bench), "--sweep", "translation", "--shifts", "0", "3", "3",
+                 "--out", str(out), "--calibration", str(calibration), "--json", "--no-report", "--no-record"]) == 0
+    rows = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert rows[-1]["n_localized"] == 2 and rows[-1]["translation_mae_mm"] < 0.1
+    meta = json.loads((out / "run.json").read_text())
+    assert meta["bench_kind"] == "mock" and meta["bench"]["seed"] == 3 and meta["bench"]["bench"] == str(bench)

@@ -12,8 +12,9 @@ from tactile_rig.mocks.grbl import GrblMock
 from tactile_rig.mocks.registry import register_instance, unregister_instance
 from tactile_rig.mocks.world.stage import Stage
 
-STEP_MM = 1 / 1600
-STEP_DEG = 1 / 35.556
+REPORT_RES = 0.001  # status reports print 3 decimals
+STEP_MM = 1 / 1600 + REPORT_RES
+STEP_DEG = 1 / 35.556 + REPORT_RES
 xy = st.integers(-150, 150).map(lambda v: v / 10.0)
 theta = st.integers(-170, 170).map(float)
 
@@ -44,8 +45,16 @@ class JigMachine(RuleBasedStateMachine):
         with pytest.raises(GrblAlarm) as info:
             self.jig.move_to(x, 0.0, 0.0, wait=True)
         assert info.value.code == 2
+        before = self.jig.status().mpos
         self.jig.soft_reset()
         self.jig.unlock()  # the machine never moved: the position is still known
+        assert self.jig.status().mpos == before
+        self._sync_to_steps()
+
+    def _sync_to_steps(self) -> None:
+        # A reset makes GRBL's parser start from the step counters (gc_sync_position), so later
+        # relative moves build on the whole-step position, exactly as the firmware does.
+        self.model = list(self.jig.status().mpos)
 
     @rule(dx=st.integers(-30, 30).map(lambda v: v / 10.0), dth=st.integers(-20, 20).map(float))
     def jog(self, dx: float, dth: float) -> None:
@@ -77,11 +86,13 @@ class JigMachine(RuleBasedStateMachine):
         lo, hi = sorted((start, x))
         assert lo - STEP_MM <= p.x_mm <= hi + STEP_MM  # stopped on the way, not past the target
         self.model[0] = p.x_mm
+        self._sync_to_steps()
 
     @rule()
     def soft_reset_when_idle(self) -> None:
         self.jig.soft_reset()
         assert self.jig.status().state == "Idle"  # homed and not moving: no alarm
+        self._sync_to_steps()
 
     @invariant()
     def position_and_state_agree(self) -> None:

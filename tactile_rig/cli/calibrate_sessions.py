@@ -80,7 +80,8 @@ def register_sessions(csub: Any) -> None:
 def _guide(args: argparse.Namespace) -> Any:
     from tactile_rig.rig.calibration_sessions import Guide
 
-    return Guide(False if args.yes else None, quiet=bool(args.json))
+    # Nobody needs to place a ball or a mass on a mock: the session scripts the simulated operator.
+    return Guide(False if args.yes or args.mock else None, quiet=bool(args.json))
 
 
 def _connect(args: argparse.Namespace, names: list[str], *, scene: str | None = None,

@@ -99,10 +99,11 @@ def _jig_accuracy(args: argparse.Namespace) -> int:
             print("(this run was already complete: nothing was measured again; --overwrite to repeat it)")
         elif outcome.resumed_from:
             print(f"(resumed: points 0..{outcome.resumed_from - 1} come from the interrupted run)")
-        print(f"results in {outcome.out_dir}/: " + ", ".join(sorted(Path(v).name for k, v in outcome.files.items()
-                                                                if k != "figures" and not v.startswith("skipped"))))
-        if "figures" in outcome.files:
-            print(f"figures {outcome.files['figures']}")
+        written = sorted(Path(v).name for v in outcome.files.values() if not v.startswith("skipped"))
+        print(f"results in {outcome.out_dir}/: " + ", ".join(written))
+        for k, v in outcome.files.items():
+            if v.startswith("skipped"):
+                print(f"{k} {v}")
     failed = []
     if args.max_rotation_mae_deg is not None and not _within(s.get("rotation_mae_deg"), args.max_rotation_mae_deg):
         failed.append(f"rotation MAE {s.get('rotation_mae_deg')} deg > {args.max_rotation_mae_deg}")

@@ -315,6 +315,12 @@ class Scale:
         if self.toggle_dtr:
             self._pulse_dtr()
         self._wait_ready()
+        if self.info is None and self.format == "tactile":
+            # Started mid-stream (no reset on open, or the banner was missed): ask for the ID line.
+            try:
+                self.identify(timeout_s=0.5)
+            except DeviceTimeout:
+                log.warning("%s: no banner and no answer to '?': rate and calibration unknown", self.device)
 
     def _pulse_dtr(self) -> None:
         # A known reset even where opening does not reset (HUPCL off). A pty refuses modem-line

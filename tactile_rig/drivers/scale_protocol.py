@@ -5,7 +5,7 @@ each ``<body>*<CC>\\r\\n`` where ``CC`` is the CRC-8 (polynomial 0x07, init 0, t
 digits) of the ASCII body::
 
     B,hx711-scale,<fw>,<sps>,<cal_factor>*CC     boot banner (also the answer to ``?``, tagged I)
-    S,<seq>,<grams>,<raw>*CC                     one sample: seq mod 65536, grams (3 dp), raw counts
+    S,<seq>,<grams>,<raw>*CC                     one sample: seq mod 65536, grams (3 dp), smoothed raw counts
     T,ok*CC                                      tare done (answer to ``t``)
     K,<cal_factor>*CC                            calibration done and stored in EEPROM (``c,<grams>``)
     E,<code>,<text>*CC                           a command failed

@@ -557,7 +557,9 @@ class GrblMock(SerialDevice):
                     target[i] = v
                 else:
                     target[i] = v + wco[i]
-        target = self._quantize(target)
+        # The parser keeps the exact programmed position (so incremental moves do not accumulate
+        # rounding); the planner gets whole steps, as GRBL's lround(target * steps_per_mm).
+        steps_target = self._quantize(target)
         soft = bool(self.settings[20]) and bool(np.any(np.abs(target) > self._half_travel() + 1e-9))
         if jog:
             if soft:
@@ -575,7 +577,7 @@ class GrblMock(SerialDevice):
         if "F" in words:
             self.gc.feed_mm_per_min = feed
         self.gc_pos = target
-        self.planner.append(_Block(target, None if motion_mode == 0 else feed, jog=jog))
+        self.planner.append(_Block(steps_target, None if motion_mode == 0 else feed, jog=jog))
         if "N" in words:
             self.line_number = int(words["N"])
         if jog and self.state == "Idle":
@@ -759,6 +761,7 @@ class GrblMock(SerialDevice):
         self._blocked_home = False
         self._dwell_until = None
         self.hold = self.hold_done = False
+        self.pos = self._quantize(self.pos)
         self.gc_pos = self.pos.copy()
 
     def _alarm(self, code: int, t_s: float, *, critical: bool) -> None:
@@ -823,12 +826,13 @@ class GrblMock(SerialDevice):
         self._t_now = max(self._t_now, t_s)
         if self.active is not None and (self._limit_hit is not None and
                                         self.active.time_at_distance(self._limit_hit[0]) <= t_s):
-            self.pos = self.active.point(self._limit_hit[0])
+            self.pos = self._quantize(self.active.point(self._limit_hit[0]))
             self._write_stage(t_s)
             self._hard_limit(t_s, self._limit_hit[1])
             return
         if self.active is not None and self.active.t_end_s <= t_s:
-            self.pos = self.active.point(self.active.length)
+            # Steppers stop on a whole step: after a hold or a jog cancel too.
+            self.pos = self._quantize(self.active.point(self.active.length))
             self.active = None
             if self.hold:
                 self.hold_done = True
@@ -836,7 +840,6 @@ class GrblMock(SerialDevice):
                 self._finish_jog_cancel()
             else:
                 self.planner.popleft()
-                self.pos = self._quantize(self.pos)
             if self._pending_soft_alarm:
                 self._pending_soft_alarm = False
                 self._halt()

@@ -9,7 +9,7 @@ What the host sees, and why:
   white noise, a warm-up drift that settles over minutes (strain gauges and the HX711 warm up),
   rare spikes (the glitches users report as sign flips), clamped to 24 bits.
 * The sketch smooths like HX711_ADC (16 samples plus one high and one low ignored), prints one
-  framed line per conversion, answers ``t`` (tare, done after the smoothing window refills),
+  framed line per conversion (grams and the smoothed raw counts), answers ``t`` (tare, done after the smoothing window refills),
   ``c,<grams>`` (calibration, factor kept in "EEPROM" across resets) and ``?`` (ID line).
 
 ``firmware=stock`` emulates the unmodified ``Read_1x_load_cell`` example instead.
@@ -212,7 +212,9 @@ class ScaleMock(SerialDevice):
         self._run_pending(t_s, smoothed)
         grams = (smoothed - self._tare_counts) / self._cal_factor
         if self.firmware == "tactile":
-            self.emit(frame(f"{sp.TAG_SAMPLE},{self._seq},{grams:.3f},{int(raw)}"), t_s, reply=False)
+            # The sketch prints HX711_ADC's smoothed counts (tare offset included), as the library
+            # exposes no single conversion; lone spikes are mostly dropped by its high/low rejection.
+            self.emit(frame(f"{sp.TAG_SAMPLE},{self._seq},{grams:.3f},{int(round(smoothed))}"), t_s, reply=False)
             self._seq = (self._seq + 1) % sp.SEQ_MODULO
         else:
             self.emit(f"{sp.STOCK_DATA_PREFIX}{grams:.2f}\r\n".encode(), t_s, reply=False)

@@ -600,7 +600,8 @@ def run_jig_accuracy(rig: JigRig, localizer: TouchLocalizer, cfg: JigAccuracyCon
     """Run (or resume) a jig accuracy run into ``out_dir``; see the module doc.
 
     ``on_point(result, done, total)`` is called after each point (resumed points included, first).
-    ``recorder`` (optional) gets ``record_point(result, frame_info)`` and ``record_map(rows)``.
+    ``recorder`` (optional) gets ``record_map(rows)`` once the map is built and ``record_point(result)``
+    after each point.
     ``stop_after`` stops after that many new points (tests use it to simulate an interruption).
     """
     store = RunStore(out_dir)
@@ -611,6 +612,8 @@ def run_jig_accuracy(rig: JigRig, localizer: TouchLocalizer, cfg: JigAccuracyCon
     map_rows: list[dict[str, Any]] = []
     if by_index and map_path.exists():
         localizer.load_map(map_path)
+        if (store.out / "map.json").exists():
+            map_rows = json.loads((store.out / "map.json").read_text(encoding="utf-8"))
     else:
         map_rows = build_map(rig, localizer, cfg)
         localizer.save_map(map_path)
@@ -770,8 +773,13 @@ def connect_mock_jig_rig(*, scene: str = "jig_accuracy", seed: int = 0, start_s:
                          clock=VirtualClock(start_s))
 
 
-def connect_bench_jig_rig(bench: Any, camera: str | None = None) -> tuple[Any, str]:
-    """Connect the jig and one GelSight camera of a real bench; returns (Rig, camera name)."""
+def connect_bench_jig_rig(bench: Any, camera: str | None = None, *, start_s: float = 0.0) -> tuple[Any, str]:
+    """Connect the jig and one GelSight camera of a bench; returns (Rig, camera name).
+
+    A bench file made of mocks (every port ``rigsim://``) runs on its ``[bench] scene`` (default: the
+    jig accuracy scene), with the simulated camera rendering the scene's ``gelsight`` model.
+    """
+    from tactile_rig.clock import VirtualClock
     from tactile_rig.rig.bench import Bench, connect_bench
 
     cams = [n for n, c in bench.cameras.items() if c.sensor == "gelsight"]
@@ -781,7 +789,11 @@ def connect_bench_jig_rig(bench: Any, camera: str | None = None) -> tuple[Any, s
                        device="jig_accuracy")
     sub = Bench(name=bench.name, devices={"jig": bench.device("jig"), name: bench.device(name)},
                 source=bench.source, path=bench.path, text=bench.text, scene=bench.scene, seed=bench.seed)
-    return connect_bench(sub), name
+    if not sub.is_mock:
+        return connect_bench(sub), name
+    sub.scene = sub.scene or MOCK_SCENE
+    return connect_bench(sub, connectors={"camera": sim_camera_connector("gelsight")},
+                         clock=VirtualClock(start_s)), name
 
 
 # -- reports and recordings -------------------------------------------------------------------
@@ -802,7 +814,7 @@ def write_report(outcome: RunOutcome, localizer: TouchLocalizer | None = None) -
             figs.append((reports.plot_estimated_vs_true(
                 [r.truth.theta_deg for r in rot], [r.estimate.theta_deg if r.estimate else nan for r in rot],
                 out / "rotation_est_vs_true.png", quantity="rotation", unit="deg",
-                title="rotation: estimated vs true (cf. Li 2014 Fig. 7b)"), "Rotation sweep: estimated vs true"))
+                title="rotation (cf. Li 2014 Fig. 7b)"), "Rotation sweep: estimated vs true"))
             figs.append((reports.plot_error_histogram(
                 [wrap_deg(r.estimate.theta_deg - r.truth.theta_deg) for r in rot if r.estimate],
                 out / "rotation_error_hist.png", quantity="rotation error", unit="deg"),
@@ -812,11 +824,11 @@ def write_report(outcome: RunOutcome, localizer: TouchLocalizer | None = None) -
             figs.append((reports.plot_estimated_vs_true(
                 [getattr(r.truth, axis) for r in tra], [getattr(r.estimate, axis) if r.estimate else nan for r in tra],
                 out / "translation_est_vs_true.png", quantity=f"shift {axis[0]}", unit="mm",
-                title="translation: estimated vs true (cf. Li 2014 Fig. 7c)"), "Translation sweep: estimated vs true"))
+                title="translation (cf. Li 2014 Fig. 7c)"), "Translation sweep: estimated vs true"))
             figs.append((reports.plot_error_histogram(
                 [r.translation_error_mm for r in tra if r.translation_error_mm is not None],
                 out / "translation_error_hist.png", quantity="translation error", unit="mm"),
-                "Translation error |estimate − truth|"))
+                "Translation error: distance between estimate and truth"))
         if localizer is not None and not localizer.map.empty:
             cov = localizer.map.coverage
             rows, cols = np.nonzero(cov.any(axis=1))[0], np.nonzero(cov.any(axis=0))[0]
@@ -975,7 +987,7 @@ def execute_jig_accuracy(cfg: JigAccuracyConfig, out_dir: str | Path, *, bench: 
         cams = [c for c in bench.cameras.values() if c.sensor == "gelsight" and (camera is None or c.name == camera)]
         if cams and cams[0].calibration is not None:
             cal_path = Path(cams[0].calibration)
-        else:
+        elif not bench.is_mock:
             raise CalibrationError(f"{bench.source}: no GelSight calibration; make one with: tactile-rig calibrate "
                                    f"gelsight --bench {bench.source} (or pass --calibration FILE)",
                                    device="jig_accuracy")
@@ -991,8 +1003,10 @@ def execute_jig_accuracy(cfg: JigAccuracyConfig, out_dir: str | Path, *, bench: 
         description = {"kind": "mock", "scene": MOCK_SCENE, "seed": cfg.seed,
                        "bench": rig_handle.bench.source}
     else:
-        rig_handle, cam_name = connect_bench_jig_rig(bench, camera)
-        description = {"kind": "bench", "bench": bench.source, "name": bench.name}
+        rig_handle, cam_name = connect_bench_jig_rig(bench, camera, start_s=start_s)
+        description = {"kind": "mock" if bench.is_mock else "bench", "bench": bench.source, "name": bench.name}
+        if bench.is_mock:
+            description.update(scene=rig_handle.bench.scene, seed=bench.seed)
     recorder = None
     try:
         prepare_jig(rig_handle.jig)
@@ -1002,7 +1016,7 @@ def execute_jig_accuracy(cfg: JigAccuracyConfig, out_dir: str | Path, *, bench: 
                 recorder.add_bench(rig_handle.bench)
                 recorder.add_calibration("gelsight", path=cal_path)
                 recorder.add_metadata("jig_accuracy", {"config": cfg.to_dict(), "fingerprint": cfg.fingerprint()})
-        world = rig_handle.world if bench is None else None
+        world = rig_handle.world if bench is None or bench.is_mock else None
         rig = DeviceJigRig(rig_handle.jig, rig_handle.devices[cam_name], rig_handle.clock, world=world,
                            feed_mm_per_min=cfg.feed_mm_per_min, settle_s=cfg.settle_s, description=description,
                            recorder=recorder, camera_name=cam_name)
@@ -1016,6 +1030,8 @@ def execute_jig_accuracy(cfg: JigAccuracyConfig, out_dir: str | Path, *, bench: 
             outcome.files["summary"] = str(out / "summary.json")
         if recorder is not None:
             outcome.files["recording"] = str(recorder.path)
+        elif record:
+            outcome.files["recording"] = "skipped: the mcap package is not installed (pip install 'tactile-rig[record]')"
         if report and outcome.summary.get("complete"):
             outcome.files.update(write_report(outcome, localizer))
         return outcome

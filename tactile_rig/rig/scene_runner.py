@@ -152,16 +152,18 @@ def list_scenes() -> list[dict[str, Any]]:
 
 
 def _set_param(table: dict[str, Any], key: str, value: float) -> None:
-    name, _, idx = key.partition(".")
-    if idx:
-        lst = list(table.get(name, []))
-        i = int(idx)
-        if i >= len(lst):
-            raise ValueError(f"randomize: {key!r} indexes past the list {lst!r}")
-        lst[i] = value
-        table[name] = lst
-    else:
+    """Set ``param`` or an element ``param.i`` / ``param.i.j`` of a (nested) list."""
+    name, *idx = key.split(".")
+    if not idx:
         table[name] = value
+        return
+    node = table.get(name)
+    try:
+        for i in idx[:-1]:
+            node = node[int(i)]
+        node[int(idx[-1])] = value
+    except (TypeError, IndexError, ValueError):
+        raise ValueError(f"randomize: {key!r} does not index into {table.get(name)!r}") from None
 
 
 def draw_episode(raw: dict[str, Any], rng: np.random.Generator) -> tuple[dict[str, dict[str, Any]], dict[str, float]]:

@@ -28,6 +28,10 @@ from tactile_rig.mocks.world import register_model
 from tactile_rig.mocks.world.timeline import Timeline
 
 
+def _norm(v: np.ndarray) -> float:
+    return math.hypot(*v)  # ~10x faster than np.linalg.norm on a 4-vector
+
+
 class SimArm:
     """A simulated arm on ``clock``; satisfies :class:`tactile_rig.control.protocols.Motion`."""
 
@@ -59,7 +63,7 @@ class SimArm:
         self._target: np.ndarray | None = None
         self._speed_mmps = 0.0
         self._pending: list[tuple[float, np.ndarray | None, float]] = []  # (t_effective, target, speed)
-        self.history: Timeline[tuple[np.ndarray, np.ndarray]] = Timeline()
+        self.history: Timeline[tuple[np.ndarray, np.ndarray]] = Timeline(keep_s=30.0)
         self.history.append(self._t, (self._p.copy(), self._v.copy()))
         self.commands = 0
 
@@ -96,7 +100,7 @@ class SimArm:
 
     def speed_mps(self) -> float:
         self.advance_to(self.clock.now_s())
-        return float(np.linalg.norm(self._v)) / 1000.0
+        return _norm(self._v) / 1000.0
 
     def is_moving(self) -> bool:
         """Moving, or a move is commanded (pending or active)."""
@@ -129,14 +133,14 @@ class SimArm:
             horizon = min(horizon, self._pending[0][0] - self._t)
         if self.fault_at_s is not None and not self.faulted:
             horizon = min(horizon, self.fault_at_s - self._t)
-        speed = float(np.linalg.norm(self._v))
+        speed = _norm(self._v)
         if self._target is None:
             return horizon if speed == 0.0 else 0.0
         d = self._target - self._p
-        dist = float(np.linalg.norm(d))
+        dist = _norm(d)
         if speed == 0.0 or dist < 1e-9 or abs(speed - self._speed_mmps) > 1e-9 * max(1.0, speed):
             return 0.0
-        if float(np.linalg.norm(self._v - d / dist * speed)) > 1e-9 * max(1.0, speed):
+        if _norm(self._v - d / dist * speed) > 1e-9 * max(1.0, speed):
             return 0.0
         brake_mm = speed * speed / (2.0 * self.decel_mmps2) + 2.0 * speed * self.dt_s
         return max(0.0, min(horizon, (dist - brake_mm) / speed))
@@ -154,11 +158,11 @@ class SimArm:
             v_des = np.zeros(4)
         else:
             d = self._target - self._p
-            dist = float(np.linalg.norm(d))
+            dist = _norm(d)
             if dist < 1e-6:
                 v_des = np.zeros(4)
                 self._p = self._target.copy()
-                self._target = None if float(np.linalg.norm(self._v)) < 1e-6 else self._target
+                self._target = None if _norm(self._v) < 1e-6 else self._target
             else:
                 # brake in time to stop on the target
                 s = min(self._speed_mmps, math.sqrt(2.0 * self.decel_mmps2 * dist))
@@ -166,15 +170,15 @@ class SimArm:
         dv = v_des - self._v
         if self.tracking_tau_s > 0:
             dv *= min(1.0, dt / self.tracking_tau_s)
-        braking = float(np.linalg.norm(v_des)) < float(np.linalg.norm(self._v))
+        braking = _norm(v_des) < _norm(self._v)
         lim = (self.decel_mmps2 if braking else self.accel_mmps2) * dt
-        n = float(np.linalg.norm(dv))
+        n = _norm(dv)
         if n > lim:
             dv *= lim / n
         self._v = self._v + dv
-        if float(np.linalg.norm(v_des - self._v)) < 1e-6:
+        if _norm(v_des - self._v) < 1e-6:
             self._v = v_des.copy()
-        if self._target is None and float(np.linalg.norm(self._v)) < 1e-3:
+        if self._target is None and _norm(self._v) < 1e-3:
             self._v = np.zeros(4)
         self._p = self._p + self._v * dt
         if self._target is not None:

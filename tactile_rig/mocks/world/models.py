@@ -19,6 +19,8 @@ _BUILTIN = (
     "tactile_rig.mocks.world.hand",
     "tactile_rig.mocks.world.friction",
     "tactile_rig.mocks.world.sim_gripper",
+    "tactile_rig.mocks.world.part",
+    "tactile_rig.mocks.world.torsion",
 )
 
 for _name in _BUILTIN:

@@ -80,7 +80,8 @@ class SimGripper:
         while True:
             self.advance_to(self.clock.now_s())
             self._check_fault()
-            if abs(self._vel) < 1e-6:
+            closing_on_object = self._goal_m < self._opening and self._squeeze >= self._effort * self.stall_force_n
+            if (abs(self._free_m - self._goal_m) < 1e-9 or closing_on_object) and abs(self._vel) < 1e-6:
                 if abs(self._opening - self._goal_m) < 2e-4:
                     return GripperOutcome.REACHED
                 return GripperOutcome.STALLED

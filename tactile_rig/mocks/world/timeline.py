@@ -43,5 +43,11 @@ class Timeline(Generic[T]):
         i = bisect.bisect_right(self._t, t_s) - 1
         return self._t[max(0, i)]
 
+    def between(self, t0_s: float, t1_s: float) -> list[tuple[float, T]]:
+        """The recorded (time, state) pairs with ``t0_s < t ≤ t1_s``."""
+        i = bisect.bisect_right(self._t, t0_s)
+        j = bisect.bisect_right(self._t, t1_s)
+        return list(zip(self._t[i:j], self._v[i:j]))
+
     def latest(self) -> T:
         return self.at(float("inf"))

@@ -18,6 +18,7 @@ Units: pixels (x = column, y = row, pixel centres at integer coordinates); ``siz
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import cv2
@@ -251,6 +252,7 @@ def refine_centroids(
     return pos, np.where(peak > 0, size, 0.0), peak
 
 
+@functools.lru_cache(maxsize=8)
 def _blob_detector(p: MarkerDetectorParams) -> cv2.SimpleBlobDetector:
     sp = cv2.SimpleBlobDetector_Params()
     sp.minThreshold = float(p.min_threshold)
@@ -301,7 +303,7 @@ def detect_in_contrast(
         bwin, _ = _gather_windows(bg, pos, 0)
         bmax = bwin.reshape(len(pos))
         keep &= (vmin <= params.max_value) & (vmin <= params.max_value_rel * np.maximum(bmax, 1.0))
-    # two refined centroids may converge on one dot: keep the first
+    # two refined centroids may converge on one dot: keep the stronger
     order = np.argsort(-peak)
     chosen: list[int] = []
     for i in order:

@@ -121,11 +121,18 @@ def estimate_shift(
     Each image is divided by its mean over the region first (robust to a light gain). Returns None
     when the region holds too few textured pixels to tell.
     """
-    sel = region > 0
-    if np.count_nonzero(sel) < min_pixels:
+    if prev.shape != cur.shape or region.shape != cur.shape:
+        raise ValueError(f"estimate_shift: shapes differ: prev {prev.shape}, cur {cur.shape}, region {region.shape}")
+    reg8 = (region > 0).astype(np.uint8)
+    if cv2.countNonZero(reg8) < min_pixels:
         return None
-    a = prev.astype(np.float32)
-    b = cur.astype(np.float32)
+    # work on the region's bounding box only (plus a margin for the gradients and the warp)
+    x, y, w, h = cv2.boundingRect(reg8)
+    m = 4
+    x0, y0, x1, y1 = max(0, x - m), max(0, y - m), min(cur.shape[1], x + w + m), min(cur.shape[0], y + h + m)
+    sel = reg8[y0:y1, x0:x1] > 0
+    a = prev[y0:y1, x0:x1].astype(np.float32)
+    b = cur[y0:y1, x0:x1].astype(np.float32)
     ma, mb = float(a[sel].mean()), float(b[sel].mean())
     if ma <= 1e-3 or mb <= 1e-3:
         return None
@@ -200,6 +207,12 @@ class ProximityVision:
             lut_v = np.minimum((ramp * p.bins_v / 256.0).astype(np.int32), p.bins_v - 1)
             self._luts = (lut_h * p.bins_s * p.bins_v, lut_s * p.bins_v, lut_v)
         lh, ls, lv = self._luts
+        if p.bins_s * p.bins_v <= 256 and p.bins_h * p.bins_s * p.bins_v < 65536:
+            # cv2.LUT on contiguous planes is several times faster than numpy fancy indexing
+            h, sc, v = cv2.split(hsv)
+            sv = cv2.add(cv2.LUT(sc, ls.astype(np.uint8)), cv2.LUT(v, lv.astype(np.uint8)))
+            hb = cv2.LUT(h, (lh // (p.bins_s * p.bins_v)).astype(np.uint8)).astype(np.uint16)
+            return hb * np.uint16(p.bins_s * p.bins_v) + sv
         return lh[hsv[:, :, 0]] + ls[hsv[:, :, 1]] + lv[hsv[:, :, 2]]
 
     def _hist(self, hsv: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
@@ -260,7 +273,7 @@ class ProximityVision:
         if self.obj_hist is None:
             return np.zeros(hsv.shape[:2], np.uint8)
         p = self.params
-        # back-projection by table look-up (cv2.calcBackProject mishandles 3-D numpy histograms)
+        # back-projection by table look-up (cv2.calcBackProject returned zeros for a 3-D numpy histogram)
         if self._bp_table is None:
             self._bp_table = np.clip(self.obj_hist * p.backproj_scale, 0, 255).astype(np.uint8)
         bp = self._bp_table[self._bin_index(hsv)]

@@ -58,6 +58,11 @@ class TrackerParams:
     process_noise: float = 0.01
 
 
+def _sel(which: np.ndarray) -> np.ndarray | slice:
+    """A boolean selection, or a plain slice when it selects everything (views, not copies: faster)."""
+    return slice(None) if which.all() else which
+
+
 class KalmanBank:
     """Constant-velocity Kalman filters for N markers at once, state ``(x, vx, y, vy, s)``.
 
@@ -104,18 +109,22 @@ class KalmanBank:
         """Advance the selected markers by ``dt_s`` seconds (constant velocity)."""
         if not np.any(which):
             return
+        which = _sel(which)
         q = self.q
         self.pos[which] += self.vel[which] * dt_s
+        # all new values are computed before any is stored: with a slice the inputs are views
         p00, p01, p11 = self.p00[which], self.p01[which], self.p11[which]
-        self.p00[which] = p00 + 2.0 * dt_s * p01 + dt_s * dt_s * p11 + q
-        self.p01[which] = p01 + dt_s * p11
-        self.p11[which] = p11 + q
+        n00 = p00 + 2.0 * dt_s * p01 + dt_s * dt_s * p11 + q
+        n01 = p01 + dt_s * p11
+        n11 = p11 + q
+        self.p00[which], self.p01[which], self.p11[which] = n00, n01, n11
         self.ps[which] += q
 
     def update(self, z: np.ndarray, which: np.ndarray) -> None:
         """Fuse measurements ``z`` (N, 3) = (x, y, size) for the selected markers (Joseph form)."""
         if not np.any(which):
             return
+        which = _sel(which)
         r = self.r
         p00, p01, p11 = self.p00[which], self.p01[which], self.p11[which]
         k0 = p00 / (p00 + r)
@@ -125,9 +134,10 @@ class KalmanBank:
         self.vel[which] += k1[:, None] * innov
         a = 1.0 - k0
         # P+ = A P A^T + r K K^T with A = I - K H, H = [1, 0]: stays symmetric positive definite
-        self.p00[which] = a * a * p00 + r * k0 * k0
-        self.p01[which] = a * (p01 - k1 * p00) + r * k0 * k1
-        self.p11[which] = k1 * k1 * p00 - 2.0 * k1 * p01 + p11 + r * k1 * k1
+        n00 = a * a * p00 + r * k0 * k0
+        n01 = a * (p01 - k1 * p00) + r * k0 * k1
+        n11 = k1 * k1 * p00 - 2.0 * k1 * p01 + p11 + r * k1 * k1
+        self.p00[which], self.p01[which], self.p11[which] = n00, n01, n11
         ps = self.ps[which]
         ks = ps / (ps + r)
         self.size[which] += ks * (z[which, 2] - self.size[which])

@@ -348,11 +348,13 @@ def make_model(method: str, **hyper: object) -> object:
 def calibrate_from_presses(press_dir: str | Path | PressSet, mm_per_px: float | tuple[float, float],
                            ball_radius_mm: float, method: str = "mlp", *, sensor: str = "gelsight",
                            fit: FitOptions = FitOptions(), bake_bins: int | None = 32,
-                           **hyper: object) -> GelSightCalibration:
+                           bake_cells: tuple[int, int] = (6, 8), **hyper: object) -> GelSightCalibration:
     """Fit a calibration from ball presses (folder or :class:`PressSet`).
 
     mm_per_px: scalar or (x, y) in mm per pixel; ball_radius_mm: the ball's radius. method: "lut"
     (Li 2014), "poly" (colour + position polynomial) or "mlp" (tiny numpy MLP on colour + position).
+    bake_bins / bake_cells: tabulate a non-LUT model over colour bins x position cells for fast
+    evaluation (None: evaluate the model per pixel).
     """
     presses = press_dir if isinstance(press_dir, PressSet) else load_presses(press_dir)
     sx, sy = (mm_per_px, mm_per_px) if np.isscalar(mm_per_px) else mm_per_px  # type: ignore[misc]
@@ -364,6 +366,6 @@ def calibrate_from_presses(press_dir: str | Path | PressSet, mm_per_px: float | 
     model = make_model(method, **hyper)
     model.fit(feats, slopes)  # type: ignore[attr-defined]
     return GelSightCalibration(model, presses.background, float(sx), float(sy), float(ball_radius_mm),
-                               sensor=sensor, bake_bins=bake_bins,
+                               sensor=sensor, bake_bins=bake_bins, bake_cells=bake_cells,
                                extra={"presses": len(presses.frames),
                                       "max_radius_fraction": fit.max_radius_fraction})

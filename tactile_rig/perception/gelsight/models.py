@@ -129,95 +129,101 @@ class PolyModel:
 
 
 class MlpModel:
-    """Tiny MLP (5 -> hidden... -> 2, tanh) on colour + position, fitted full-batch with L-BFGS.
+    """Tiny MLP (5 -> hidden... -> 2, tanh) on colour + position, trained with Adam in numpy (float32).
 
     The output is the slope angle (atan of the slope, radians) so that steep rims stay bounded;
-    predict returns slopes. iters: L-BFGS iterations; weight_decay: L2 on the weights.
+    predict returns slopes. epochs: passes over the data in minibatches of ``batch``; the learning
+    rate follows a cosine decay from ``lr``.
     """
 
     kind = "mlp"
 
-    def __init__(self, hidden: tuple[int, ...] = (32, 32), iters: int = 400, weight_decay: float = 1e-5,
-                 seed: int = 0) -> None:
+    def __init__(self, hidden: tuple[int, ...] = (32, 32), epochs: int = 60, batch: int = 512,
+                 lr: float = 3e-3, seed: int = 0) -> None:
         if not hidden or min(hidden) < 1:
             raise ValueError(f"hidden must be a non-empty tuple of positive sizes, got {hidden}")
-        if iters < 1:
-            raise ValueError(f"iters must be >= 1, got {iters}")
+        if epochs < 1 or batch < 1:
+            raise ValueError(f"epochs and batch must be >= 1, got {epochs}, {batch}")
         self.hidden = tuple(int(h) for h in hidden)
-        self.iters, self.weight_decay, self.seed = int(iters), float(weight_decay), int(seed)
-        self.sizes = (5,) + self.hidden + (2,)
+        self.epochs, self.batch, self.lr, self.seed = int(epochs), int(batch), float(lr), int(seed)
+        sizes = (5,) + self.hidden + (2,)
         rng = np.random.default_rng(self.seed)
-        self.weights = [rng.normal(0, np.sqrt(1.0 / a), (a, b)) for a, b in zip(self.sizes[:-1], self.sizes[1:])]
-        self.biases = [np.zeros(b) for b in self.sizes[1:]]
-        self.in_scale = np.array([4.0, 4.0, 4.0, 1.0, 1.0])
+        self.weights = [rng.normal(0, np.sqrt(1.0 / a), (a, b)).astype(np.float32)
+                        for a, b in zip(sizes[:-1], sizes[1:])]
+        self.biases = [np.zeros(b, np.float32) for b in sizes[1:]]
+        self.in_scale = np.array([4.0, 4.0, 4.0, 1.0, 1.0], np.float32)
 
-    def _unpack(self, theta: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
-        ws, bs, k = [], [], 0
-        for a, b in zip(self.sizes[:-1], self.sizes[1:]):
-            ws.append(theta[k:k + a * b].reshape(a, b))
-            k += a * b
-            bs.append(theta[k:k + b])
-            k += b
-        return ws, bs
-
-    @staticmethod
-    def _forward(x: np.ndarray, ws: list[np.ndarray], bs: list[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray]]:
+    def _forward(self, x: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
         acts = [x]
         h = x
-        for i, (w, b) in enumerate(zip(ws, bs)):
+        for i, (w, b) in enumerate(zip(self.weights, self.biases)):
             h = h @ w + b
-            if i < len(ws) - 1:
+            if i < len(self.weights) - 1:
                 h = np.tanh(h)
             acts.append(h)
         return h, acts
 
     def fit(self, feats: np.ndarray, slopes: np.ndarray) -> "MlpModel":
-        from scipy.optimize import minimize
+        # Multi-threaded BLAS on 512x32 products is slower than one thread (and oversubscribes).
+        try:
+            from threadpoolctl import threadpool_limits
+        except ImportError:  # optional: without it the fit is just slower on busy machines
+            return self._fit(feats, slopes)
+        with threadpool_limits(1):
+            return self._fit(feats, slopes)
 
-        x = feats.astype(np.float64) * self.in_scale
-        y = np.arctan(slopes.astype(np.float64))
-        n = len(x)
-        lam = self.weight_decay
-
-        def loss_grad(theta: np.ndarray) -> tuple[float, np.ndarray]:
-            ws, bs = self._unpack(theta)
-            out, acts = self._forward(x, ws, bs)
-            err = out - y
-            loss = float(np.sum(err * err) / n + lam * sum(float(np.sum(w * w)) for w in ws))
-            grad = 2.0 * err / n
-            parts: list[np.ndarray] = []
-            for i in range(len(ws) - 1, -1, -1):
-                parts.append(grad.sum(axis=0))
-                parts.append((acts[i].T @ grad + 2.0 * lam * ws[i]).ravel())
-                if i > 0:
-                    grad = (grad @ ws[i].T) * (1.0 - acts[i] ** 2)
-            return loss, np.concatenate(parts[::-1])
-
-        theta0 = np.concatenate([np.concatenate([w.ravel(), b]) for w, b in zip(self.weights, self.biases)])
-        res = minimize(loss_grad, theta0, jac=True, method="L-BFGS-B", options={"maxiter": self.iters})
-        self.weights, self.biases = (list(t) for t in self._unpack(res.x))
+    def _fit(self, feats: np.ndarray, slopes: np.ndarray) -> "MlpModel":
+        x_all = (feats * self.in_scale).astype(np.float32)
+        y_all = np.arctan(slopes).astype(np.float32)
+        rng = np.random.default_rng(self.seed)
+        params = self.weights + self.biases
+        m = [np.zeros_like(p) for p in params]
+        v = [np.zeros_like(p) for p in params]
+        b1, b2, eps, t = 0.9, 0.999, 1e-8, 0
+        n = len(x_all)
+        steps = max(1, self.epochs * -(-n // self.batch))
+        nw = len(self.weights)
+        for _ in range(self.epochs):
+            order = rng.permutation(n)
+            for start in range(0, n, self.batch):
+                sel = order[start:start + self.batch]
+                out, acts = self._forward(x_all[sel])
+                grad = (2.0 / len(sel)) * (out - y_all[sel])
+                grads: list[np.ndarray] = [None] * (2 * nw)  # type: ignore[list-item]
+                for i in range(nw - 1, -1, -1):
+                    grads[i] = acts[i].T @ grad
+                    grads[nw + i] = grad.sum(axis=0)
+                    if i > 0:
+                        grad = (grad @ self.weights[i].T) * (1.0 - acts[i] ** 2)
+                t += 1
+                lr = self.lr * 0.5 * (1 + np.cos(np.pi * min(t, steps) / steps))  # cosine decay
+                c1, c2 = 1 - b1 ** t, 1 - b2 ** t
+                for j, g in enumerate(grads):
+                    m[j] *= b1
+                    m[j] += (1 - b1) * g
+                    v[j] *= b2
+                    v[j] += (1 - b2) * g * g
+                    params[j] -= (lr / c1) * m[j] / (np.sqrt(v[j] / c2) + eps)
         return self
 
     def predict(self, feats: np.ndarray) -> np.ndarray:
-        ws = [w.astype(np.float32) for w in self.weights]
-        bs = [b.astype(np.float32) for b in self.biases]
-        out, _ = self._forward((feats * self.in_scale).astype(np.float32), ws, bs)
+        out, _ = self._forward((feats * self.in_scale).astype(np.float32))
         return np.tan(np.clip(out, -1.5, 1.5)).astype(np.float32)
 
     def to_arrays(self) -> dict[str, np.ndarray]:
-        d: dict[str, np.ndarray] = {"hyper": np.array([self.iters, self.weight_decay, self.seed], np.float64),
+        d: dict[str, np.ndarray] = {"hyper": np.array([self.epochs, self.batch, self.lr, self.seed]),
                                     "hidden": np.array(self.hidden, np.int64)}
         for i, (w, b) in enumerate(zip(self.weights, self.biases)):
-            d[f"w{i}"], d[f"b{i}"] = np.asarray(w, np.float64), np.asarray(b, np.float64)
+            d[f"w{i}"], d[f"b{i}"] = w, b
         return d
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray]) -> "MlpModel":
-        iters, wd, seed = arrays["hyper"]
-        m = cls(tuple(int(h) for h in arrays["hidden"]), int(iters), float(wd), int(seed))
+        epochs, batch, lr, seed = arrays["hyper"]
+        m = cls(tuple(int(h) for h in arrays["hidden"]), int(epochs), int(batch), float(lr), int(seed))
         n = len(m.weights)
-        m.weights = [arrays[f"w{i}"].astype(np.float64) for i in range(n)]
-        m.biases = [arrays[f"b{i}"].astype(np.float64) for i in range(n)]
+        m.weights = [arrays[f"w{i}"].astype(np.float32) for i in range(n)]
+        m.biases = [arrays[f"b{i}"].astype(np.float32) for i in range(n)]
         return m
 
 

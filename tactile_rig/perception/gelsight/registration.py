@@ -198,7 +198,7 @@ def extract_features(height_mm: np.ndarray, params: RegistrationParams = Registr
             det.setMaxFeatures(n_orb)
         kps, desc = det.detectAndCompute(img, None)
         # Keypoints back to full-resolution pixel centres.
-        pts = (np.array([kp.pt for kp in kps], np.float64).reshape(-1, 2) + 0.5) / k - 0.5
+        pts = (np.asarray(cv2.KeyPoint_convert(kps), np.float64).reshape(-1, 2) + 0.5) / k - 0.5
         feats.points[name] = pts
         feats.descriptors[name] = desc if desc is not None else np.zeros((0, 32), np.uint8)
     return feats

@@ -1,0 +1,109 @@
+"""Object following by force (thesis eq. 3.1) and by proximity vision (eq. 3.2).
+
+By force: the end effector moves along the shear force the object exerts on the skin,
+``v = K_f · R_se · f_shear`` (outside a dead band), so a person can lead the arm by the object.
+By proximity vision: it moves to bring the object's centroid back to the image centre,
+``v = K_p · R_ie · (c − c₀)``, where ``R_ie`` rotates image axes into end-effector axes (the
+camera is mounted at ``image_rotation_deg`` about the optical axis). Both run at the sensor's rate
+and command a waypoint ``v · horizon_s`` ahead at speed ``‖v‖`` (capped).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from tactile_rig.clock import Clock
+from tactile_rig.control.common import ControllerResult, Outcome, guarded, read_touch
+from tactile_rig.control.protocols import Motion, Pose, TactileSensor, TouchReading, Trace
+
+
+def rotate_xy(x: float, y: float, angle_deg: float) -> tuple[float, float]:
+    """Rotate a planar vector by ``angle_deg`` (counter-clockwise in the target axes)."""
+    c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
+    return c * x - s * y, s * x + c * y
+
+
+@dataclass
+class FollowingParams:
+    """Parameters; ``mode`` "force" (eq. 3.1) or "proximity" (eq. 3.2)."""
+
+    mode: str = "force"
+    gain_mmps_per_n: float = 40.0  # K_f: speed per newton of shear
+    deadband_n: float = 0.1
+    sensor_rotation_deg: float = 0.0  # R_se: sensor axes → end-effector axes
+    gain_per_s: float = 4.0  # K_p: speed per mm of centroid offset (mm/s per mm)
+    mm_per_px: float = 0.2  # image scale at the object's distance
+    image_rotation_deg: float = 0.0  # R_ie: image axes → end-effector axes
+    image_centre_px: tuple[float, float] = (80.0, 60.0)  # c₀
+    deadband_px: float = 2.0
+    max_speed_mps: float = 0.05
+    horizon_s: float = 0.1
+    duration_s: float = 10.0
+    frame_timeout_s: float = 0.5
+
+
+class Following:
+    """Follow an object with a :class:`Motion` from what a :class:`TactileSensor` sees."""
+
+    def __init__(self, motion: Motion, sensor: TactileSensor, clock: Clock,
+                 params: FollowingParams | None = None) -> None:
+        p = params or FollowingParams()
+        if p.mode not in ("force", "proximity"):
+            raise ValueError(f"mode={p.mode!r} must be 'force' or 'proximity'")
+        self.motion = motion
+        self.sensor = sensor
+        self.clock = clock
+        self.p = p
+        self.trace = Trace()
+
+    def velocity_mmps(self, r: TouchReading) -> tuple[float, float]:
+        """The commanded planar velocity (mm/s, end-effector axes) for one reading."""
+        p = self.p
+        if p.mode == "force":
+            fx, fy = r.force_n[0], r.force_n[1]
+            mag = math.hypot(fx, fy)
+            if mag <= p.deadband_n:
+                return 0.0, 0.0
+            scale = (mag - p.deadband_n) / mag  # continuous at the band's edge
+            vx, vy = rotate_xy(fx * scale, fy * scale, p.sensor_rotation_deg)
+            vx, vy = p.gain_mmps_per_n * vx, p.gain_mmps_per_n * vy
+        else:
+            if r.object_centroid_px is None:
+                return 0.0, 0.0  # nothing in view: hold still
+            dx = r.object_centroid_px[0] - p.image_centre_px[0]
+            dy = r.object_centroid_px[1] - p.image_centre_px[1]
+            if math.hypot(dx, dy) <= p.deadband_px:
+                return 0.0, 0.0
+            ex, ey = rotate_xy(dx * p.mm_per_px, dy * p.mm_per_px, p.image_rotation_deg)
+            vx, vy = p.gain_per_s * ex, p.gain_per_s * ey
+        cap = 1000.0 * p.max_speed_mps
+        n = math.hypot(vx, vy)
+        if n > cap:
+            vx, vy = vx * cap / n, vy * cap / n
+        return vx, vy
+
+    def step(self) -> tuple[float, float]:
+        r = read_touch(self.sensor, self.clock, self.p.frame_timeout_s)
+        vx, vy = self.velocity_mmps(r)
+        q = self.motion.pose()
+        speed = math.hypot(vx, vy)
+        if speed > 0:
+            h = self.p.horizon_s
+            self.motion.move_toward(Pose(q.x_mm + vx * h, q.y_mm + vy * h, q.z_mm, q.theta_deg), speed / 1000.0)
+        else:
+            self.motion.stop()
+        self.trace.append(self.clock.now_s(), x_mm=q.x_mm, y_mm=q.y_mm, vx_mmps=vx, vy_mmps=vy,
+                          fx_n=r.force_n[0], fy_n=r.force_n[1])
+        return vx, vy
+
+    def run(self) -> ControllerResult:
+        self.trace = Trace()
+        return guarded(self._run, self.trace, motion=self.motion)
+
+    def _run(self) -> ControllerResult:
+        t_end = self.clock.now_s() + self.p.duration_s
+        while self.clock.now_s() < t_end:
+            self.step()
+        self.motion.stop()
+        return ControllerResult(Outcome.SUCCESS, self.trace, {}, f"followed for {self.p.duration_s} s")

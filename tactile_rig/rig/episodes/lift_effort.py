@@ -1,0 +1,36 @@
+"""Episode: find the least grip effort that lifts the object (Alg. 4).
+
+Property (friction model truth): the effort found lies between the least effort that can hold the
+object's weight at all and 10 % above the least effort that lifts it at the arm's acceleration:
+``e_hold ≤ effort ≤ 1.10 · e_lift`` with ``e = m (g + a) / (2 μs F_stall)``.
+"""
+
+from __future__ import annotations
+
+from tactile_rig.control.lift_effort import LiftEffortParams, MinimalLiftEffort
+from tactile_rig.rig.episodes import outcome_matches, params_for
+from tactile_rig.rig.episodes._grasp_probe import frame_period_s, grasp_probe
+from tactile_rig.rig.scene_runner import EpisodeContext, EpisodeReport
+
+
+def run_episode(ctx: EpisodeContext) -> EpisodeReport:
+    obj = ctx.model("object")
+    gripper = ctx.model("gripper")
+    arm = ctx.model("arm")
+    sensor = ctx.make_sensor(grasp_probe(obj, frame_period_s(ctx.sensor)))
+    params = params_for(LiftEffortParams, ctx.controller)
+    ctrl = MinimalLiftEffort(gripper, arm, sensor, ctx.clock, params)
+    res = ctrl.run()
+    still = ctx.settle_and_check_still([arm], [gripper])
+    stall = gripper.stall_force_n
+    e_hold = obj.min_squeeze_n(0.0) / stall
+    e_lift = obj.min_squeeze_n(arm.accel_mmps2 / 1000.0) / stall
+    effort = res.figures.get("effort", float("nan"))
+    ratio = effort / e_lift
+    figures = {"effort": effort, "true_min_effort": e_lift, "hold_min_effort": e_hold,
+               "effort_over_min": ratio, "lifts": res.figures.get("lifts", 0.0), "still_after": float(still)}
+    ok = outcome_matches(res, ctx.controller) and still
+    if ctx.controller.get("expect", "success") == "success":
+        ok = ok and e_hold * (1 - 1e-9) <= effort <= 1.10 * e_lift
+    return EpisodeReport("", 0, ctx.seed, ok, res.outcome.value, figures, res.message, res.fault_device,
+                         result=res)

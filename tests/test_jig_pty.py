@@ -1,0 +1,91 @@
+"""An independent client, grbl-streamer, streams a G-code file to ``tactile-rig mock serve jig`` on a pty."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+
+grbl_streamer = pytest.importorskip("grbl_streamer")
+
+GCODE = """(a zig-zag with theta on Z; more than 128 bytes, so character counting matters)
+G21 G90
+G1 F1200
+G1 X0.5 Y0.25
+G1 X1.0 Y0.0 Z5
+G1 X1.5 Y0.25
+G1 X2.0 Y0.0 Z10 ; quarter turn of the jog wheel
+G1 X2.5 Y0.25
+
+G1 X3.0 Y0.0 Z5
+G1 X3.5 Y0.25
+G1 X4.0 Y0.0 Z0
+G1 X3.5 Y-0.25
+G1 X3.0 Y0.0 Z-5
+G1 X2.5 Y-0.25
+G0 X2.0 Y-0.5 Z-10
+"""
+N_LINES = 14  # non-empty G-code lines (comments alone are not sent)
+FINAL = (2.0, -0.5, -10.0)
+
+
+@pytest.mark.pty
+def test_grbl_streamer_streams_a_file_and_sees_every_ok_and_the_final_position(tmp_path) -> None:
+    path = tmp_path / "zigzag.nc"
+    path.write_text(GCODE)
+    proc = subprocess.Popen([sys.executable, "-m", "tactile_rig.cli", "mock", "serve", "jig",
+                             "--param", "homing=0"], stdout=subprocess.PIPE, text=True)
+    events: list[tuple[str, tuple]] = []
+    lock = threading.Lock()
+
+    def callback(event: str, *data: object) -> None:
+        with lock:
+            events.append((event, data))
+
+    def seen(name: str, since: int = 0) -> list[tuple]:
+        with lock:
+            return [d for e, d in events[since:] if e == name]
+
+    def wait_for(pred, timeout_s: float) -> bool:
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            if pred():
+                return True
+            time.sleep(0.02)
+        return False
+
+    try:
+        info = json.loads(proc.stdout.readline())
+        assert info["device"] == "jig" and info["port"].startswith("/dev/")
+        grbl = grbl_streamer.GrblStreamer(callback, name="pty-jig")
+        grbl.cnect(info["port"], 115200)
+        try:
+            assert wait_for(lambda: seen("on_boot"), 3.0), "no boot banner"
+            grbl.poll_interval = 0.05
+            grbl.poll_start()
+            # grbl-streamer asks for $$, $# and $G after booting; let those settle before the job.
+            assert wait_for(lambda: any(d and d[0] == "Idle" for d in seen("on_stateupdate")), 3.0)
+            time.sleep(0.3)
+            start = len(events)
+            grbl.load_file(str(path))
+            grbl.job_run()
+            assert wait_for(lambda: seen("on_job_completed", start), 15.0), "job did not complete"
+            assert wait_for(lambda: any(d[0] == "Idle" and tuple(d[1]) == pytest.approx(FINAL, abs=0.03)
+                                        for d in seen("on_stateupdate", start)), 10.0), \
+                f"final state: {seen('on_stateupdate', start)[-1:]}"
+            # grbl-streamer splits "G21 G90" and sends blank lines for comments: every line it sent
+            # was answered with one ok, in order.
+            sent = [d[1] for d in seen("on_line_sent", start)]
+            processed = [d[1] for d in seen("on_processed_command", start)]
+            assert processed == sent and len([p for p in processed if p]) >= N_LINES
+            assert not seen("on_error", start) and not seen("on_alarm", start)
+        finally:
+            grbl.disconnect()
+    finally:
+        proc.terminate()
+        proc.wait(5)
+        proc.stdout.close()
