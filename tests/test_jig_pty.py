@@ -29,7 +29,7 @@ G1 X3.0 Y0.0 Z-5
 G1 X2.5 Y-0.25
 G0 X2.0 Y-0.5 Z-10
 """
-N_LINES = 14  # non-empty G-code lines (comments alone are not sent)
+N_COMMANDS = 15  # non-empty commands once grbl-streamer has split "G21 G90" in two
 FINAL = (2.0, -0.5, -10.0)
 
 
@@ -67,9 +67,19 @@ def test_grbl_streamer_streams_a_file_and_sees_every_ok_and_the_final_position(t
             assert wait_for(lambda: seen("on_boot"), 3.0), "no boot banner"
             grbl.poll_interval = 0.05
             grbl.poll_start()
-            # grbl-streamer asks for $$, $# and $G after booting; let those settle before the job.
+            # grbl-streamer asks for $$, $# and $G after booting, outside its character count; their
+            # oks must be in before the job, or it would credit them to job lines (its own race).
             assert wait_for(lambda: any(d and d[0] == "Idle" for d in seen("on_stateupdate")), 3.0)
-            time.sleep(0.3)
+            assert wait_for(lambda: seen("on_hash_stateupdate"), 3.0), "no answer to $#"
+            assert wait_for(lambda: any(d and str(d[0]).startswith("[GC:") for d in seen("on_read")), 3.0)
+
+            def settled() -> bool:  # no query pending and nothing read for 0.3 s
+                before = len(seen("on_read"))
+                time.sleep(0.3)
+                return (not grbl.hash_state_requested and not grbl.gcode_parser_state_requested
+                        and len(seen("on_read")) == before)
+
+            assert wait_for(settled, 5.0)
             start = len(events)
             grbl.load_file(str(path))
             grbl.job_run()
@@ -78,10 +88,11 @@ def test_grbl_streamer_streams_a_file_and_sees_every_ok_and_the_final_position(t
                                         for d in seen("on_stateupdate", start)), 10.0), \
                 f"final state: {seen('on_stateupdate', start)[-1:]}"
             # grbl-streamer splits "G21 G90" and sends blank lines for comments: every line it sent
-            # was answered with one ok, in order.
+            # was answered by exactly one ok. (Which text it files each ok under can be off by one
+            # under load: its job_run and reader threads share the backlog without a lock.)
             sent = [d[1] for d in seen("on_line_sent", start)]
             processed = [d[1] for d in seen("on_processed_command", start)]
-            assert processed == sent and len([p for p in processed if p]) >= N_LINES
+            assert len(processed) == len(sent) and len([p for p in sent if p]) == N_COMMANDS
             assert not seen("on_error", start) and not seen("on_alarm", start)
         finally:
             grbl.disconnect()

@@ -107,5 +107,5 @@ class JigMachine(RuleBasedStateMachine):
         assert self.stage.pose() == pytest.approx(st_.mpos, abs=1e-3)
 
 
-JigMachine.TestCase.settings = settings(max_examples=8, stateful_step_count=8, deadline=None)
+JigMachine.TestCase.settings = settings(max_examples=15, stateful_step_count=10, deadline=None)
 TestJigStateful = JigMachine.TestCase

@@ -198,3 +198,19 @@ def test_load_cell_model_takes_a_settable_force_or_a_source() -> None:
     assert cell.force_n == 0.0
     with pytest.raises(ValueError, match="capacity_n"):
         LoadCell(capacity_n=-1)
+
+
+def test_warm_up_drift_creeps_in_over_minutes_and_a_new_tare_removes_it() -> None:
+    clock, mock = _rig(rate_sps=10, drift_counts=1500.0, drift_tau_s=60.0, spike_prob=0.0)
+    with serve_in_process(mock, clock) as url:
+        scale = Scale(url)
+        early = [r.grams for r in scale.read_many(20)]
+        scale.read_many(3000)  # five minutes at 10 samples/s, nothing on the scale
+        late = [r.grams for r in scale.read_many(20)]
+        scale.tare()
+        scale.poll()
+        retared = [r.grams for r in scale.read_many(20)]
+    mean = lambda xs: sum(xs) / len(xs)  # noqa: E731
+    assert abs(mean(early)) < 0.3
+    assert mean(late) > 1.5  # ~1500 counts of drift at 696 counts/g, minus what the boot tare caught
+    assert abs(mean(retared)) < 0.3

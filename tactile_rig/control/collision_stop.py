@@ -95,11 +95,18 @@ class CollisionStop:
                                        stop_latency_s=self.p.stop_latency_s, decel_mps2=self.p.decel_mps2,
                                        detection_travel_mm=det)
 
+    def watchdog_s(self) -> float:
+        """How long to wait for a frame while moving: a frame later than one period (plus the
+        latency) means the sensor stalled, and every extra moment is blind travel."""
+        if self.rate_hz is None or self.latency_s is None:
+            return self.p.frame_timeout_s
+        return min(self.p.frame_timeout_s, 1.1 / self.rate_hz + self.latency_s)
+
     # -- the loop --------------------------------------------------------------------------------
     def step(self) -> tuple[bool, tuple[float, float, float]]:
         """One look: (collided, force change). Stops the axis on a collision."""
         assert self.baseline_n is not None
-        r = read_touch(self.sensor, self.clock, self.p.frame_timeout_s)
+        r = read_touch(self.sensor, self.clock, self.watchdog_s())
         df = tuple(r.force_n[i] - self.baseline_n[i] for i in range(3))
         p = self.motion.pose()
         record_pose(self.trace, self.clock.now_s(), p, fx_n=df[0], fy_n=df[1], fz_n=df[2],

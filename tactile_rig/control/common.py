@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 from tactile_rig.clock import Clock
-from tactile_rig.control.protocols import Gripper, Motion, Pose, TouchReading, Trace
-from tactile_rig.errors import DeviceTimeout, RigError
+from tactile_rig.control.protocols import Gripper, GripperOutcome, Motion, Pose, TouchReading, Trace
+from tactile_rig.errors import DeviceFault, DeviceTimeout, RigError
 
 
 class Outcome(str, enum.Enum):
@@ -65,6 +65,26 @@ def safe_stop(motion: Motion | None = None, gripper: Gripper | None = None, *,
         except Exception as exc:
             problems.append(f"gripper {gripper_action}: {exc}")
     return problems
+
+
+def go(gripper: Gripper, position: float, effort: float, **kw: Any) -> GripperOutcome:
+    """``gripper.gripper_go`` that raises :class:`DeviceFault` when the move ends in FAULT
+    (drivers report a latched servo error as an outcome; a controller must stop on it)."""
+    out = gripper.gripper_go(position, effort, **kw)
+    if out is GripperOutcome.FAULT:
+        raise DeviceFault("gripper_go ended in FAULT: a hardware error is latched, torque is off",
+                          device=getattr(gripper, "name", "gripper"))
+    return out
+
+
+def check_gripper(gripper: Gripper) -> Any:
+    """Read the gripper's state and raise :class:`DeviceFault` if it reports a hardware error
+    (a driver may return the error bits instead of raising)."""
+    st = gripper.state()
+    if getattr(st, "hardware_error", 0):
+        raise DeviceFault(f"hardware error status 0x{st.hardware_error:02x}",
+                          device=getattr(gripper, "name", "gripper"), code=st.hardware_error)
+    return st
 
 
 def device_of(exc: BaseException) -> str:
@@ -148,6 +168,14 @@ def read_touch(sensor: Any, clock: Clock, timeout_s: float) -> TouchReading:
     if r is None:
         raise DeviceTimeout(f"no frame within {timeout_s} s", device=getattr(sensor, "name", "sensor"))
     return as_touch(r, now_s=clock.now_s())
+
+
+def read_fresh(sensor: Any, clock: Clock, after_s: float, timeout_s: float) -> TouchReading:
+    """The first reading captured at or after ``after_s`` (frames from before a move show the old scene)."""
+    while True:
+        r = read_touch(sensor, clock, timeout_s)
+        if r.t_s >= after_s:
+            return r
 
 
 def vec_norm(v: tuple[float, ...] | list[float]) -> float:

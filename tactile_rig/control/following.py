@@ -39,6 +39,7 @@ class FollowingParams:
     deadband_px: float = 2.0
     max_speed_mps: float = 0.05
     horizon_s: float = 0.1
+    replan_frac: float = 0.0  # re-command only when the velocity changes by more than this fraction
     duration_s: float = 10.0
     frame_timeout_s: float = 0.5
 
@@ -56,6 +57,8 @@ class Following:
         self.clock = clock
         self.p = p
         self.trace = Trace()
+        self._v_cmd: tuple[float, float] | None = None
+        self._target: Pose | None = None
 
     def velocity_mmps(self, r: TouchReading) -> tuple[float, float]:
         """The commanded planar velocity (mm/s, end-effector axes) for one reading."""
@@ -83,22 +86,36 @@ class Following:
             vx, vy = vx * cap / n, vy * cap / n
         return vx, vy
 
+    def _needs_replan(self, q: Pose, vx: float, vy: float) -> bool:
+        if self._v_cmd is None or self._target is None:
+            return True
+        dv = math.hypot(vx - self._v_cmd[0], vy - self._v_cmd[1])
+        left = math.hypot(self._target.x_mm - q.x_mm, self._target.y_mm - q.y_mm)
+        return dv > self.p.replan_frac * math.hypot(*self._v_cmd) + 0.5 or left < 0.5 * math.hypot(vx, vy) * self.p.horizon_s
+
     def step(self) -> tuple[float, float]:
         r = read_touch(self.sensor, self.clock, self.p.frame_timeout_s)
         vx, vy = self.velocity_mmps(r)
         q = self.motion.pose()
         speed = math.hypot(vx, vy)
         if speed > 0:
-            h = self.p.horizon_s
-            self.motion.move_toward(Pose(q.x_mm + vx * h, q.y_mm + vy * h, q.z_mm, q.theta_deg), speed / 1000.0)
-        else:
+            if self._needs_replan(q, vx, vy):
+                # re-plan only on a real change: a planner that restarts every frame (GRBL jogs)
+                # would spend its time accelerating and never reach the commanded speed
+                h = self.p.horizon_s
+                self._target = Pose(q.x_mm + vx * h, q.y_mm + vy * h, q.z_mm, q.theta_deg)
+                self._v_cmd = (vx, vy)
+                self.motion.move_toward(self._target, speed / 1000.0)
+        elif self._v_cmd is not None:
             self.motion.stop()
+            self._v_cmd = self._target = None
         self.trace.append(self.clock.now_s(), x_mm=q.x_mm, y_mm=q.y_mm, vx_mmps=vx, vy_mmps=vy,
                           fx_n=r.force_n[0], fy_n=r.force_n[1])
         return vx, vy
 
     def run(self) -> ControllerResult:
         self.trace = Trace()
+        self._v_cmd = self._target = None
         return guarded(self._run, self.trace, motion=self.motion)
 
     def _run(self) -> ControllerResult:

@@ -21,7 +21,7 @@ import math
 from dataclasses import dataclass
 
 from tactile_rig.clock import Clock
-from tactile_rig.control.common import ControllerResult, Outcome, guarded, read_touch
+from tactile_rig.control.common import ControllerResult, Outcome, check_gripper, guarded, read_touch, go
 from tactile_rig.control.protocols import Gripper, TactileSensor, TouchReading, Trace
 
 
@@ -86,6 +86,7 @@ class Handover:
         return bool(r.slip and touch)
 
     def step(self) -> TouchReading:
+        check_gripper(self.gripper)  # a servo that faulted while holding must end the run
         r = read_touch(self.sensor, self.clock, self.p.frame_timeout_s)
         dt = 0.0 if self._last_t is None else max(0.0, r.t_s - self._last_t)
         self._last_t = r.t_s
@@ -95,7 +96,7 @@ class Handover:
         if self._cmd_m is None or abs(y - self._cmd_m) > 1e-6:
             if self._cmd_m is not None and y < self._cmd_m:
                 self.closings += 1
-            self.gripper.gripper_go(y, self.p.effort, blocking=False)
+            go(self.gripper, y, self.p.effort, blocking=False)
             self._cmd_m = y
         self.trace.append(self.clock.now_s(), frame_t_s=r.t_s, fz_n=r.force_n[2], slip=float(r.slip),
                           touch=float(r.contact), drive=float(L), g_m=g, command_m=y)

@@ -19,7 +19,7 @@ import math
 from dataclasses import dataclass
 
 from tactile_rig.clock import Clock
-from tactile_rig.control.common import ControllerResult, Outcome, guarded, read_touch
+from tactile_rig.control.common import ControllerResult, Outcome, check_gripper, guarded, read_touch, go
 from tactile_rig.control.grasp import LeakyIntegrator
 from tactile_rig.control.protocols import Gripper, TactileSensor, TouchReading, Trace
 
@@ -98,6 +98,7 @@ class InHandRotation:
 
     def step(self, y_start: float) -> tuple[TouchReading, float]:
         """One frame of opening: returns the reading and the angle estimate."""
+        check_gripper(self.gripper)
         r = self._read()
         ang = self.angle_deg(r)
         dt = r.t_s - self._recent[-1][0] if self._recent else 0.0
@@ -122,7 +123,7 @@ class InHandRotation:
         else:
             u = self.p.open_rate_mps
         g = self.integrator.step(u, dt)
-        self.gripper.gripper_go(y_start + g, self.p.effort, blocking=False)
+        go(self.gripper, y_start + g, self.p.effort, blocking=False)
         self.trace.append(self.clock.now_s(), frame_t_s=r.t_s, angle_deg=ang, rate_dps=self.rate_dps,
                           torque_nmm=r.torque_nmm[2], fz_n=r.force_n[2], open_m=g, slip=float(r.slip),
                           slide_mm=r.slip_mm)
@@ -136,12 +137,12 @@ class InHandRotation:
     def _regrip(self, y_start: float) -> None:
         # remember where it turned: the next opening resumes just short of it, not from the start
         self._resume_m = max(0.0, self.integrator.g_m - self.p.resume_back_m)
-        self.gripper.gripper_go(max(0.0, y_start - self.p.regrip_m), self.p.effort, blocking=False)
+        go(self.gripper, max(0.0, y_start - self.p.regrip_m), self.p.effort, blocking=False)
         self.integrator.g_m = -self.p.regrip_m
 
     def _resume(self, y_start: float) -> None:
         self.integrator.g_m = self._resume_m
-        self.gripper.gripper_go(y_start + self._resume_m, self.p.effort, blocking=False)
+        go(self.gripper, y_start + self._resume_m, self.p.effort, blocking=False)
 
     def _settled_angle(self) -> tuple[float, TouchReading]:
         t_end = self.clock.now_s() + self.p.settle_s

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tactile_rig.clock import Clock
-from tactile_rig.control.common import ControllerResult, Outcome, guarded, move_and_wait, pose_vec
+from tactile_rig.control.common import ControllerResult, Outcome, guarded, move_and_wait, pose_vec, go
 from tactile_rig.control.protocols import Gripper, GripperOutcome, Localization, Motion, Pose, TactileSensor, Trace
 from tactile_rig.errors import DeviceTimeout
 
@@ -122,12 +122,12 @@ class Insertion:
 
     def regrasp(self, slide_mm: float) -> None:
         """Open, slide the gripper ``slide_mm`` along its own x axis (the object's axis), close."""
-        self.gripper.gripper_go(self.p.open_m, self.p.effort, blocking=True, timeout_s=3.0)
+        go(self.gripper, self.p.open_m, self.p.effort, blocking=True, timeout_s=3.0)
         q = self.motion.pose()
         th = math.radians(q.theta_deg)
         goal = Pose(q.x_mm + slide_mm * math.cos(th), q.y_mm + slide_mm * math.sin(th), q.z_mm, q.theta_deg)
         move_and_wait(self.motion, self.clock, goal, self.p.speed_mps, timeout_s=self.p.move_timeout_s)
-        out = self.gripper.gripper_go(self.p.close_m, self.p.effort, blocking=True, timeout_s=3.0)
+        out = go(self.gripper, self.p.close_m, self.p.effort, blocking=True, timeout_s=3.0)
         if out is GripperOutcome.REACHED:
             raise _Lost("the fingers closed on nothing while regrasping")
         self.regrasps += 1

@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass
 
 from tactile_rig.clock import Clock
-from tactile_rig.control.common import ControllerResult, Outcome, guarded, move_and_wait, read_touch
+from tactile_rig.control.common import ControllerResult, Outcome, guarded, move_and_wait, read_touch, go
 from tactile_rig.control.protocols import Gripper, GripperOutcome, Motion, Pose, TactileSensor, Trace
 
 
@@ -47,7 +47,7 @@ class MinimalLiftEffort:
 
     def step(self, effort: float) -> bool:
         """One lift trial at ``effort``; True when the object slipped."""
-        out = self.gripper.gripper_go(self.p.close_m, effort, blocking=True, timeout_s=3.0)
+        out = go(self.gripper, self.p.close_m, effort, blocking=True, timeout_s=3.0)
         if out is GripperOutcome.REACHED:
             raise _NoObject()
         start = self.motion.pose()
@@ -65,7 +65,7 @@ class MinimalLiftEffort:
                 break
         slipped = slide > self.p.slip_tol_mm
         move_and_wait(self.motion, self.clock, start, self.p.lift_speed_mps, timeout_s=10.0)
-        self.gripper.gripper_go(self.p.open_m, effort, blocking=True, timeout_s=3.0)
+        go(self.gripper, self.p.open_m, effort, blocking=True, timeout_s=3.0)
         self.trials.append((effort, slipped, slide))
         return slipped
 

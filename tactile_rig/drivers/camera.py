@@ -371,10 +371,10 @@ class FingertipCamera:
                     raise self._error
                 fr = self._latest
                 if fr is not None and fr.seq > self._last_read_seq:
+                    self._last_read_seq = fr.seq  # consumed, even if it is reported as frozen
                     if self.stats.frozen:
                         raise FrozenStream(f"stream frozen: the last {self._same_run + 1} frames are identical "
                                            f"(expected changing frames)", device=self.name)
-                    self._last_read_seq = fr.seq
                     return fr
                 remaining = deadline.remaining_s()
                 if remaining is not None and remaining <= 0:

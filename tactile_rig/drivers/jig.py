@@ -17,12 +17,10 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Callable, Iterable
 
-import serial
-
 from tactile_rig.clock import Clock, Deadline
 from tactile_rig.drivers import grbl_protocol as gp
 from tactile_rig.drivers.transport import SerialTransport
-from tactile_rig.errors import DeviceFault, DeviceTimeout, LimitError, LinkCorrupt, NotConnected, check_range
+from tactile_rig.errors import DeviceFault, DeviceTimeout, LimitError, LinkCorrupt, check_range
 
 log = logging.getLogger("tactile_rig.jig")
 
@@ -484,7 +482,11 @@ class Jig:
         check_range("feed_mm_per_min", feed_mm_per_min, 1e-3, 1e6, "mm/min")
         if not relative:
             self._check_ranges(x_mm=dx_mm, y_mm=dy_mm, theta_deg=dtheta_deg)
-        words = self._axis_words(dx_mm, dy_mm, dtheta_deg)
+            words = self._axis_words(dx_mm, dy_mm, dtheta_deg)
+        else:  # a zero step is no motion: leave the word out (an all-zero jog sends nothing)
+            words = self._axis_words(*(v if v != 0.0 else None for v in (dx_mm, dy_mm, dtheta_deg)))
+            if not words:
+                return
         self.command(f"$J={'G91' if relative else 'G90'}{words}F{feed_mm_per_min:.1f}")
 
     # -- settings --------------------------------------------------------------------------------------------------

@@ -167,6 +167,7 @@ class SimulatedCamera:
         self._noise: SensorNoise | None = None
         self.fourcc, self.width, self.height, self.fps = fourcc, width, height, fps
         self._open = False
+        self._opened_at = -math.inf
         self._t0 = self.clock.now_s()
         self._k_last = -1
         self._last_image: np.ndarray | None = None
@@ -206,6 +207,7 @@ class SimulatedCamera:
             self.table.reset()  # a replugged camera powers up with its default controls
             self._replugs_seen = replugs
         self._open = True
+        self._opened_at = now
 
     def close(self) -> None:
         self._open = False
@@ -213,7 +215,10 @@ class SimulatedCamera:
     def _check(self) -> None:
         if not self._open:
             raise NotConnected("camera is not open", device=self.name)
-        if self._in(self.unplugged, self.clock.now_s()):
+        now = self.clock.now_s()
+        # An unplug kills the open handle for good, even if the camera is back already (it
+        # re-enumerates as a new device): any unplug that began since open counts.
+        if any(self._opened_at < a <= now for a, _ in self.unplugged) or self._in(self.unplugged, now):
             self._open = False
             raise NotConnected("device disappeared (ENODEV)", device=self.name)
 

@@ -117,10 +117,10 @@ class GrblMock(SerialDevice):
         self.rx_high_water = 0  # most bytes ever waiting in the receive buffer
         self.lines_executed = 0
         self._fail_next_homing = False
-        self._power_up(0.0 if clock is None else clock.now_s(), first=True)
+        self._power_up(0.0 if clock is None else clock.now_s())
 
     # -- machine state -----------------------------------------------------------------------
-    def _power_up(self, t_s: float, *, first: bool = False) -> None:
+    def _power_up(self, t_s: float) -> None:
         self.state = "Alarm" if self.settings[22] and not self.homed else "Idle"
         self._reset_runtime(t_s)
 
@@ -214,11 +214,14 @@ class GrblMock(SerialDevice):
         for b in data:
             if b in gp.REALTIME_BYTES:
                 self._realtime(b, t_s)
-            elif len(self.rx) < gp.RX_BUFFER_SIZE:
-                self.rx.append(b)
-                self.rx_high_water = max(self.rx_high_water, len(self.rx))
             else:
-                self.rx_overflow_bytes += 1  # the ring is full: the AVR drops the byte
+                if len(self.rx) >= gp.RX_BUFFER_SIZE:
+                    self._process(t_s)  # the main loop empties the ring while bytes arrive
+                if len(self.rx) < gp.RX_BUFFER_SIZE:
+                    self.rx.append(b)
+                    self.rx_high_water = max(self.rx_high_water, len(self.rx))
+                else:
+                    self.rx_overflow_bytes += 1  # the ring is full: the AVR drops the byte
         self._process(t_s)
 
     def _realtime(self, b: int, t_s: float) -> None:
@@ -316,7 +319,7 @@ class GrblMock(SerialDevice):
             if self.state == "Check":
                 self._say("[MSG:Disabled]", t_s)
                 self.emit(b"ok\r\n", t_s, delay_s=_LINE_DELAY_S)
-                self._soft_reset(t_s, quiet_alarm=True)
+                self._soft_reset(t_s)
                 return None
             if self.state != "Idle":
                 return "error:8"
@@ -773,7 +776,7 @@ class GrblMock(SerialDevice):
         if critical:
             self.emit(b"[MSG:Reset to continue]\r\n", t_s, reply=False)
 
-    def _soft_reset(self, t_s: float, *, quiet_alarm: bool = False) -> None:
+    def _soft_reset(self, t_s: float) -> None:
         self.advance_to(t_s)
         moving = self.active is not None or bool(self._home_legs)
         alarm = None

@@ -302,6 +302,7 @@ def _factory(params: Params, *, clock: Clock, world: Any = None) -> ScaleMock:
         counts_per_g=params.float("counts_per_g", sp.DEFAULT_CAL_FACTOR),
         noise_counts=params.float("noise_counts"),
         drift_counts=params.float("drift_counts", 1500.0),
+        drift_tau_s=params.float("drift_tau_s", 180.0),
         spike_prob=params.float("spike_prob", 0.002),
         boot_junk=params.bool("boot_junk", True),
         stock_settle_s=params.float("stock_settle_s", 2.0),

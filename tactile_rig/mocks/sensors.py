@@ -37,8 +37,9 @@ class _FramedSensor:
         self.rate_hz = float(rate_hz)
         self.latency_s = float(latency_s)
         self.name = name
-        self.freeze_at_s = freeze_at_s
         self._t0 = clock.now_s()
+        # scene times count from the sensor's creation (a RealClock's origin is arbitrary)
+        self.freeze_at_s = None if freeze_at_s is None else self._t0 + float(freeze_at_s)
         self._last_k = -1
         self.frames_read = 0
 
@@ -136,3 +137,27 @@ class RenderedSensor(_FramedSensor):
 def touch(t_s: float, **kw: Any) -> TouchReading:
     """A noise-free TouchReading (for probes)."""
     return TouchReading(t_s=t_s, **kw)
+
+
+class ModelGauge:
+    """A simulated load reading (the scale under the fixture) that satisfies ``ForceGauge``.
+
+    ``load(t_s)`` gives the true load in newtons; samples come at ``rate_hz`` (an HX711 runs at 10
+    or 80 Hz) with ``noise_n`` of noise; ``silent_after_s`` makes it stop answering (a scale that
+    went silent): ``read_n`` then raises :class:`DeviceTimeout` after its timeout.
+    """
+
+    def __init__(self, clock: Clock, load: Callable[[float], float], *, rate_hz: float = 80.0,
+                 noise_n: float = 0.0, rng: np.random.Generator | None = None,
+                 silent_after_s: float | None = None, name: str = "scale") -> None:
+        self._frames = _FramedSensor(clock, rate_hz=rate_hz, name=name, freeze_at_s=silent_after_s)
+        self.load = load
+        self.noise_n = float(noise_n)
+        self.rng = rng if rng is not None else np.random.default_rng(0)
+        self.name = name
+
+    def read_n(self, timeout_s: float | None = 1.0) -> float:
+        k = self._frames._next_frame(timeout_s)
+        self._frames._last_k = k
+        t = self._frames._capture_s(k)
+        return float(self.load(t)) + self.noise_n * float(self.rng.normal())

@@ -78,7 +78,10 @@ class EpisodeContext:
         return self.scene.world
 
     def model(self, name: str) -> Any:
-        return self.scene.world.require(name, who=f"controller {self.controller.get('kind')!r}")
+        try:
+            return self.scene.world.require(name, who=f"controller {self.controller.get('kind')!r}")
+        except LookupError as exc:  # a scene file that lacks a model: a bad argument, not a crash
+            raise ValueError(str(exc)) from None
 
     def make_sensor(self, probe: Callable[[float], Any], *, name: str = "tactile",
                     render: Callable[[float], Any] | None = None,
@@ -105,8 +108,14 @@ class EpisodeContext:
         self.clock.sleep(settle_s)
         still = True
         for m in motions:
-            if hasattr(m, "is_moving") and m.is_moving():
-                still = False
+            if hasattr(m, "is_moving"):
+                still = still and not m.is_moving()
+            else:  # a driver: two pose reads a moment apart must agree
+                p0 = m.pose()
+                self.clock.sleep(0.1)
+                p1 = m.pose()
+                still = still and all(abs(a - b) < 1e-3 for a, b in zip(
+                    (p0.x_mm, p0.y_mm, p0.z_mm, p0.theta_deg), (p1.x_mm, p1.y_mm, p1.z_mm, p1.theta_deg)))
         for g in grippers:
             try:
                 st = g.state()

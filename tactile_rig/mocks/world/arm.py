@@ -54,7 +54,8 @@ class SimArm:
         self.decel_mps2 = float(decel_mps2)
         self.max_speed_mps = float(max_speed_mps)
         self.dt_s = float(dt_s)
-        self.fault_at_s = fault_at_s
+        # scene times count from the model's creation (a RealClock's origin is arbitrary)
+        self.fault_at_s = None if fault_at_s is None else clock.now_s() + float(fault_at_s)
         self.fault_code = int(fault_code)
         self.faulted = False
         self._t = clock.now_s()

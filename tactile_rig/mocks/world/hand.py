@@ -33,15 +33,17 @@ class Hand:
 
     def __init__(self, *, arrive_s: float = 0.0, press_n: float = 0.5, release_s: float = math.inf,
                  release_duration_s: float = 1.0, descend_mps: float = 0.0, leave_s: float = math.inf,
-                 path_mm: list[list[float]] | None = None, twist_deg: list[list[float]] | None = None) -> None:
+                 path_mm: list[list[float]] | None = None, twist_deg: list[list[float]] | None = None,
+                 t0_s: float = 0.0) -> None:
         if release_duration_s <= 0:
             raise ValueError(f"hand.release_duration_s={release_duration_s!r} must be > 0")
-        self.arrive_s = float(arrive_s)
+        self.t0_s = float(t0_s)  # the scene's start on the clock: script times count from it
+        self.arrive_s = self.t0_s + float(arrive_s)
         self.press_n_max = float(press_n)
-        self.release_s = float(release_s)
+        self.release_s = self.t0_s + float(release_s)
         self.release_duration_s = float(release_duration_s)
         self.descend_mps = float(descend_mps)
-        self.leave_s = float(leave_s)
+        self.leave_s = self.t0_s + float(leave_s)
         self.path_mm = path_mm
         self.twist_deg = twist_deg
 
@@ -74,15 +76,15 @@ class Hand:
         """Where the hand holds the object (x, y, z mm) on the following path."""
         if not self.path_mm:
             return np.zeros(3)
-        return _interp(self.path_mm, t_s)
+        return _interp(self.path_mm, t_s - self.t0_s)
 
     def twist_at_deg(self, t_s: float) -> float:
         if not self.twist_deg:
             return 0.0
-        return float(_interp(self.twist_deg, t_s)[0])
+        return float(_interp(self.twist_deg, t_s - self.t0_s)[0])
 
 
 @register_model("hand")
 def _hand(world: Any, rng: np.random.Generator, **params: Any) -> Hand:
     """Scene model: the :class:`Hand` script parameters."""
-    return Hand(**params)
+    return Hand(t0_s=world.clock.now_s(), **params)

@@ -21,6 +21,7 @@ _BUILTIN = (
     "tactile_rig.mocks.world.sim_gripper",
     "tactile_rig.mocks.world.part",
     "tactile_rig.mocks.world.torsion",
+    "tactile_rig.mocks.world.stick",
 )
 
 for _name in _BUILTIN:

@@ -46,7 +46,7 @@ class SimGripper:
         self.stiffness_n_per_m = float(stiffness_n_per_m)
         self.command_latency_s = float(command_latency_s)
         self.dt_s = float(dt_s)
-        self.overload_at_s = overload_at_s
+        self.overload_at_s = None if overload_at_s is None else clock.now_s() + float(overload_at_s)
         self.width_fn: Callable[[float], float | None] = lambda t: None
         self._t = clock.now_s()
         self._free_m = float(opening_m)  # where the fingers would be without an object

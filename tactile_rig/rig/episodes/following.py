@@ -14,20 +14,29 @@ import numpy as np
 from tactile_rig.control.following import Following, FollowingParams, rotate_xy
 from tactile_rig.control.protocols import TouchReading
 from tactile_rig.rig.episodes import outcome_matches, params_for
+from tactile_rig.rig.episodes._devices import Devices
 from tactile_rig.rig.scene_runner import EpisodeContext, EpisodeReport
 
 
 def run_episode(ctx: EpisodeContext) -> EpisodeReport:
-    arm = ctx.model("arm")
+    devices = Devices(ctx)
+    try:
+        return _run(ctx, devices)
+    finally:
+        devices.close()
+
+
+def _run(ctx: EpisodeContext, devices: Devices) -> EpisodeReport:
+    arm, position_at = devices.pick_motion()
     hand = ctx.model("hand")
     c = ctx.controller
     params = params_for(FollowingParams, c)
     k_shear = float(c.get("shear_stiffness_n_per_mm", 0.5))
     mu_n = float(c.get("friction_limit_n", 3.0))
-    p0 = arm.position_at(ctx.clock.now_s())[:2].copy()
+    p0 = position_at(ctx.clock.now_s())[:2].copy()
 
     def offset(t_s: float) -> np.ndarray:
-        return hand.position_mm(t_s)[:2] - (arm.position_at(t_s)[:2] - p0)
+        return hand.position_mm(t_s)[:2] - (position_at(t_s)[:2] - p0)
 
     def probe(t_s: float) -> TouchReading:
         ox, oy = offset(t_s)

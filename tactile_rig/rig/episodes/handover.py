@@ -11,17 +11,29 @@ import math
 
 from tactile_rig.control.grasp import Handover, HandoverParams
 from tactile_rig.rig.episodes import outcome_matches, params_for
+from tactile_rig.rig.episodes._devices import Devices
 from tactile_rig.rig.episodes._grasp_probe import frame_period_s, grasp_probe
 from tactile_rig.rig.scene_runner import EpisodeContext, EpisodeReport
 
 
 def run_episode(ctx: EpisodeContext) -> EpisodeReport:
+    devices = Devices(ctx)
+    try:
+        return _run(ctx, devices)
+    finally:
+        devices.close()
+
+
+def _run(ctx: EpisodeContext, devices: Devices) -> EpisodeReport:
     obj = ctx.model("object")
-    gripper = ctx.model("gripper")
+    if ctx.controller.get("gripper") == "dynamixel":
+        gripper = devices.gripper(effort=float(ctx.controller.get("effort", 0.5)))
+    else:
+        gripper = ctx.model("gripper")
     period = frame_period_s(ctx.sensor)
     probe = grasp_probe(obj, period, slip_threshold_mm=float(ctx.controller.get("slip_threshold_mm", 0.05)))
     sensor = ctx.make_sensor(probe)
-    params = params_for(HandoverParams, {"open_m": gripper.opening_at(ctx.clock.now_s()), **ctx.controller})
+    params = params_for(HandoverParams, {"open_m": gripper.state().opening_m, **ctx.controller})
     ctrl = Handover(gripper, sensor, ctx.clock, params)
     res = ctrl.run()
     still = ctx.settle_and_check_still(grippers=[gripper])

@@ -8,13 +8,22 @@ from __future__ import annotations
 
 from tactile_rig.control.inhand import InHandRotation, InHandRotationParams
 from tactile_rig.rig.episodes import outcome_matches, params_for
+from tactile_rig.rig.episodes._devices import Devices
 from tactile_rig.rig.episodes._grasp_probe import frame_period_s, grasp_probe
 from tactile_rig.rig.scene_runner import EpisodeContext, EpisodeReport
 
 
 def run_episode(ctx: EpisodeContext) -> EpisodeReport:
+    devices = Devices(ctx)
+    try:
+        return _run(ctx, devices)
+    finally:
+        devices.close()
+
+
+def _run(ctx: EpisodeContext, devices: Devices) -> EpisodeReport:
     obj = ctx.model("object")
-    gripper = ctx.model("gripper")
+    gripper = devices.pick_gripper()
     c = ctx.controller
     probe = grasp_probe(obj, frame_period_s(ctx.sensor))
     sensor = ctx.make_sensor(probe)

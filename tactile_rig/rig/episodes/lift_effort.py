@@ -9,20 +9,30 @@ from __future__ import annotations
 
 from tactile_rig.control.lift_effort import LiftEffortParams, MinimalLiftEffort
 from tactile_rig.rig.episodes import outcome_matches, params_for
+from tactile_rig.rig.episodes._devices import Devices
 from tactile_rig.rig.episodes._grasp_probe import frame_period_s, grasp_probe
 from tactile_rig.rig.scene_runner import EpisodeContext, EpisodeReport
 
 
 def run_episode(ctx: EpisodeContext) -> EpisodeReport:
+    devices = Devices(ctx)
+    try:
+        return _run(ctx, devices)
+    finally:
+        devices.close()
+
+
+def _run(ctx: EpisodeContext, devices: Devices) -> EpisodeReport:
     obj = ctx.model("object")
-    gripper = ctx.model("gripper")
+    gripper = devices.pick_gripper()
     arm = ctx.model("arm")
     sensor = ctx.make_sensor(grasp_probe(obj, frame_period_s(ctx.sensor)))
     params = params_for(LiftEffortParams, ctx.controller)
     ctrl = MinimalLiftEffort(gripper, arm, sensor, ctx.clock, params)
     res = ctrl.run()
     still = ctx.settle_and_check_still([arm], [gripper])
-    stall = gripper.stall_force_n
+    # the squeeze at effort 1: the sim gripper's stall force, or the MX-64's current limit × N/A
+    stall = getattr(gripper, "stall_force_n", None) or gripper.current_limit_a * ctx.model("fingers").force_per_a_n
     e_hold = obj.min_squeeze_n(0.0) / stall
     e_lift = obj.min_squeeze_n(arm.accel_mmps2 / 1000.0) / stall
     effort = res.figures.get("effort", float("nan"))

@@ -1,0 +1,113 @@
+"""Pure pieces of the controllers: eq. 3.3, the insertion transform chain and velocity law, the
+following law's frame rotations, the perception-result adapter."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from tactile_rig.control.common import as_touch
+from tactile_rig.control.following import Following, FollowingParams, rotate_xy
+from tactile_rig.control.grasp import LeakyIntegrator
+from tactile_rig.control.insertion import gripper_goal, invert, matrix_to_pose, pose_to_matrix, velocity_command
+from tactile_rig.control.protocols import Pose, TouchReading
+
+mm = st.floats(-500.0, 500.0)
+deg = st.floats(-180.0, 180.0)
+poses = st.builds(Pose, mm, mm, mm, deg)
+
+
+@given(gain=st.floats(0.0, 1.0), leak=st.floats(0.0, 50.0), g_max=st.floats(0.0, 0.1),
+       drives=st.lists(st.tuples(st.sampled_from([-1.0, 0.0, 1.0]), st.floats(0.0, 0.5)), max_size=60))
+def test_the_leaky_integrator_stays_in_its_bounds_and_only_grows_when_driven(gain, leak, g_max, drives) -> None:
+    li = LeakyIntegrator(gain, leak, g_max_m=g_max)
+    for u, dt in drives:
+        before = li.g_m
+        g = li.step(u, dt)
+        assert 0.0 <= g <= g_max and math.isfinite(g)
+        if u <= 0:
+            assert g <= before + 1e-15  # no drive: it can only hold or leak
+        if u > 0 and leak == 0:
+            assert g >= before
+
+
+def test_the_leak_decays_the_integrator_geometrically_and_bad_steps_are_refused() -> None:
+    li = LeakyIntegrator(1.0, leak_per_s=2.0)
+    li.step(1.0, 0.01)
+    g0 = li.g_m
+    for _ in range(100):
+        li.step(0.0, 0.01)
+    assert li.g_m == pytest.approx(g0 * 0.98 ** 100)
+    with pytest.raises(ValueError, match="dt_s"):
+        li.step(1.0, math.nan)
+    with pytest.raises(ValueError, match="gain_mps"):
+        LeakyIntegrator(-1.0)
+
+
+@given(goal=poses, m_T_o=poses, g_T_m=poses)
+def test_the_transform_chain_puts_the_object_on_the_goal(goal, m_T_o, g_T_m) -> None:
+    b_T_g = gripper_goal(goal, m_T_o, g_T_m)
+    b_T_o = pose_to_matrix(b_T_g) @ pose_to_matrix(g_T_m) @ pose_to_matrix(m_T_o)
+    np.testing.assert_allclose(b_T_o, pose_to_matrix(goal), atol=1e-6)
+    np.testing.assert_allclose(invert(invert(pose_to_matrix(goal))), pose_to_matrix(goal), atol=1e-9)
+    back = matrix_to_pose(pose_to_matrix(goal))
+    assert math.cos(math.radians(back.theta_deg - goal.theta_deg)) == pytest.approx(1.0)
+
+
+@given(q=poses, goal=poses, speed=st.floats(0.1, 500.0))
+def test_the_velocity_law_has_the_commanded_speed_toward_the_goal(q, goal, speed) -> None:
+    v = velocity_command(q, goal, speed)
+    e = np.array([goal.x_mm - q.x_mm, goal.y_mm - q.y_mm, goal.z_mm - q.z_mm, goal.theta_deg - q.theta_deg])
+    if np.linalg.norm(e) < 1e-9:
+        assert v == (0.0, 0.0, 0.0, 0.0)
+        return
+    assert np.linalg.norm(v) == pytest.approx(speed)
+    assert float(np.dot(v, e)) == pytest.approx(speed * np.linalg.norm(e))
+    assert velocity_command(goal, goal, speed) == (0.0, 0.0, 0.0, 0.0)
+
+
+@given(fx=st.floats(-5, 5), fy=st.floats(-5, 5), mount=deg)
+def test_force_following_undoes_the_sensor_rotation(fx, fy, mount) -> None:
+    """A shear (fx, fy) in end-effector axes, seen by a sensor mounted at ``mount``, commands the
+    same velocity as an unrotated sensor seeing (fx, fy)."""
+    plain = Following(None, None, None, FollowingParams(mode="force", deadband_n=0.1))  # type: ignore[arg-type]
+    rotated = Following(None, None, None, FollowingParams(mode="force", deadband_n=0.1,  # type: ignore[arg-type]
+                                                          sensor_rotation_deg=mount))
+    sx, sy = rotate_xy(fx, fy, -mount)
+    v0 = plain.velocity_mmps(TouchReading(0.0, force_n=(fx, fy, 1.0)))
+    v1 = rotated.velocity_mmps(TouchReading(0.0, force_n=(sx, sy, 1.0)))
+    assert v1 == pytest.approx(v0, abs=1e-9)
+    if math.hypot(fx, fy) <= 0.1:
+        assert v0 == (0.0, 0.0)
+    else:  # it moves along the force, never faster than the cap
+        assert v0[0] * fx + v0[1] * fy > 0
+        assert math.hypot(*v0) <= 50.0 + 1e-9
+
+
+@given(cx=st.floats(0, 160), cy=st.floats(0, 120), rot=deg)
+def test_proximity_following_moves_toward_the_object_seen_in_a_rotated_image(cx, cy, rot) -> None:
+    f = Following(None, None, None, FollowingParams(mode="proximity", image_rotation_deg=rot))  # type: ignore[arg-type]
+    vx, vy = f.velocity_mmps(TouchReading(0.0, object_centroid_px=(cx, cy)))
+    dx, dy = cx - 80.0, cy - 60.0
+    if math.hypot(dx, dy) <= 2.0:
+        assert (vx, vy) == (0.0, 0.0)
+    else:
+        ex, ey = rotate_xy(dx, dy, rot)
+        assert vx * ex + vy * ey > 0
+    assert f.velocity_mmps(TouchReading(0.0)) == (0.0, 0.0)  # nothing in view: hold still
+
+
+def test_a_fingervision_like_result_adapts_and_junk_is_a_type_error() -> None:
+    fv = SimpleNamespace(t_s=1.5, force_px=np.array([0.1, -0.2, 0.3]), torque_px2=np.array([0, 0, 2.0]),
+                         slip=True, slip_magnitude_px=1.25, object_area_px=100.0,
+                         object_centroid_px=(3.0, 4.0), object_orientation_deg=12.0)
+    r = as_touch(fv)
+    assert r.force_n == pytest.approx((0.1, -0.2, 0.3)) and r.torque_nmm[2] == 2.0
+    assert r.slip and r.slip_mm == 1.25 and r.contact and r.t_s == 1.5
+    with pytest.raises(TypeError, match="TouchReading"):
+        as_touch(object())
