@@ -121,3 +121,30 @@ def test_unplug_reopen_and_give_up(rig):
     with pytest.raises(NotConnected):
         for _ in range(100):
             cam.read(timeout_s=2.0)
+
+
+def test_replugged_camera_that_refuses_controls_is_reported_to_the_reader(rig):
+    clock, sim, src, cam = rig
+    cam.open()
+    cam.read(timeout_s=2.0)
+    sim.ignore_controls = {"gain"}  # the replugged unit has firmware that ignores gain
+    cam.config.controls = {"auto_exposure": 1, "gain": 10}
+    sim.unplug(clock.now_s(), clock.now_s() + 0.05)
+    with pytest.raises(ControlReadbackError, match="gain=10"):
+        for _ in range(100):
+            cam.read(timeout_s=2.0)
+
+
+@pytest.mark.hw
+def test_real_camera_locks_and_streams():
+    """On the bench: the first C310 found by discovery, opened by its stable path."""
+    from tactile_rig.drivers.discovery import discover
+
+    cams = [d for d in discover() if d.kind == "camera_c310" and (d.by_id or d.video)]
+    if not cams:
+        pytest.skip("no Logitech C310 plugged in")
+    path = (cams[0].by_id or cams[0].video)[0]
+    with FingertipCamera(path, CameraConfig(width=640, height=480, fps=30)) as cam:
+        frames = [cam.read(timeout_s=2.0) for _ in range(30)]
+    assert all(f.image.shape == (480, 640, 3) for f in frames)
+    assert cam.stats.measured_fps > 20

@@ -153,6 +153,18 @@ def test_grazing_normals_saturate_as_a_sensor_clips():
     assert np.array_equal(frame, expected.astype(np.uint8))
 
 
+@pytest.mark.parametrize("shape_px, mm_per_px", [((240, 320), 0.0634), ((250, 333), 0.05)])
+def test_coarse_grid_shading_matches_full_resolution(shape_px, mm_per_px):
+    r = GelSightRenderer("gsmini", mm_per_px, shape_px=shape_px, noise_sigma=0.0)
+    part = usb_connector_part(0.05)
+    h = pressed_indentation_mm(view_in_sensor(part, shape_px, mm_per_px, 1.0, -0.5, 20.0), 0.5, part.max_height_mm)
+    exact = cv2.GaussianBlur(np.minimum(h, 1.0), (0, 0), 0.6 / mm_per_px, borderType=cv2.BORDER_REPLICATE)
+    assert np.abs(r.gel_surface_mm(h) - exact).max() < 0.01 * exact.max()
+    full, quick = r.shading_bgr(exact), r.shading_for(h)
+    assert np.abs(full).max() > 20  # there is something to compare
+    assert np.abs(full - quick).max() < 2.0 and np.abs(full - quick).mean() < 0.2  # grey levels
+
+
 def test_elastomer_smooths_sharp_edges():
     r_sharp = GelSightRenderer("taxim", MM_PER_PX, smoothing_mm=0.0, noise_sigma=0.0)
     r_soft = GelSightRenderer("taxim", MM_PER_PX, smoothing_mm=0.6, noise_sigma=0.0)

@@ -339,7 +339,8 @@ class FingertipCamera:
                 last = exc
                 continue
             self.stats.reopens += 1
-            self._last_crc, self._same_run = None, 0
+            # A new stream: its device clock and counter start afresh.
+            self._last_crc, self._last_t_dev, self._last_dev_seq, self._same_run = None, None, None, 0
             return
         err = NotConnected(f"gone and not back after {self.config.reopen.max_attempts} reopen attempts: {last}",
                            device=self.name)
@@ -354,8 +355,11 @@ class FingertipCamera:
             try:
                 if not self._pump(watchdog_s):
                     self.stats.timeouts += 1
-            except RigError:
-                return  # stored in self._error by _reopen; read() raises it
+            except RigError as exc:  # gave up reopening, or the replugged camera refused its controls
+                with self._cond:
+                    self._error = self._error or exc
+                    self._cond.notify_all()
+                return
             except Exception as exc:  # noqa: BLE001  (surface any backend failure to the reader)
                 with self._cond:
                     self._error = NotConnected(f"capture failed: {exc!r}", device=self.name)

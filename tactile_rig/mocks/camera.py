@@ -225,7 +225,7 @@ class SimulatedCamera:
     def set_format(self, fourcc: str, width: int, height: int, fps: float) -> tuple[str, int, int, float]:
         self._check()
         key = (fourcc, int(width), int(height))
-        if key not in self.modes:  # the driver snaps to the closest mode of that fourcc (or any)
+        if key not in self.modes:  # uvcvideo snaps to the closest mode of that fourcc (or any)
             cands = [m for m in self.modes if m[0] == fourcc] or list(self.modes)
             key = min(cands, key=lambda m: abs(m[1] * m[2] - int(width) * int(height)))
         self.fourcc, self.width, self.height = key

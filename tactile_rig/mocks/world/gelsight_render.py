@@ -246,8 +246,8 @@ class GelSightRenderer:
         f = downsample_factor(sigma_px)
         if f == 1:
             return self.shading_bgr(gaussian_smooth(h, sigma_px) if sigma_px > 0.3 else h)
-        small = _blur_small(h, sigma_px, f)
-        return _upsample(self.lighting.shade(*surface_gradients(small, self.mm_per_px * f)), f, self.shape_px)
+        small, margin = _blur_small(h, sigma_px, f)
+        return _upsample(self.lighting.shade(*surface_gradients(small, self.mm_per_px * f)), f, margin, self.shape_px)
 
     def shading_bgr(self, surface_mm: np.ndarray) -> np.ndarray:
         """BGR change (float32) that the LEDs make for a gel surface."""
@@ -277,22 +277,29 @@ class GelSightRenderer:
         return self.render(ind), ind
 
 
-def _blur_small(img: np.ndarray, sigma_px: float, f: int) -> np.ndarray:
-    """``img`` (padded to a multiple of ``f``) averaged down by ``f`` and blurred so that, upsampled
-    again, it matches a Gaussian of ``sigma_px`` at full resolution."""
+def _blur_small(img: np.ndarray, sigma_px: float, f: int) -> tuple[np.ndarray, int]:
+    """``img`` averaged down by ``f`` and blurred so that, upsampled again, it matches a Gaussian of
+    ``sigma_px`` at full resolution; returns (small image, margin in small pixels).
+
+    The full image is first padded by ~3σ (replicating its edge, like the full-resolution blur's
+    border rule), so the coarse grid's own border handling never reaches the picture.
+    """
     rows, cols = img.shape
-    pad_r, pad_c = (-rows) % f, (-cols) % f
-    padded = cv2.copyMakeBorder(img, 0, pad_r, 0, pad_c, cv2.BORDER_REPLICATE) if (pad_r or pad_c) else img
+    m = int(math.ceil(3.0 * sigma_px / f))  # margin in small pixels
+    pad = m * f
+    padded = cv2.copyMakeBorder(img, pad, pad + (-rows) % f, pad, pad + (-cols) % f, cv2.BORDER_REPLICATE)
     small = cv2.resize(padded, (padded.shape[1] // f, padded.shape[0] // f), interpolation=cv2.INTER_AREA)
     # The box average and the bilinear upsampling each add blur (variance ~ f²/12 px² each).
     sigma_small = math.sqrt(max(sigma_px**2 - f * f / 6.0, (0.5 * f) ** 2)) / f
-    return cv2.GaussianBlur(small, (0, 0), sigma_small, borderType=cv2.BORDER_REPLICATE)
+    return cv2.GaussianBlur(small, (0, 0), sigma_small, borderType=cv2.BORDER_REPLICATE), m
 
 
-def _upsample(small: np.ndarray, f: int, shape_px: tuple[int, int]) -> np.ndarray:
+def _upsample(small: np.ndarray, f: int, margin: int, shape_px: tuple[int, int]) -> np.ndarray:
+    """Back to full resolution (pixel-centre aligned) and cropped to ``shape_px``."""
     rows, cols = shape_px
     up = cv2.resize(small, (small.shape[1] * f, small.shape[0] * f), interpolation=cv2.INTER_LINEAR)
-    return up[:rows, :cols]
+    pad = margin * f
+    return up[pad:pad + rows, pad:pad + cols]
 
 
 def downsample_factor(sigma_px: float) -> int:
@@ -307,16 +314,29 @@ def gaussian_smooth(img: np.ndarray, sigma_px: float) -> np.ndarray:
     f = downsample_factor(sigma_px)
     if f == 1:
         return cv2.GaussianBlur(img, (0, 0), sigma_px, borderType=cv2.BORDER_REPLICATE)
-    return _upsample(_blur_small(img, sigma_px, f), f, img.shape)
+    small, margin = _blur_small(img, sigma_px, f)
+    return _upsample(small, f, margin, img.shape)
 
 
 def surface_gradients(surface_mm: np.ndarray, mm_per_px: float) -> tuple[np.ndarray, np.ndarray]:
-    """Central-difference gradients (gx along columns, gy along rows) in mm/mm; 0 on the border."""
-    scale = np.float32(1.0 / (2.0 * mm_per_px))
-    gx = np.zeros_like(surface_mm, dtype=np.float32)
-    gy = np.zeros_like(surface_mm, dtype=np.float32)
-    gx[:, 1:-1] = (surface_mm[:, 2:] - surface_mm[:, :-2]) * scale
-    gy[1:-1, :] = (surface_mm[2:, :] - surface_mm[:-2, :]) * scale
+    """Gradients (gx along columns, gy along rows) in mm/mm: central differences, one-sided on the
+    border (as ``np.gradient``), float32."""
+    s = np.asarray(surface_mm, dtype=np.float32)
+    gx = np.empty_like(s)
+    gy = np.empty_like(s)
+    inv = np.float32(1.0 / mm_per_px)
+    if s.shape[1] >= 2:
+        gx[:, 1:-1] = (s[:, 2:] - s[:, :-2]) * (inv / 2)
+        gx[:, 0] = (s[:, 1] - s[:, 0]) * inv
+        gx[:, -1] = (s[:, -1] - s[:, -2]) * inv
+    else:
+        gx[:] = 0.0
+    if s.shape[0] >= 2:
+        gy[1:-1, :] = (s[2:, :] - s[:-2, :]) * (inv / 2)
+        gy[0, :] = (s[1, :] - s[0, :]) * inv
+        gy[-1, :] = (s[-1, :] - s[-2, :]) * inv
+    else:
+        gy[:] = 0.0
     return gx, gy
 
 
