@@ -92,6 +92,7 @@ def test_readback_failure_is_loud(controls, fragment):
     cam.config.controls = controls
     with pytest.raises(ControlReadbackError, match=fragment.replace("(", r"\(")):
         cam.open()
+    assert not sim.is_open  # a half-configured camera is closed again
 
 
 def test_firmware_that_ignores_a_control_is_caught():

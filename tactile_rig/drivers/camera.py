@@ -22,6 +22,7 @@ close). :class:`OpenCVSource` is the hardware path (``cv2.VideoCapture(path, cv2
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 import zlib
@@ -197,8 +198,6 @@ class FingertipCamera:
         overrides = {k: v for k, v in (("fourcc", fourcc), ("width", width), ("height", height), ("fps", fps),
                                        ("controls", controls)) if v is not None}
         if overrides:
-            import dataclasses
-
             config = dataclasses.replace(config, **overrides)
         self.config = config
         self.clock: Clock = clock or RealClock()
@@ -217,6 +216,7 @@ class FingertipCamera:
         self._error: BaseException | None = None
         self._thread: threading.Thread | None = None
         self._running = False
+        self._discard = 0
 
     # -- lifecycle --------------------------------------------------------------------------
     def open(self) -> FingertipCamera:
@@ -247,6 +247,13 @@ class FingertipCamera:
 
     def _open_and_configure(self) -> None:
         self.source.open()
+        try:
+            self._configure()
+        except BaseException:
+            self.source.close()  # a half-configured camera must not stay open
+            raise
+
+    def _configure(self) -> None:
         cfg = self.config
         got = self.source.set_format(cfg.fourcc, cfg.width, cfg.height, cfg.fps)
         want = (cfg.fourcc, cfg.width, cfg.height)
@@ -257,9 +264,9 @@ class FingertipCamera:
             raise ControlReadbackError(f"fps {cfg.fps} was not accepted; the camera runs {got[3]}", device=self.name)
         self.format = (got[0], int(got[1]), int(got[2]), float(got[3]))
         self.apply_controls(cfg.controls)
-        for _ in range(cfg.warmup_frames):
-            if self.source.read(1.0 / cfg.fps * 4) is None:
-                break
+        # The first frames after a change may still use the old settings; they are dropped by the
+        # capture path (not read here: an OpenCV read could block open() forever).
+        self._discard = cfg.warmup_frames
 
     def apply_controls(self, controls: dict[str, float]) -> dict[str, float]:
         """Write ``controls`` (auto switches first), read each back; raise listing every mismatch."""
@@ -319,7 +326,10 @@ class FingertipCamera:
             return False
         if raw is None:
             return False
-        self._accept(raw)
+        if self._discard > 0:
+            self._discard -= 1
+        else:
+            self._accept(raw)
         return True
 
     def _reopen(self, cause: BaseException) -> None:
