@@ -21,7 +21,7 @@ class LiftEffortParams:
     """Parameters (SI units; efforts are fractions of the gripper's current limit)."""
 
     effort_start: float = 0.6  # a safe effort that is expected to hold
-    effort_floor: float = 0.005  # below this the search gives up (the object weighs nothing?)
+    effort_floor: float = 0.002  # the least effort tried (the object weighs next to nothing)
     ratio_tol: float = 1.05  # stop when holding/slipping efforts are within this ratio
     lift_mm: float = 8.0
     lift_speed_mps: float = 0.01
@@ -81,9 +81,9 @@ class MinimalLiftEffort:
                 return self._result(Outcome.FAILED, math.nan, f"slips even at effort {hi}")
             lo = None
             while lo is None:
-                e = hi / 2.0
-                if e < self.p.effort_floor:
+                if hi <= self.p.effort_floor:
                     return self._result(Outcome.SUCCESS, hi, "holds at the floor effort")
+                e = max(hi / 2.0, self.p.effort_floor)
                 if self.step(e):
                     lo = e
                 else:

@@ -36,6 +36,12 @@ def _run(ctx: EpisodeContext, devices: Devices) -> EpisodeReport:
     e_hold = obj.min_squeeze_n(0.0) / stall
     e_lift = obj.min_squeeze_n(arm.accel_mmps2 / 1000.0) / stall
     effort = res.figures.get("effort", float("nan"))
+    if hasattr(gripper, "current_limit_a") and effort == effort:
+        # the MX-64 applies a whole number of 3.36 mA current units: judge the effort it applied
+        from tactile_rig.drivers.dynamixel import control_table as ct
+
+        unit = ct.P2_CURRENT_A_PER_UNIT
+        effort = round(effort * gripper.current_limit_a / unit) * unit / gripper.current_limit_a
     ratio = effort / e_lift
     figures = {"effort": effort, "true_min_effort": e_lift, "hold_min_effort": e_hold,
                "effort_over_min": ratio, "lifts": res.figures.get("lifts", 0.0), "still_after": float(still)}
