@@ -53,14 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMAND_MODULES:
-        try:
-            module = importlib.import_module(f"tactile_rig.cli.{name}")
-        except ModuleNotFoundError as exc:
-            # A command group still under construction is simply absent from the CLI.
-            if exc.name == f"tactile_rig.cli.{name}":
-                continue
-            raise
-        module.register(sub)
+        importlib.import_module(f"tactile_rig.cli.{name}").register(sub)
     return parser
 
 
