@@ -38,6 +38,7 @@ FULL = {
     "inhand_rotation_dynamixel": 20, "lift_effort": 100, "lift_effort_dynamixel": 20, "insertion": 108,
     "following_force": 50, "following_proximity": 50, "following_jig": 20, "torque_rotation": 200,
     "torque_rotation_jig": 20, "stick_assembly": 50, "stick_assembly_hx711": 10,
+    "following_proximity_rendered": 10,
 }
 FAULTS_FULL = 30
 

@@ -64,3 +64,10 @@ def test_insertion_runs_on_a_real_clock_with_its_simulated_arm() -> None:
                                "arm": {"start_mm": [95.0, 40.0, 8.0, 30.0], "accel_mps2": 5.0, "decel_mps2": 5.0},
                                "part": {"grasp_offset_mm": 0.0, "grasp_theta_deg": 0.0, "grasp_y_mm": 0.0}})
     assert r.outcome == "success" and r.ok, r.message
+
+
+def test_proximity_following_closes_the_loop_through_the_renderer_and_the_real_processor() -> None:
+    r = run_episode("following_proximity_rendered", 1, overrides={"controller": {"duration_s": 4.0},
+                    "hand": {"path_mm": [[0.0, 0.0, 0.0, 0.0], [0.3, 0.0, 0.0, 0.0], [2.0, 8.0, -6.0, 0.0]]}})
+    assert r.figures["final_error_mm"] <= 1.0 and r.figures["max_lag_mm"] <= 5.0
+    assert r.ok, r.message

@@ -203,4 +203,4 @@ def _fingervision(args: argparse.Namespace) -> int:
     return _run(args, rig, lambda rig: fingervision_session(rig.devices[cam], args.out, frames=args.frames,
                                                             guide=_guide(args)), lambda r: (
         f"FingerVision: {r['valid_markers']}/{r['markers']} stable markers, median jitter "
-        f"{r['median_marker_jitter_px']} px"))
+        f"{'n/a' if r['median_marker_jitter_px'] is None else format(r['median_marker_jitter_px'], '.3f')} px"))

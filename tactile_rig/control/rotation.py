@@ -28,6 +28,7 @@ class TorqueRotationParams:
     sensing_rate_hz: float = 30.0
     latency_s: float = 0.0
     stop_latency_s: float = 0.0
+    decel_dps2: float = math.inf  # the θ axis's braking deceleration (°/s²)
     torsion_stiffness_nmm_per_deg: float | None = None  # known: adds ε/k to the overturn budget
     frame_timeout_s: float = 0.5
     timeout_s: float = 60.0
@@ -50,7 +51,7 @@ class TorqueRotation:
         det = self.p.torque_eps_nmm / self.p.torsion_stiffness_nmm_per_deg if self.p.torsion_stiffness_nmm_per_deg else 0.0
         return 1000.0 * collision_speed_cap_mps(self.p.allowed_overturn_deg, self.p.sensing_rate_hz,
                                                 self.p.latency_s, stop_latency_s=self.p.stop_latency_s,
-                                                detection_travel_mm=det)
+                                                decel_mps2=self.p.decel_dps2 / 1000.0, detection_travel_mm=det)
 
     def step(self) -> bool:
         r = read_touch(self.sensor, self.clock, self.p.frame_timeout_s)

@@ -60,9 +60,30 @@ class StickAssembly:
         self.p = params or StickAssemblyParams()
         self.trace = Trace()
         self.figures: dict[str, float] = {}
+        self._phase = 0
 
-    def step(self) -> None:  # the phases below are the steps; kept for the controller interface
-        raise NotImplementedError("StickAssembly runs as a sequence: call run()")
+    PHASES = ("centre", "scan", "find_table", "press")
+
+    def step(self) -> str | None:
+        """Run the next phase; returns its name, or None when all are done."""
+        if self._phase >= len(self.PHASES):
+            return None
+        name = self.PHASES[self._phase]
+        if name == "centre":
+            self.figures["centre_offset_px"] = self.centre()
+        elif name == "scan":
+            self.figures["grasp_x_mm"] = self.scan()
+        elif name == "find_table":
+            res = self.find_table()
+            if res.outcome is Outcome.FAULT:
+                raise _Faulted(res)
+            if res.outcome is not Outcome.SUCCESS:
+                raise _Fail(f"no table found: {res.message}")
+            self.figures["table_z_mm"] = res.contact_pose.z_mm if res.contact_pose else math.nan  # type: ignore[attr-defined]
+        else:
+            self.figures["final_load_n"] = self.press()
+        self._phase += 1
+        return name
 
     # -- phases -------------------------------------------------------------------------------------
     def centre(self) -> float:
@@ -133,16 +154,12 @@ class StickAssembly:
         return guarded(self._run, self.trace, motion=self.motion, gripper=self.gripper, gripper_action="hold")
 
     def _run(self) -> ControllerResult:
+        self._phase = 0
         try:
-            self.figures["centre_offset_px"] = self.centre()
-            self.figures["grasp_x_mm"] = self.scan()
-            res = self.find_table()
-            if res.outcome is Outcome.FAULT:
-                return ControllerResult(Outcome.FAULT, self.trace, self.figures, res.message, res.fault_device)
-            if res.outcome is not Outcome.SUCCESS:
-                raise _Fail(f"no table found: {res.message}")
-            self.figures["table_z_mm"] = res.contact_pose.z_mm if res.contact_pose else math.nan  # type: ignore[attr-defined]
-            self.figures["final_load_n"] = self.press()
+            while self.step() is not None:
+                pass
+        except _Faulted as f:
+            return ControllerResult(Outcome.FAULT, self.trace, self.figures, f.result.message, f.result.fault_device)
         except _Fail as exc:
             self.motion.stop()
             return ControllerResult(Outcome.FAILED, self.trace, self.figures, str(exc))
@@ -152,3 +169,9 @@ class StickAssembly:
 
 class _Fail(Exception):
     pass
+
+
+class _Faulted(Exception):
+    def __init__(self, result: ControllerResult) -> None:
+        super().__init__(result.message)
+        self.result = result

@@ -535,5 +535,5 @@ def fingervision_session(camera: Any, out: str | Path, *, frames: int = 10, guid
               "background_histogram_bins": int(0 if bg_hist is None else np.size(bg_hist))}
     path, rpath = write_calibration(p.with_suffix(".json"), "fingervision", values, report,
                                     device=str(getattr(camera, "name", "camera")))
-    guide.say(f"FingerVision: {n_valid}/{n} stable markers, jitter {report['median_marker_jitter_px']} px -> {path}")
+    guide.say(f"FingerVision: {n_valid}/{n} stable markers -> {path}")
     return SessionOutcome("fingervision", path, rpath, {**values, **report}, {"npz": str(npz), "json": str(path)})

@@ -32,14 +32,16 @@ def _check_gradients(gx: np.ndarray, gy: np.ndarray) -> None:
 
 
 def _sanitise(g: np.ndarray, max_slope: float) -> np.ndarray:
-    """Slopes as float32, non-finite -> 0, clipped to +-max_slope (before the cast: no overflow)."""
+    """Slopes as a new float32 array (callers may modify it in place), non-finite -> 0, clipped to
+    +-max_slope (before the cast: no overflow)."""
     g = np.asarray(g)
     if g.dtype != np.float32:
         g = np.nan_to_num(g.astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
         return np.clip(g, -max_slope, max_slope).astype(np.float32)
     if not np.isfinite(g).all():
         g = np.nan_to_num(g, nan=0.0, posinf=0.0, neginf=0.0)
-    return cv2.min(cv2.max(g, -float(max_slope)), float(max_slope))
+    out = cv2.max(g, -float(max_slope))
+    return cv2.min(out, float(max_slope), dst=out)
 
 
 @dataclass(frozen=True)
@@ -122,6 +124,7 @@ class HeightMapper:
             kx = 2.0 * np.cos(np.pi * np.arange(w) / w) - 2.0
             d = ky[:, None] + kx[None, :]
             d[0, 0] = 1.0  # the mean is free under Neumann conditions; fixed to 0 below
+            self._dct_scale = (0.5 / d).astype(np.float32)  # a multiply is cheaper than a divide
             return d.astype(np.float32)
         wy = 2.0 * np.pi * sfft.fftfreq(h)
         wx = 2.0 * np.pi * sfft.rfftfreq(w)
@@ -141,22 +144,24 @@ class HeightMapper:
         if gx.shape != self.shape:
             raise ValueError(f"gradient shape {gx.shape} does not match the mapper's shape {self.shape}")
         p = self.params
+        if mask is not None and mask.shape != self.shape:
+            raise ValueError(f"mask shape {mask.shape} does not match {self.shape}")
+        # Fresh float32 copies from here on: every step below works in place (no temporaries).
         gx = _sanitise(gx, p.max_slope)
         gy = _sanitise(gy, p.max_slope)
         if mask is not None:
-            if mask.shape != self.shape:
-                raise ValueError(f"mask shape {mask.shape} does not match {self.shape}")
-            gx = np.where(mask, gx, np.float32(0))
-            gy = np.where(mask, gy, np.float32(0))
+            np.multiply(gx, mask, out=gx)
+            np.multiply(gy, mask, out=gy)
         if self._border is not None:
-            gx = gx * self._border
-            gy = gy * self._border
+            gx *= self._border
+            gy *= self._border
         if self._k > 1:
             size = (self._small[1], self._small[0])
             gx = cv2.resize(gx, size, interpolation=cv2.INTER_AREA)
             gy = cv2.resize(gy, size, interpolation=cv2.INTER_AREA)
-        px = gx * self._sx
-        py = gy * self._sy
+        gx *= self._sx
+        gy *= self._sy
+        px, py = gx, gy
         solver = p.solver
         if solver == "dst":
             z = self._solve_dst(px, py)
@@ -183,19 +188,22 @@ class HeightMapper:
     def _solve_dct(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
         # Slopes live on the half-pixel between samples; outside flux is the given border slope,
         # which makes the Neumann problem consistent with a DCT-II diagonalisation.
+        # The common factor 0.5 of the central differences is folded into the eigenvalues.
         f = np.empty_like(px)
-        f[:, 1:-1] = 0.5 * (px[:, 2:] - px[:, :-2])
-        f[:, 0] = 0.5 * (px[:, 1] + px[:, 0])
-        f[:, -1] = -0.5 * (px[:, -1] + px[:, -2])
-        fy = np.empty_like(py)
-        fy[1:-1, :] = 0.5 * (py[2:, :] - py[:-2, :])
-        fy[0, :] = 0.5 * (py[1, :] + py[0, :])
-        fy[-1, :] = -0.5 * (py[-1, :] + py[-2, :])
-        f += fy
-        t = sfft.dctn(f, type=2, norm="ortho", workers=1)
-        t /= self._denom
+        np.subtract(px[:, 2:], px[:, :-2], out=f[:, 1:-1])
+        np.add(px[:, 1], px[:, 0], out=f[:, 0])
+        np.add(px[:, -1], px[:, -2], out=f[:, -1])
+        f[:, -1] *= -1.0
+        f[1:-1, :] += py[2:, :]
+        f[1:-1, :] -= py[:-2, :]
+        f[0, :] += py[1, :]
+        f[0, :] += py[0, :]
+        f[-1, :] -= py[-1, :]
+        f[-1, :] -= py[-2, :]
+        t = sfft.dctn(f, type=2, norm="ortho", workers=1, overwrite_x=True)
+        t *= self._dct_scale
         t[0, 0] = 0.0
-        return sfft.idctn(t, type=2, norm="ortho", workers=1)
+        return sfft.idctn(t, type=2, norm="ortho", workers=1, overwrite_x=True)
 
     def _solve_fc(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
         fx = sfft.rfft2(px, workers=1)

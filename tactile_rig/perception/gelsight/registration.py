@@ -55,7 +55,9 @@ class RegistrationParams:
     """Knobs (measured in docs/gelsight.md).
 
     detector: "brisk", "orb" or "both" (keypoints of both pooled); brisk_threshold / orb_features:
-    detector sensitivity; detect_scale: keypoints are found on the map resized by this factor (the
+    detector sensitivity; orb_levels / orb_scale / orb_fast_threshold: ORB pyramid levels, scale step
+    between them and FAST threshold (fewer levels or a higher threshold detect faster but refuse more
+    independent touches, see docs/gelsight.md); detect_scale: keypoints are found on the map resized by this factor (the
     dense polish restores full-resolution accuracy); None picks the factor that makes the short side
     ``detect_short_px``; band_px: (fine, coarse) Gaussian sigmas of the band-pass rendering;
     ransac_iters: two-pair samples; inlier_px: RANSAC residual threshold; min_inliers: fewer is a
@@ -69,6 +71,9 @@ class RegistrationParams:
     brisk_threshold: int = 20
     brisk_octaves: int = 3
     orb_features: int = 300
+    orb_levels: int = 8
+    orb_scale: float = 1.2
+    orb_fast_threshold: int = 5
     detect_scale: float | None = None
     detect_short_px: int = 160
     band_px: tuple[float, float] = (0.0, 4.0)
@@ -93,6 +98,9 @@ class RegistrationParams:
             raise ValueError(f"detect_scale must be None (auto) or in [0.1, 4], got {self.detect_scale!r}")
         if self.ransac_iters < 1 or self.min_inliers < 2:
             raise ValueError("ransac_iters must be >= 1 and min_inliers >= 2")
+        if self.orb_levels < 1 or not self.orb_scale > 1.0 or self.orb_fast_threshold < 0:
+            raise ValueError(f"orb_levels must be >= 1, orb_scale > 1 and orb_fast_threshold >= 0, got "
+                             f"{self.orb_levels!r}, {self.orb_scale!r}, {self.orb_fast_threshold!r}")
 
 
 _DETECTORS: dict[tuple, cv2.Feature2D] = {}
@@ -100,14 +108,16 @@ _DETECTORS: dict[tuple, cv2.Feature2D] = {}
 
 def _detector(name: str, params: "RegistrationParams") -> cv2.Feature2D:
     # Building BRISK's sampling pattern costs tens of ms: build each configuration once.
-    key = (name, params.brisk_threshold, params.brisk_octaves, params.orb_features)
+    key = (name, params.brisk_threshold, params.brisk_octaves, params.orb_features, params.orb_levels,
+           params.orb_scale, params.orb_fast_threshold)
     det = _DETECTORS.get(key)
     if det is None:
         if name == "brisk":
             make = cv2.BRISK_create if hasattr(cv2, "BRISK_create") else cv2.xfeatures2d.BRISK_create  # 4.x / 5.x
             det = make(params.brisk_threshold, params.brisk_octaves)
         else:
-            det = cv2.ORB_create(params.orb_features, edgeThreshold=15, patchSize=15, fastThreshold=5)
+            det = cv2.ORB_create(params.orb_features, scaleFactor=params.orb_scale, nlevels=params.orb_levels,
+                                 edgeThreshold=15, patchSize=15, fastThreshold=params.orb_fast_threshold)
         _DETECTORS[key] = det
     return det
 
@@ -119,7 +129,16 @@ def _check_height(h: object, name: str) -> np.ndarray:
         raise ValueError(f"{name}: expected a 2-D height map of at least 16x16 pixels, got shape {h.shape}")
     if not (np.issubdtype(h.dtype, np.floating) or np.issubdtype(h.dtype, np.integer)):
         raise ValueError(f"{name}: expected a real numeric dtype, got {h.dtype}")
-    return np.nan_to_num(h.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+    z = h if h.dtype == np.float32 else h.astype(np.float32)
+    # Clean float32 input (the common case) is used as is: nan_to_num would copy every call.
+    if not np.isfinite(z).all():
+        z = np.nan_to_num(z, nan=0.0, posinf=0.0, neginf=0.0)
+    return z
+
+
+def _ptp(z: np.ndarray) -> float:
+    lo, hi = cv2.minMaxLoc(z)[:2]
+    return float(hi - lo)
 
 
 def _blur(z: np.ndarray, sigma: float) -> np.ndarray:
@@ -137,22 +156,28 @@ def render_u8(height_mm: np.ndarray, band_px: tuple[float, float] = (0.0, 4.0),
     height itself, contrast-normalised per image (statistics over ``valid`` pixels when given, e.g.
     the covered part of a tactile map). Rotation-invariant (no directional shading), and a smooth
     dome gets a ring/blob structure that FAST-style detectors fire on."""
-    z = height_mm.astype(np.float32)
+    z = np.asarray(height_mm, np.float32)
     fine = cv2.GaussianBlur(z, (0, 0), band_px[0]) if band_px[0] > 0 else z
-    band = fine - _blur(z, band_px[1])
-    sel = (lambda x: x) if valid is None else (lambda x: x[valid])
-    base = z - float(sel(z).mean())
-    s_band = 4.0 * float(sel(band).std()) + 1e-12
-    s_z = 4.0 * float(sel(base).std()) + 1e-12
-    img = 0.8 * band / s_band + 0.2 * base / s_z
+    band = cv2.subtract(fine, _blur(z, band_px[1]))
+    m8 = None if valid is None else valid.astype(np.uint8)
+    z_mean, z_std = (float(v[0, 0]) for v in cv2.meanStdDev(z, mask=m8))
+    _, b_std = (float(v[0, 0]) for v in cv2.meanStdDev(band, mask=m8))
+    ka = 100.0 * 0.8 / (4.0 * b_std + 1e-12)
+    kz = 100.0 * 0.2 / (4.0 * z_std + 1e-12)
+    # 128 + 100 * (0.8 band / s_band + 0.2 (z - mean) / s_z), saturated to 8 bits, in two OpenCV passes.
+    img = cv2.addWeighted(band, ka, z, kz, 128.0 - kz * z_mean)
+    np.clip(img, 0, 255, out=img)
+    out = img.astype(np.uint8)  # truncation, as the 8-bit rendering always was
     if valid is not None:
-        img[~valid] = 0.0
-    return np.clip(128.0 + 100.0 * img, 0, 255).astype(np.uint8)
+        out[~valid] = 128
+    return out
 
 
 @dataclass
 class Features:
-    """Keypoint positions (N, 2) px and binary descriptors per detector, of one height map."""
+    """Keypoint positions (N, 2) px and binary descriptors per detector, of one height map, with
+    the checked float32 map itself (``height``) and its range (``ptp_mm``): :func:`register` given
+    these features and that very array skips re-checking it (treat the array as frozen)."""
 
     points: dict[str, np.ndarray] = field(default_factory=dict)
     descriptors: dict[str, np.ndarray] = field(default_factory=dict)
@@ -161,6 +186,9 @@ class Features:
     smooth: np.ndarray | None = None
     sample_xy: np.ndarray | None = None
     sample_z: np.ndarray | None = None
+    height: np.ndarray | None = None
+    ptp_mm: float = float("nan")
+    train_bits: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
 
 def detect_scale(params: "RegistrationParams", touch_shape: tuple[int, int]) -> float:
@@ -177,7 +205,8 @@ def extract_features(height_mm: np.ndarray, params: RegistrationParams = Registr
     resize factor (default from this map's own shape; pass the touch's for a large map)."""
     z = _check_height(height_mm, "height_mm")
     smooth = cv2.GaussianBlur(z, (0, 0), 1.0)
-    feats = Features(smooth=smooth)
+    # The checked map and its range ride along, so register() need not re-check a cached reference.
+    feats = Features(smooth=smooth, height=z, ptp_mm=_ptp(z))
     if dense:
         feats.sample_xy, feats.sample_z = _dense_samples(smooth, params.dense_samples, valid)
     k = detect_scale(params, z.shape) if scale is None else float(scale)
@@ -204,17 +233,48 @@ def extract_features(height_mm: np.ndarray, params: RegistrationParams = Registr
     return feats
 
 
+def _train_bits(desc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Train-side terms of the Hamming product: -2 x bits^T (bits, N) float32 and popcounts (N,)."""
+    t = np.unpackbits(desc, axis=1).astype(np.float32)
+    return np.ascontiguousarray(-2.0 * t.T), t.sum(1)
+
+
+def hamming_cross_matches(desc_q: np.ndarray, desc_t: np.ndarray,
+                          train_bits: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Cross-checked nearest neighbours of binary descriptors (N, bytes) uint8 under the Hamming
+    distance: (query indices, train indices), query order, ties to the lowest index — the same pairs
+    as ``cv2.BFMatcher(NORM_HAMMING, crossCheck=True).match(desc_q, desc_t)``. train_bits: the
+    cached ``_train_bits(desc_t)`` of a reference matched many times."""
+    if len(desc_q) == 0 or len(desc_t) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    # d(q, t) = |q| + |t| - 2 q.t on the unpacked bits: one float32 matrix product (exact: counts
+    # <= 8 * bytes) is about twice as fast as OpenCV's brute-force matcher on a few hundred points.
+    q = np.unpackbits(desc_q, axis=1).astype(np.float32)
+    neg2_tt, t_count = train_bits if train_bits is not None else _train_bits(desc_t)
+    d = q @ neg2_tt
+    d += q.sum(1)[:, None]
+    d += t_count[None, :]
+    best_t = d.argmin(1)
+    best_q = d.argmin(0)
+    qi = np.flatnonzero(best_q[best_t] == np.arange(len(q)))
+    return qi, best_t[qi]
+
+
 def _match(fa: Features, fb: Features) -> tuple[np.ndarray, np.ndarray]:
     pa, pb = [], []
-    matcher = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
     for name, da in fa.descriptors.items():
         db = fb.descriptors.get(name)
         if db is None or len(da) < 2 or len(db) < 2:
             continue
-        for m in matcher.match(db, da):
-            pb.append(fb.points[name][m.queryIdx])
-            pa.append(fa.points[name][m.trainIdx])
-    return np.array(pa, np.float64).reshape(-1, 2), np.array(pb, np.float64).reshape(-1, 2)
+        bits = fa.train_bits.get(name)
+        if bits is None:  # kept with A's features: a stored map is matched many times
+            bits = fa.train_bits[name] = _train_bits(da)
+        qi, ti = hamming_cross_matches(db, da, bits)
+        pb.append(fb.points[name][qi])
+        pa.append(fa.points[name][ti])
+    if not pa:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    return np.concatenate(pa).astype(np.float64), np.concatenate(pb).astype(np.float64)
 
 
 def rigid_fit(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
@@ -229,33 +289,48 @@ def rigid_fit(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     return np.hstack([r, (cd - r @ cs)[:, None]])
 
 
+_RANSAC_BLOCK = 64
+
+
 def ransac_rigid(src: np.ndarray, dst: np.ndarray, iters: int = 256, inlier_px: float = 2.0,
                  seed: int = 0) -> tuple[np.ndarray | None, np.ndarray]:
     """Two-pair sampling RANSAC (Li 2014): each sample of two matches fixes a rotation and a
-    translation; pairs whose lengths disagree are skipped. Returns (2x3 or None, inlier mask)."""
+    translation; pairs whose lengths disagree are skipped. Samples are scored in blocks of
+    ``_RANSAC_BLOCK``, stopping early once the best consensus makes a better one unlikely
+    (probability 1e-3 of never drawing two inliers); at most ``iters`` samples. Returns (2x3 or
+    None, inlier mask)."""
     n = len(src)
     if n < 2:
         return None, np.zeros(n, bool)
     rng = np.random.default_rng(seed)
     i = rng.integers(0, n, iters)
     j = rng.integers(0, n, iters)
-    vs = src[j] - src[i]
-    vd = dst[j] - dst[i]
-    ls, ld = np.hypot(vs[:, 0], vs[:, 1]), np.hypot(vd[:, 0], vd[:, 1])
+    # Points as complex numbers: a rotation is a unit complex factor, so every hypothesis and its
+    # residuals are a few complex array operations (no trigonometry).
+    zs = src[:, 0] + 1j * src[:, 1]
+    zd = dst[:, 0] + 1j * dst[:, 1]
+    vs = zs[j] - zs[i]
+    vd = zd[j] - zd[i]
+    ls, ld = np.abs(vs), np.abs(vd)
     good = (i != j) & (ls > 2 * inlier_px) & (np.abs(ls - ld) < 2 * inlier_px)
     if not good.any():
         return None, np.zeros(n, bool)
-    th = np.arctan2(vd[good, 1], vd[good, 0]) - np.arctan2(vs[good, 1], vs[good, 0])
-    c, s = np.cos(th), np.sin(th)
-    si, di = src[i[good]], dst[i[good]]
-    tx = di[:, 0] - (c * si[:, 0] - s * si[:, 1])
-    ty = di[:, 1] - (s * si[:, 0] + c * si[:, 1])
-    # Residuals of every match under every hypothesis: (hypotheses, matches).
-    px = c[:, None] * src[None, :, 0] - s[:, None] * src[None, :, 1] + tx[:, None] - dst[None, :, 0]
-    py = s[:, None] * src[None, :, 0] + c[:, None] * src[None, :, 1] + ty[:, None] - dst[None, :, 1]
-    inl = (px * px + py * py) < inlier_px * inlier_px
-    best = int(np.argmax(inl.sum(1)))
-    mask = inl[best]
+    rot = vd[good] * vs[good].conj()
+    rot /= np.abs(rot)
+    tr = zd[i[good]] - rot * zs[i[good]]
+    best_n, mask = -1, np.zeros(n, bool)
+    for start in range(0, len(rot), _RANSAC_BLOCK):
+        stop = start + _RANSAC_BLOCK
+        # Residuals of every match under every hypothesis of the block: (hypotheses, matches).
+        res = rot[start:stop, None] * zs[None, :] + (tr[start:stop, None] - zd[None, :])
+        inl = (res.real * res.real + res.imag * res.imag) < inlier_px * inlier_px
+        counts = inl.sum(1)
+        k = int(np.argmax(counts))
+        if counts[k] > best_n:  # strict: ties go to the earliest sample, as one argmax over all
+            best_n, mask = int(counts[k]), inl[k]
+        w2 = (best_n / n) ** 2
+        if w2 >= 1.0 or (w2 > 0.0 and min(stop, len(rot)) >= np.log(1e-3) / np.log1p(-w2)):
+            break
     if mask.sum() < 2:
         return None, mask
     m = rigid_fit(src[mask], dst[mask])
@@ -306,6 +381,16 @@ def overlap_ncc(height_a: np.ndarray, height_b: np.ndarray, matrix_px: np.ndarra
     return float((a * b).sum() / den), frac
 
 
+def _upper_quartile(x: np.ndarray) -> float:
+    """``np.quantile(x, 0.75)`` (linear interpolation) by a partial sort, without its overhead."""
+    v = x.ravel()
+    pos = 0.75 * (v.size - 1)
+    lo = int(pos)
+    hi = min(lo + 1, v.size - 1)
+    part = np.partition(v, (lo, hi))
+    return float(part[lo] + (part[hi] - part[lo]) * (pos - lo))
+
+
 def _dense_samples(smooth: np.ndarray, count: int, valid: np.ndarray | None = None
                    ) -> tuple[np.ndarray, np.ndarray]:
     """Pixels of A that constrain alignment: the steepest quarter (2 px from the edge and inside
@@ -316,8 +401,12 @@ def _dense_samples(smooth: np.ndarray, count: int, valid: np.ndarray | None = No
     mag[:, :2] = mag[:, -2:] = 0
     if valid is not None:
         mag[cv2.erode(valid.astype(np.uint8), np.ones((7, 7), np.uint8)) == 0] = 0
-    thr = np.quantile(mag[::3, ::3], 0.75)  # a sparse grid estimates the quartile well enough
-    ys, xs = np.nonzero(mag > max(float(thr), 1e-20))
+    thr = _upper_quartile(mag[::3, ::3])  # a sparse grid estimates the quartile well enough
+    pts = cv2.findNonZero((mag > max(float(thr), 1e-20)).view(np.uint8))  # row-major, as np.nonzero
+    if pts is None:
+        return np.zeros((0, 2), np.float32), np.zeros(0)
+    pts = pts.reshape(-1, 2)  # (N, 1, 2) on OpenCV 4, (N, 2) on 5
+    xs, ys = pts[:, 0], pts[:, 1]
     if len(xs) > count:
         sel = np.linspace(0, len(xs) - 1, count).astype(np.int64)
         ys, xs = ys[sel], xs[sel]
@@ -332,8 +421,16 @@ def _grad(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    return cv2.remap(img, x.reshape(-1, 1), y.reshape(-1, 1), cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_REPLICATE).ravel().astype(np.float64)
+    """Bilinear samples of a C-channel float32 image at (x, y) px: (N, C) float64."""
+    uv = np.empty((len(x), 1, 2), np.float32)
+    uv[:, 0, 0], uv[:, 0, 1] = x, y
+    out = cv2.remap(img, uv, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(len(x), -1).astype(np.float64)
+
+
+def _inside(u: np.ndarray, v: np.ndarray, w: int, h: int) -> tuple[np.ndarray, int]:
+    ok = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
+    return ok, int(np.count_nonzero(ok))
 
 
 @dataclass
@@ -357,7 +454,8 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
     if xy is None or za is None or len(xy) < 8:
         return DenseFit(matrix_px)
     h, w = smooth_b.shape
-    gxb, gyb = _grad(smooth_b)
+    # Height and both slopes of B in one 3-channel image: one remap per iteration instead of three.
+    zgb = cv2.merge([smooth_b, *_grad(smooth_b)])
     inv = cv2.invertAffineTransform(matrix_px)  # A px -> B px
     th = float(np.arctan2(inv[1, 0], inv[0, 0]))
     t = inv[:, 2].astype(np.float64).copy()
@@ -368,15 +466,19 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
         c, s_ = np.cos(th), np.sin(th)
         u = c * x - s_ * y + t[0]
         v = s_ * x + c * y + t[1]
-        ok = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
-        if ok.sum() < 8:
+        ok, n_ok = _inside(u, v, w, h)
+        if n_ok < 8:
             break
-        u32, v32 = u[ok].astype(np.float32), v[ok].astype(np.float32)
-        zb = _sample(smooth_b, u32, v32)
-        bx, by = _sample(gxb, u32, v32), _sample(gyb, u32, v32)
-        xo, yo = x[ok], y[ok]
-        j = np.stack([bx * (-s_ * xo - c * yo) + by * (c * xo - s_ * yo), bx, by, np.ones_like(bx)], 1)
-        r = zb + bias - za[ok]
+        if n_ok < len(x):  # fancy indexing only when some samples fall outside B
+            u, v, zo = u[ok], v[ok], za[ok]
+        else:
+            zo = za
+        zb, bx, by = _sample(zgb, u, v).T
+        j = np.empty((n_ok, 4))
+        # d(u, v)/d(theta) = (-(v - t_y), u - t_x): no second rotation of the samples.
+        j[:, 0] = by * (u - t[0]) - bx * (v - t[1])
+        j[:, 1], j[:, 2], j[:, 3] = bx, by, 1.0
+        r = zb + bias - zo
         hess = j.T @ j
         hess[np.diag_indices(4)] *= 1.0 + 1e-6
         try:
@@ -394,18 +496,16 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
     c, s_ = np.cos(th), np.sin(th)
     u = c * x - s_ * y + t[0]
     v = s_ * x + c * y + t[1]
-    ok = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
+    ok, n_ok = _inside(u, v, w, h)
     fwd = np.array([[c, -s_, t[0]], [s_, c, t[1]]])
-    fit = DenseFit(cv2.invertAffineTransform(fwd).astype(np.float64), overlap=float(ok.mean()))
-    if ok.sum() < 8:
+    fit = DenseFit(cv2.invertAffineTransform(fwd).astype(np.float64), overlap=n_ok / len(x))
+    if n_ok < 8:
         return fit
-    u32, v32 = u[ok].astype(np.float32), v[ok].astype(np.float32)
-    zb = _sample(smooth_b, u32, v32)
+    zb, bx, by = _sample(zgb, u[ok], v[ok]).T
     a_ = za[ok] - za[ok].mean()
     b_ = zb - zb.mean()
     den = np.sqrt((a_ * a_).sum() * (b_ * b_).sum())
     fit.ncc = float((a_ * b_).sum() / den) if den > 1e-18 else 0.0
-    bx, by = _sample(gxb, u32, v32), _sample(gyb, u32, v32)
     xo, yo = x[ok], y[ok]
     # Rotate about the samples' centroid so the angle's information is not mixed with translation.
     xo, yo = xo - xo.mean(), yo - yo.mean()
@@ -481,7 +581,8 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
         params = RegistrationParams(**knobs)  # type: ignore[arg-type]
     elif knobs:
         raise ValueError("pass either params or individual knobs, not both")
-    a = _check_height(height_a_mm, "height_a_mm")
+    cached = features_a is not None and features_a.height is height_a_mm
+    a = height_a_mm if cached else _check_height(height_a_mm, "height_a_mm")
     b = _check_height(height_b_mm, "height_b_mm")
     scale = (float(mm_per_px), float(mm_per_px)) if np.isscalar(mm_per_px) else tuple(map(float, mm_per_px))  # type: ignore[arg-type]
     if not all(np.isfinite(v) and v > 0 for v in scale):
@@ -493,7 +594,7 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
         return _result(False, None, *shapes, scale, conf, inl, method, reason, matches, ncc)  # type: ignore[arg-type]
 
     # A (near) flat map has nothing to register against.
-    if float(np.ptp(a)) < 1e-6 or float(np.ptp(b)) < 1e-6:
+    if (features_a.ptp_mm if cached else _ptp(a)) < 1e-6 or _ptp(b) < 1e-6:  # type: ignore[union-attr]
         return refuse(INSUFFICIENT_TEXTURE, "none")
     k = detect_scale(params, b.shape)
     fa = features_a if features_a is not None and features_a.scale == k else extract_features(a, params, scale=k)

@@ -52,6 +52,7 @@ class TactileMap:
     count: np.ndarray | None = None
     poses: list[np.ndarray] = field(default_factory=list)
     _features: Features | None = None
+    _height: np.ndarray | None = None
     _touch_shape: tuple[int, int] | None = None
 
     def __post_init__(self) -> None:
@@ -66,12 +67,19 @@ class TactileMap:
 
     @property
     def height_mm(self) -> np.ndarray:
-        """The mosaic (mm, float32): average of the touches covering each pixel, 0 where none."""
+        """The mosaic (mm, float32): average of the touches covering each pixel, 0 where none (a copy)."""
+        return self._mosaic().copy()
+
+    def _mosaic(self) -> np.ndarray:
+        # Cached (read-only) until the next touch is placed: every localize() reads the whole canvas.
         if self.total is None or self.count is None:
             raise ValueError("the tactile map is empty: add a touch first")
-        out = np.zeros_like(self.total)
-        np.divide(self.total, self.count, out=out, where=self.count > 0)
-        return out
+        if self._height is None:
+            out = np.zeros_like(self.total)
+            np.divide(self.total, self.count, out=out, where=self.count > 0)
+            out.flags.writeable = False
+            self._height = out
+        return self._height
 
     @property
     def coverage(self) -> np.ndarray:
@@ -94,6 +102,7 @@ class TactileMap:
         self.total[valid] += warped[valid]
         self.count[valid] += 1.0
         self._features = None
+        self._height = None
 
     def _touch_px_to_mm(self, m_px: np.ndarray, touch_shape: tuple[int, int]) -> np.ndarray:
         s = self.mm_per_px
@@ -155,8 +164,8 @@ class TactileMap:
 
     def _map_features(self) -> Features:
         if self._features is None:
-            shape = self._touch_shape or self.height_mm.shape
-            self._features = extract_features(self.height_mm, self.params, scale=detect_scale(self.params, shape),
+            shape = self._touch_shape or self._mosaic().shape
+            self._features = extract_features(self._mosaic(), self.params, scale=detect_scale(self.params, shape),
                                               valid=self.coverage)
         return self._features
 
@@ -166,7 +175,7 @@ class TactileMap:
         if self.total is None:
             raise ValueError("the tactile map is empty: add a touch first")
         z = _check_height(height_mm, "height_mm")
-        res = register(self.height_mm, z, self.mm_per_px, self.params, features_a=self._map_features())
+        res = register(self._mosaic(), z, self.mm_per_px, self.params, features_a=self._map_features())
         return res
 
     # -- persistence ---------------------------------------------------------------------------

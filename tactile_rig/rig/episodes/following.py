@@ -51,7 +51,10 @@ def _run(ctx: EpisodeContext, devices: Devices) -> EpisodeReport:
         cx, cy = params.image_centre_px
         return TouchReading(t_s, contact=False, object_area_px=800.0, object_centroid_px=(cx + ix, cy + iy))
 
-    sensor = ctx.make_sensor(probe)
+    render = process = None
+    if ctx.sensor.get("kind") == "rendered":
+        render, process = _rendered_proximity(ctx, params, offset)
+    sensor = ctx.make_sensor(probe, render=render, process=process)
     ctrl = Following(arm, sensor, ctx.clock, params)
     res = ctrl.run()
     still = ctx.settle_and_check_still([arm])
@@ -66,3 +69,28 @@ def _run(ctx: EpisodeContext, devices: Devices) -> EpisodeReport:
           and final <= float(c.get("final_error_mm", 1.0)))
     return EpisodeReport("", 0, ctx.seed, ok, res.outcome.value, figures, res.message, res.fault_device,
                          result=res)
+
+
+def _rendered_proximity(ctx: EpisodeContext, params: FollowingParams, offset):  # noqa: ANN001, ANN202
+    """The FingerVision renderer drawing the object where it is, and the real FingerVision
+    processor (calibrated on empty frames, object colours taught from one frame) reading it."""
+    from tactile_rig.mocks.world.fingervision_render import FingerVisionRenderer, FvObject
+    from tactile_rig.perception.fingervision.processor import FingerVision, FingerVisionParams
+
+    renderer = FingerVisionRenderer(seed=ctx.seed)
+    fv = FingerVision(FingerVisionParams())
+    fv.calibrate([renderer.render()[0] for _ in range(FingerVisionParams().n_calib_frames)])
+    cx, cy = params.image_centre_px
+
+    def obj_at(ox: float, oy: float) -> FvObject:
+        ix, iy = rotate_xy(ox / params.mm_per_px, oy / params.mm_per_px, -params.image_rotation_deg)
+        return FvObject((cx + ix, cy + iy), (30.0, 20.0), 10.0)
+
+    teach = renderer.render(object=obj_at(0.0, 0.0))[0]
+    fv.learn_object(teach, rects=[(int(cx) - 30, int(cy) - 20, 60, 40)])
+
+    def render(t_s: float):  # noqa: ANN202
+        ox, oy = offset(t_s)
+        return renderer.render(object=obj_at(float(ox), float(oy)))[0]
+
+    return render, fv.process

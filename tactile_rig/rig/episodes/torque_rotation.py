@@ -6,6 +6,8 @@ derived cap; a faster rate is refused.
 
 from __future__ import annotations
 
+import math
+
 from tactile_rig.control.protocols import TouchReading
 from tactile_rig.control.rotation import TorqueRotation, TorqueRotationParams
 from tactile_rig.rig.episodes import outcome_matches, params_for
@@ -36,6 +38,8 @@ def _run(ctx: EpisodeContext, devices: Devices) -> EpisodeReport:
              "stop_latency_s": (arm.command_latency_s + 3 * arm.tracking_tau_s if hasattr(arm, "command_latency_s")
                                 else float(c.get("jig_stop_latency_s", 0.02))),
              "torsion_stiffness_nmm_per_deg": stop.stiffness_nmm_per_deg}
+    if c.get("motion") == "jig":  # θ rides on GRBL's Z channel: $122 is its acceleration (°/s²)
+        known["decel_dps2"] = float(arm.read_settings().get(122, math.inf))
     ctrl = TorqueRotation(arm, sensor, ctx.clock, params_for(TorqueRotationParams, {**known, **c}))
     cap = ctrl.cap_dps()
     rate = 1000.0 * ctx.speed_mps if ctx.speed_mps is not None else cap * float(c.get("rate_frac_of_cap", 1.0))
