@@ -1,0 +1,204 @@
+"""Layering rules of the package, checked from the source with ``ast`` (nothing is imported).
+
+* ``tactile_rig.control`` and ``tactile_rig.perception`` never import ``tactile_rig.drivers`` or
+  ``tactile_rig.mocks`` (not even inside a function): they work against protocols only.
+* No import cycle among modules executed at import time (module-level imports).
+* No new cycle through deferred (function-level) imports either, beyond the known list below.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PKG_ROOT = Path(__file__).resolve().parent.parent
+PKG_DIR = PKG_ROOT / "tactile_rig"
+FORBIDDEN = ("tactile_rig.drivers", "tactile_rig.mocks")
+RESTRICTED = ("tactile_rig.control", "tactile_rig.perception")
+
+# Deferred-import cycles that exist today; each is a dependency loop that only works because one
+# side imports inside a function. Shrink this list, never grow it.
+KNOWN_DEFERRED_CYCLES = {
+    frozenset({"tactile_rig.rig.calibration_sessions", "tactile_rig.rig.jig_accuracy"}),
+}
+
+
+def _module_name(path: Path, root: Path = PKG_ROOT) -> str:
+    parts = list(path.relative_to(root).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+MODULES: dict[str, Path] = {_module_name(p): p for p in sorted(PKG_DIR.rglob("*.py"))}
+
+
+def _in_package(name: str, prefixes: tuple[str, ...]) -> bool:
+    return any(name == p or name.startswith(p + ".") for p in prefixes)
+
+
+def _is_type_checking_block(node: ast.AST) -> bool:
+    if not isinstance(node, ast.If):
+        return False
+    test = node.test
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"
+    )
+
+
+def _imports(module: str, path: Path, *, top_level_only: bool) -> list[tuple[str, int]]:
+    """Absolute names imported by ``module`` (``from a import b`` yields ``a`` and ``a.b``)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    is_pkg = path.name == "__init__.py"
+    found: list[tuple[str, int]] = []
+
+    def visit(node: ast.AST, top: bool) -> None:
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.Import):
+                if top or not top_level_only:
+                    found.extend((a.name, child.lineno) for a in child.names)
+            elif isinstance(child, ast.ImportFrom):
+                if top or not top_level_only:
+                    if child.level:
+                        base = module.split(".") if is_pkg else module.split(".")[:-1]
+                        base = base[: len(base) - (child.level - 1)]
+                        target = ".".join(base + ([child.module] if child.module else []))
+                    else:
+                        target = child.module or ""
+                    found.append((target, child.lineno))
+                    found.extend((f"{target}.{a.name}", child.lineno) for a in child.names)
+            elif isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+                visit(child, False)
+            elif _is_type_checking_block(child):
+                visit(child, False)  # typing-only imports never run
+            else:
+                visit(child, top)
+
+    visit(tree, True)
+    return found
+
+
+def _resolve(name: str) -> str | None:
+    """The package module that executing ``import name`` would load last, or None if external."""
+    while name and name not in MODULES:
+        if "." not in name:
+            return None
+        name = name.rsplit(".", 1)[0]
+    return name or None
+
+
+def _graph(*, top_level_only: bool) -> dict[str, set[str]]:
+    graph: dict[str, set[str]] = {}
+    for module, path in MODULES.items():
+        deps: set[str] = set()
+        for name, _ in _imports(module, path, top_level_only=top_level_only):
+            if not _in_package(name, ("tactile_rig",)):
+                continue
+            target = _resolve(name)
+            if target is not None and target != module:
+                deps.add(target)
+        graph[module] = deps
+    return graph
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[frozenset[str]]:
+    """Strongly connected components with more than one module (Tarjan, iterative)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    result: list[frozenset[str]] = []
+    counter = 0
+    for root in graph:
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = counter
+        counter += 1
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            node, children = work[-1]
+            advanced = False
+            for child in children:
+                if child not in index:
+                    index[child] = low[child] = counter
+                    counter += 1
+                    stack.append(child)
+                    on_stack.add(child)
+                    work.append((child, iter(sorted(graph[child]))))
+                    advanced = True
+                    break
+                if child in on_stack:
+                    low[node] = min(low[node], index[child])
+            if advanced:
+                continue
+            work.pop()
+            if work:
+                parent = work[-1][0]
+                low[parent] = min(low[parent], low[node])
+            if low[node] == index[node]:
+                component = set()
+                while True:
+                    member = stack.pop()
+                    on_stack.discard(member)
+                    component.add(member)
+                    if member == node:
+                        break
+                if len(component) > 1:
+                    result.append(frozenset(component))
+    return result
+
+
+def test_package_is_found():
+    assert "tactile_rig.errors" in MODULES
+    assert any(_in_package(m, ("tactile_rig.control",)) for m in MODULES)
+    assert any(_in_package(m, ("tactile_rig.perception",)) for m in MODULES)
+
+
+@pytest.mark.parametrize("layer", RESTRICTED)
+def test_control_and_perception_never_import_drivers_or_mocks(layer):
+    offences = [
+        f"{path.relative_to(PKG_ROOT)}:{line} imports {name}"
+        for module, path in MODULES.items()
+        if _in_package(module, (layer,))
+        for name, line in _imports(module, path, top_level_only=False)
+        if _in_package(name, FORBIDDEN)
+    ]
+    assert offences == []
+
+
+def test_no_import_cycle_at_import_time():
+    assert _cycles(_graph(top_level_only=True)) == []
+
+
+def test_no_new_cycle_through_deferred_imports():
+    cycles = set(_cycles(_graph(top_level_only=False)))
+    assert cycles - KNOWN_DEFERRED_CYCLES == set()
+
+
+def test_checker_detects_a_forbidden_import_and_a_cycle(tmp_path, monkeypatch):
+    """The checker itself must be able to fail: feed it a tiny package that breaks both rules."""
+    pkg = tmp_path / "tactile_rig"
+    (pkg / "control").mkdir(parents=True)
+    (pkg / "drivers").mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "control" / "__init__.py").write_text("")
+    (pkg / "drivers" / "__init__.py").write_text("")
+    (pkg / "control" / "bad.py").write_text(
+        "def f():\n    from tactile_rig.drivers import scale\n"
+    )
+    (pkg / "drivers" / "scale.py").write_text("from . import loop\n")
+    (pkg / "drivers" / "loop.py").write_text("from tactile_rig.drivers.scale import x\n")
+    fake = {_module_name(p, tmp_path): p for p in sorted(pkg.rglob("*.py"))}
+    monkeypatch.setitem(globals(), "MODULES", fake)
+    bad = fake["tactile_rig.control.bad"]
+    names = [n for n, _ in _imports("tactile_rig.control.bad", bad, top_level_only=False)]
+    assert any(_in_package(n, FORBIDDEN) for n in names)
+    assert _imports("tactile_rig.control.bad", bad, top_level_only=True) == []
+    assert _cycles(_graph(top_level_only=True)) == [
+        frozenset({"tactile_rig.drivers.scale", "tactile_rig.drivers.loop"})
+    ]
+
