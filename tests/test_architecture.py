@@ -9,6 +9,7 @@
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 import pytest
@@ -48,9 +49,14 @@ def _is_type_checking_block(node: ast.AST) -> bool:
     )
 
 
+@functools.lru_cache(maxsize=None)
+def _parse(path: Path) -> ast.Module:
+    return ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+
+
 def _imports(module: str, path: Path, *, top_level_only: bool) -> list[tuple[str, int]]:
     """Absolute names imported by ``module`` (``from a import b`` yields ``a`` and ``a.b``)."""
-    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    tree = _parse(path)
     is_pkg = path.name == "__init__.py"
     found: list[tuple[str, int]] = []
 
@@ -167,6 +173,34 @@ def test_control_and_perception_never_import_drivers_or_mocks(layer):
         for name, line in _imports(module, path, top_level_only=False)
         if _in_package(name, FORBIDDEN)
     ]
+    assert offences == []
+
+
+@pytest.mark.parametrize("layer", RESTRICTED)
+def test_control_and_perception_do_not_load_drivers_or_mocks_through_other_modules(layer):
+    """Importing the layer must not load drivers/mocks indirectly (module-level imports, and the
+    parent packages' ``__init__`` that Python runs first)."""
+    graph = _graph(top_level_only=True)
+    for module in graph:
+        parts = module.split(".")
+        graph[module] |= {".".join(parts[:k]) for k in range(1, len(parts))} & set(MODULES)
+    offences = []
+    for start in (m for m in MODULES if _in_package(m, (layer,))):
+        parent = {start: ""}
+        todo = [start]
+        while todo:
+            node = todo.pop()
+            for dep in graph[node]:
+                if dep not in parent:
+                    parent[dep] = node
+                    todo.append(dep)
+        for reached in parent:
+            if _in_package(reached, FORBIDDEN):
+                chain, node = [], reached
+                while node:
+                    chain.append(node)
+                    node = parent[node]
+                offences.append(" <- ".join(chain))
     assert offences == []
 
 

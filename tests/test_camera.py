@@ -190,6 +190,8 @@ def test_disappearance_reopens_and_relocks():
         assert cam.stats.reopens == 1
         assert sim.table.get("auto_exposure") == 1  # defaults after replug, locked again
         assert got[-1].t_device_s is not None
+        # frames keep coming after the replug, captured after the camera came back
+        assert got[-1].t_device_s + sim._t0 > t0 + 0.5
 
 
 def test_permanent_disappearance_gives_not_connected_after_backoff():

@@ -78,10 +78,11 @@ def test_corrupt_reply_is_link_corrupt_and_the_next_read_works() -> None:
 
 def test_cut_off_instruction_then_the_bus_recovers(bus2) -> None:
     bus, dev = bus2
+    goal_before = dev.servo(1).item("Goal Position")
     # half of a write packet, as from a host that died mid-write
     bus.port.ser.write(bytes.fromhex("FF FF FD 00 01 09 00 03 74 00"))
     assert bus.read(1, "Model Number") == 311
-    assert dev.servo(1).item("Goal Position") != 0x74  # the cut-off write had no effect
+    assert dev.servo(1).item("Goal Position") == goal_before  # the cut-off write had no effect
 
 
 def test_corrupt_instruction_gets_crc_error(bus2) -> None:
@@ -287,7 +288,9 @@ def test_one_bus_shared_by_threads_serializes_transactions(bus2) -> None:
         t.start()
     for t in threads:
         t.join(10)
+    assert not [t for t in threads if t.is_alive()]  # a deadlock must fail, not pass with no errors
     assert not errors
+    assert [dev.servo(i).item("LED") for i in (1, 2)] == [1, 1]  # every thread's last write landed
 
 
 def test_measured_opening_slightly_outside_the_range_is_clamped(gripper_factory) -> None:

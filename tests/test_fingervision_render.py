@@ -12,7 +12,7 @@ import pytest
 
 from tactile_rig.perception.fingervision import FingerVision, detect_markers
 
-render_mod = pytest.importorskip("tactile_rig.mocks.world.fingervision_render")
+import tactile_rig.mocks.world.fingervision_render as render_mod  # noqa: E402  (a broken import must fail, not skip)
 
 
 @pytest.fixture(scope="module")

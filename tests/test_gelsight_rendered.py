@@ -14,8 +14,8 @@ import pytest
 from tactile_rig.perception.gelsight import (
     Reconstructor, calibrate_from_presses, clamp_radius_px, load_presses, press_error, register)
 
-render = pytest.importorskip("tactile_rig.mocks.world.gelsight_render")
-objects = pytest.importorskip("tactile_rig.mocks.world.objects")
+from tactile_rig.mocks.world import gelsight_render as render  # noqa: E402  (a broken import must fail, not skip)
+from tactile_rig.mocks.world import objects  # noqa: E402
 
 MM = 0.1245
 SHAPE = (120, 160)

@@ -52,6 +52,11 @@ class JigMachine(RuleBasedStateMachine):
         self._sync_to_steps()
 
     def _sync_to_steps(self) -> None:
+        # The machine must not have moved beyond a step from what the model knows before syncing.
+        mpos = self.jig.status().mpos
+        assert mpos[0] == pytest.approx(self.model[0], abs=STEP_MM)
+        assert mpos[1] == pytest.approx(self.model[1], abs=STEP_MM)
+        assert mpos[2] == pytest.approx(self.model[2], abs=STEP_DEG)
         # A reset makes GRBL's parser start from the step counters (gc_sync_position), so later
         # relative moves build on the whole-step position, exactly as the firmware does.
         self.model = list(self.jig.status().mpos)

@@ -16,7 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-pytest.importorskip("mcap")
+import mcap  # noqa: E402,F401  (extra [record] is installed by .[all,test]; absent = fail, not skip)
 
 from tactile_rig.clock import VirtualClock  # noqa: E402
 from tactile_rig.control.protocols import Pose  # noqa: E402

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytest.importorskip("mcap")
+import mcap  # noqa: E402,F401  (extra [record] is installed by .[all,test]; absent = fail, not skip)
 
 from tactile_rig.clock import VirtualClock  # noqa: E402
 from tactile_rig.errors import DeviceTimeout, NotConnected  # noqa: E402

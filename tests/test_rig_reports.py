@@ -29,7 +29,6 @@ def _png(path: Path) -> np.ndarray:
 
 
 def test_figures_are_pngs(tmp_path: Path) -> None:
-    pytest.importorskip("matplotlib")
     from tactile_rig.rig.reports import plot_error_histogram, plot_estimated_vs_true, plot_tactile_map, plot_trace
 
     true = np.repeat(np.arange(-90, 91, 30.0), 3)
@@ -48,6 +47,7 @@ def test_figures_are_pngs(tmp_path: Path) -> None:
     # the same data drawn twice gives the same picture; different data a different one
     b = _png(plot_estimated_vs_true(true, est + 20, tmp_path / "rot2.png"))
     assert a.shape == b.shape and not np.array_equal(a, b)
+    assert np.array_equal(a, _png(plot_estimated_vs_true(true, est, tmp_path / "rot_again.png")))
     with pytest.raises(ValueError, match="no channel"):
         plot_trace(tr, tmp_path / "x.png", channels=["nope"])
     with pytest.raises(ValueError, match="same length"):
@@ -57,7 +57,6 @@ def test_figures_are_pngs(tmp_path: Path) -> None:
 
 
 def test_empty_and_nan_inputs_do_not_crash(tmp_path: Path) -> None:
-    pytest.importorskip("matplotlib")
     from tactile_rig.rig.reports import plot_error_histogram, plot_estimated_vs_true
 
     assert plot_estimated_vs_true([], [], tmp_path / "e.png").is_file()

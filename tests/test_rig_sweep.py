@@ -106,7 +106,8 @@ def test_sweep_cli_on_processes(tmp_path: Path, capsys: pytest.CaptureFixture) -
 
 
 def test_scene_target_runs_scene_runner_episodes(tmp_path: Path) -> None:
-    pytest.importorskip("tactile_rig.rig.scene_runner")
+    import tactile_rig.rig.scene_runner  # noqa: F401  (a broken import must fail, not skip)
+
     points = grid({"sensor.rate_hz": [8.0, 16.0]})
     with cf.ThreadPoolExecutor(1) as ex:
         s = run_sweep("scene:collision_stop", points, tmp_path, executor=ex)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 
@@ -10,6 +11,7 @@ import pytest
 import serial
 
 from tactile_rig.drivers.scale import Scale, parse_line
+from tactile_rig.testing.strategies_scale import crc8_reference
 
 
 @pytest.mark.pty
@@ -22,8 +24,15 @@ def test_a_plain_pyserial_reader_and_the_driver_read_the_served_scale() -> None:
         with serial.Serial(info["port"], 57600, timeout=1.0) as ser:
             lines = [ser.readline() for _ in range(12)]
         # The first line may carry the bootloader's glitch bytes; every later one is a whole line.
-        assert lines[0].rstrip().endswith(b"*" + lines[0].rstrip()[-2:])
+        assert re.search(rb"[BIS],[^*\r\n]*\*[0-9A-F]{2}$", lines[0].rstrip(b"\r\n"))
         assert all(l.endswith(b"\r\n") for l in lines)
+        # Checked independently of the driver's parser: the sketch's frame layout and CRC-8 by long division.
+        for l in lines[1:]:
+            body, _, crc = l.rstrip(b"\r\n").rpartition(b"*")
+            assert int(crc, 16) == crc8_reference(body), l
+            tag, seq, grams, raw = body.split(b",")
+            assert tag == b"S" and 0 <= int(seq) <= 65535 and float(grams) == float(grams), l
+            assert -(2**23) <= int(raw) < 2**23, l
         kinds = [parse_line(l.rstrip(b"\r\n"), 0.0).kind for l in lines[1:]]
         assert kinds == ["sample"] * 11
         seqs = [parse_line(l.rstrip(b"\r\n"), 0.0).reading.seq for l in lines[1:]]

@@ -38,6 +38,7 @@ class InHandRotationParams:
     regrip_m: float = 0.002  # re-grip this much tighter than the start opening to stop the turn
     resume_back_m: float = 0.0003  # after a re-grip, open again from this much short of the last turn
     effort: float = 0.5
+    squeeze_by: str = "position"  # loosen by "position" (open the fingers) or by "effort" (current cap)
     lookahead_s: float = 0.12  # anticipate the turn by this much of the measured rate (slip mode)
     torque_mode_slip_frames: int = 5  # torque mode: re-grip after this many slipping frames in a row
     tolerance_deg: float = 3.0  # done when the settled angle is this close (else open again)
@@ -61,6 +62,8 @@ class InHandRotation:
                  params: InHandRotationParams | None = None) -> None:
         if params is not None and params.mode not in ("slip", "torque"):
             raise ValueError(f"mode={params.mode!r} must be 'slip' or 'torque'")
+        if params is not None and params.squeeze_by not in ("position", "effort"):
+            raise ValueError(f"squeeze_by={params.squeeze_by!r} must be 'position' or 'effort'")
         self.gripper = gripper
         self.sensor = sensor
         self.clock = clock
@@ -79,6 +82,9 @@ class InHandRotation:
         self._prev_normal_n = 0.0
         self.rate_dps = 0.0
         self.slid_mm = 0.0
+        self.max_slide_mm = 0.0  # the largest single slide so far (one event, until the re-grip held)
+        self._slide_event_mm = 0.0
+        self.slide_steps = 0  # slides allowed on purpose to turn past the static limit
 
     # -- angle estimates ------------------------------------------------------------------------
     def angle_deg(self, r: TouchReading) -> float:
@@ -123,7 +129,7 @@ class InHandRotation:
         else:
             u = self.p.open_rate_mps
         g = self.integrator.step(u, dt)
-        go(self.gripper, y_start + g, self.p.effort, blocking=False)
+        self._command(y_start, g)
         self.trace.append(self.clock.now_s(), frame_t_s=r.t_s, angle_deg=ang, rate_dps=self.rate_dps,
                           torque_nmm=r.torque_nmm[2], fz_n=r.force_n[2], open_m=g, slip=float(r.slip),
                           slide_mm=r.slip_mm)
@@ -137,19 +143,41 @@ class InHandRotation:
     def _regrip(self, y_start: float) -> None:
         # remember where it turned: the next opening resumes just short of it, not from the start
         self._resume_m = max(0.0, self.integrator.g_m - self.p.resume_back_m)
-        go(self.gripper, max(0.0, y_start - self.p.regrip_m), self.p.effort, blocking=False)
         self.integrator.g_m = -self.p.regrip_m
+        self._command(y_start, self.integrator.g_m)
 
     def _resume(self, y_start: float) -> None:
         self.integrator.g_m = self._resume_m
-        go(self.gripper, y_start + self._resume_m, self.p.effort, blocking=False)
+        self._command(y_start, self._resume_m)
+
+    def _command(self, y_start: float, g_m: float) -> None:
+        """Loosen the grip by ``g_m`` (m past the start opening; negative re-grips).
+
+        ``squeeze_by = "position"`` opens the fingers by ``g_m``. ``"effort"`` keeps them pressed
+        ``regrip_m`` into the object and scales the effort (the servo's current cap, hence the
+        squeeze) by ``1 − g_m / max_open_m``: on a servo whose position tick moves the squeeze by
+        as much as the object's weight (MX-64 on a stiff skin: ~0.5 N per tick) the current step
+        is several times finer, fine enough to rest just above the least holding squeeze.
+        """
+        if self.p.squeeze_by == "effort":
+            effort = min(1.0, max(0.0, self.p.effort * (1.0 - g_m / self.p.max_open_m)))
+            go(self.gripper, max(0.0, y_start - self.p.regrip_m), effort, blocking=False)
+        else:
+            go(self.gripper, max(0.0, y_start + g_m), self.p.effort, blocking=False)
 
     def _settled_angle(self) -> tuple[float, TouchReading]:
+        """After a re-grip: wait ``settle_s``, then average the angle over the second half of it
+        (the object is held still; one frame's angle carries the sensor's noise, ~0.5° here)."""
         t_end = self.clock.now_s() + self.p.settle_s
+        t_avg = t_end - 0.5 * self.p.settle_s
         r = self._read()
+        late: list[float] = []
         while self.clock.now_s() < t_end:
             r = self._read()
-        return self.angle_deg(r), r
+            if r.t_s >= t_avg:
+                late.append(self.angle_deg(r))
+        late = [a for a in late if math.isfinite(a)]
+        return (sum(late) / len(late) if late else self.angle_deg(r)), r
 
     def _run(self) -> ControllerResult:
         y_start = self.gripper.state().opening_m
@@ -174,10 +202,23 @@ class InHandRotation:
             if ang > best[0] + 1.0:
                 best = (ang, self.clock.now_s())
             elif self._floor_limited and self.clock.now_s() - best[1] > self.p.stall_s:
-                # the squeeze is at its floor and nothing turns: this is as far as it goes
+                # the squeeze is at its floor and nothing turns: judge on the settled angle (a frame's
+                # estimate near hanging is noisy, by torque more than by orientation)
                 self._regrip(y_start)
                 ang, r = self._settled_angle()
-                ok = abs(ang - target) <= self.p.accept_deg
+                if r.contact and self._may_slide_again(ang, target):
+                    # Near hanging, a squeeze that holds the weight (2 μs N ≥ m g) resists more torque
+                    # than gravity's m g r cos θ once cos θ < r_patch / r: the object turns further
+                    # only while it slides. Drop the learnt floor for one more slide, caught at once
+                    # by the re-grip below; that slide re-learns the floor.
+                    self._slide_floor_n = 0.0
+                    self.slide_steps += 1
+                    self._recent = []
+                    self.rate_dps = 0.0
+                    best = (ang, self.clock.now_s())
+                    self._resume(y_start)
+                    continue
+                ok = r.contact and abs(ang - target) <= self.p.accept_deg
                 return ControllerResult(Outcome.SUCCESS if ok else Outcome.FAILED, self.trace,
                                         self._figures(ang, regrips),
                                         f"stalled at {ang:.1f}°: cannot turn further without sliding")
@@ -186,6 +227,7 @@ class InHandRotation:
             ahead = ang + (max(0.0, self.rate_dps) * self.p.lookahead_s if self.p.mode == "slip" else 0.0)
             sliding = abs(r.slip_mm) > self.p.slide_threshold_mm
             if sliding:
+                self._slide_event_mm += abs(r.slip_mm)
                 # it slid at about this squeeze: never open that far again (the learned floor)
                 self._slide_floor_n = max(self._slide_floor_n, self.p.slide_floor_margin * self._prev_normal_n)
             self._prev_normal_n = r.force_n[2]
@@ -198,6 +240,10 @@ class InHandRotation:
                 self._regrip(y_start)
                 regrips += 1
                 ang, r = self._settled_angle()
+                # the whole slide of this event, re-grip included: the size the next allowed slide may take
+                self._slide_event_mm += abs(r.slip_mm) if sliding else 0.0
+                self.max_slide_mm = max(self.max_slide_mm, self._slide_event_mm)
+                self._slide_event_mm = 0.0
                 self._recent = []
                 self.rate_dps = 0.0
                 if not r.contact:
@@ -209,10 +255,27 @@ class InHandRotation:
                     return ControllerResult(Outcome.SUCCESS, self.trace, self._figures(ang, regrips),
                                             f"rotated to {ang:.1f}°")
                 self._resume(y_start)
+        # out of time (slides near hanging gain little each): stop where it is and judge the settled
+        # angle as a stall is judged
         self._regrip(y_start)
-        return ControllerResult(Outcome.TIMEOUT, self.trace, self._figures(math.nan, regrips),
-                                f"target {target}° not reached in {self.p.duration_s} s")
+        ang, r = self._settled_angle()
+        if r.contact and abs(ang - target) <= self.p.accept_deg:
+            return ControllerResult(Outcome.SUCCESS, self.trace, self._figures(ang, regrips),
+                                    f"rotated to {ang:.1f}° when the time ran out")
+        return ControllerResult(Outcome.TIMEOUT, self.trace, self._figures(ang, regrips),
+                                f"target {target}° not reached in {self.p.duration_s} s (at {ang:.1f}°)")
+
+    def _may_slide_again(self, ang: float, target: float) -> bool:
+        """At a stall short of the target: may the learnt squeeze floor be dropped for one more slide?
+
+        Only when a slide floor is what blocks the turn, and one more slide as large as the largest
+        so far (with margin) still fits in ``slip_limit_mm``: the slide budget is what prevents a drop.
+        """
+        if self._slide_floor_n <= 0.0 or ang >= target - self.p.tolerance_deg:
+            return False
+        return self.slid_mm + self.p.slide_floor_margin * self.max_slide_mm <= self.p.slip_limit_mm
 
     def _figures(self, ang: float, regrips: int) -> dict[str, float]:
         return {"final_angle_deg": ang, "target_deg": self.p.target_deg, "regrips": float(regrips),
-                "slid_mm": self.slid_mm}
+                "slid_mm": self.slid_mm,
+                "slide_steps": float(self.slide_steps)}
