@@ -24,7 +24,7 @@ from tactile_rig.rig.jig_accuracy import (
     plan_points,
 )
 
-mcap = pytest.importorskip("mcap")
+import mcap  # noqa: E402,F401  (the record extra is part of the test install)
 from tactile_rig.rig.recording import read_recording  # noqa: E402
 
 SMALL = dict(rotations_deg=(-40.0, 40.0, 40.0), shifts_mm=(-4.0, 4.0, 4.0))

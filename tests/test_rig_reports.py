@@ -75,7 +75,7 @@ def test_error_stats_values_and_angle_wrap() -> None:
 @given(st.floats(-1e6, 1e6, allow_nan=False), st.floats(-1e6, 1e6, allow_nan=False))
 def test_wrapped_angle_error_is_the_shortest_way_round(a: float, b: float) -> None:
     e = float(wrap_deg(b - a))
-    assert -180.0 <= e < 180.0
+    assert -180.0 < e <= 180.0
     assert abs((a + e - b + 180.0) % 360.0 - 180.0) < 1e-6 * max(1.0, abs(a), abs(b))
 
 

@@ -25,7 +25,6 @@ JSON calibration files share one envelope (:func:`write_calibration`): ``format`
 from __future__ import annotations
 
 import csv
-import datetime as _dt
 import json
 import math
 import sys
@@ -36,6 +35,7 @@ from typing import Any, Callable, Protocol, Sequence, TextIO
 import cv2
 import numpy as np
 
+from tactile_rig.rig.poses import PlanarPose, utc_now
 from tactile_rig.errors import CalibrationError, check_range
 
 __all__ = [
@@ -108,10 +108,6 @@ class Guide:
             self.say(f"[step] {text}")
 
 
-def _utc_now() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-
-
 _ENVELOPE = ("format", "version", "kind", "created", "device", "report")
 
 
@@ -132,7 +128,7 @@ def write_calibration(path: str | Path, kind: str, values: dict[str, Any], repor
     if p.suffix != ".json":
         p = p.with_suffix(".json")
     p.parent.mkdir(parents=True, exist_ok=True)
-    doc = {"format": CALIBRATION_FORMAT, "version": CALIBRATION_VERSION, "kind": kind, "created": _utc_now(),
+    doc = {"format": CALIBRATION_FORMAT, "version": CALIBRATION_VERSION, "kind": kind, "created": utc_now(),
            "device": device, **to_jsonable(values), "report": to_jsonable(report)}
     p.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
     rpath = p.with_name(p.stem + ".report.json")
@@ -161,7 +157,7 @@ def read_calibration(path: str | Path, kind: str) -> dict[str, Any]:
 
 
 def _write_report_md(path: Path, kind: str, cal_path: Path, values: dict[str, Any], report: dict[str, Any]) -> None:
-    lines = [f"# {kind} calibration", "", f"- file: `{cal_path.name}`", f"- created: {_utc_now()}", ""]
+    lines = [f"# {kind} calibration", "", f"- file: `{cal_path.name}`", f"- created: {utc_now()}", ""]
     if values:
         lines += ["## Values", "", "| name | value |", "| --- | --- |"]
         lines += [f"| {k} | {_short(v)} |" for k, v in values.items()]
@@ -298,7 +294,6 @@ def collect_ball_presses(rig: PressRig, plan: BallPressPlan, mm_per_px: float, o
     ``labels.csv`` and returned as ``presses.offset_px``.
     """
     from tactile_rig.perception.gelsight.calibration import PressSet
-    from tactile_rig.rig.jig_accuracy import PlanarPose
 
     make_pose = pose_type or PlanarPose
     guide = guide or Guide(False, quiet=True)

@@ -30,7 +30,6 @@ inside the functions that connect them.
 from __future__ import annotations
 
 import dataclasses
-import datetime as _dt
 import hashlib
 import json
 import math
@@ -42,6 +41,7 @@ from typing import Any, Callable, Iterable, Protocol, Sequence
 
 import numpy as np
 
+from tactile_rig.rig.poses import PlanarPose, utc_now, wrap_deg
 from tactile_rig.errors import CalibrationError, RigError, check_range
 
 __all__ = [
@@ -183,24 +183,6 @@ def _inclusive_range(start: float, stop: float, step: float) -> list[float]:
 
 
 @dataclass(frozen=True)
-class PlanarPose:
-    """A jig / stage pose: millimetres and degrees in image axes (see the module doc)."""
-
-    x_mm: float = 0.0
-    y_mm: float = 0.0
-    theta_deg: float = 0.0
-
-    def as_dict(self) -> dict[str, float]:
-        return {"x_mm": float(self.x_mm), "y_mm": float(self.y_mm), "theta_deg": float(self.theta_deg)}
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any] | None) -> "PlanarPose | None":
-        if d is None:
-            return None
-        return cls(float(d["x_mm"]), float(d["y_mm"]), float(d["theta_deg"]))
-
-
-@dataclass(frozen=True)
 class JigPoint:
     """One commanded jig pose of a sweep; ``index`` is its place in the run (resume key)."""
 
@@ -223,16 +205,6 @@ def plan_points(cfg: JigAccuracyConfig) -> list[JigPoint]:
 
 
 # -- pose algebra -----------------------------------------------------------------------------
-def wrap_deg(angle_deg: float) -> float:
-    """Angle wrapped into (−180, 180] degrees."""
-    a = math.fmod(float(angle_deg), 360.0)
-    if a <= -180.0:
-        a += 360.0
-    elif a > 180.0:
-        a -= 360.0
-    return a
-
-
 def touch_matrix_from_pose(pose: PlanarPose) -> np.ndarray:
     """The 2x3 matrix (mm) taking a sensor point of a touch at stage ``pose`` into the map frame."""
     t = math.radians(pose.theta_deg)
@@ -439,7 +411,7 @@ class RunStore:
         if meta is None:
             meta = {"format": RUN_FORMAT, "version": RUN_FORMAT_VERSION, "config": cfg.to_dict(),
                     "fingerprint": cfg.fingerprint(), "bench_kind": bench.get("kind"), "bench": bench,
-                    "started": _utc_now(), "points_planned": len(plan_points(cfg)), "attempts": 0,
+                    "started": utc_now(), "points_planned": len(plan_points(cfg)), "attempts": 0,
                     "calibration": calibration}
         meta["attempts"] = int(meta.get("attempts", 0)) + 1
         meta["status"] = "complete" if len(done) >= meta["points_planned"] else "running"
@@ -449,13 +421,9 @@ class RunStore:
     def finish(self, summary: dict[str, Any]) -> None:
         meta = self.read_meta() or {}
         meta["status"] = "complete"
-        meta["finished"] = _utc_now()
+        meta["finished"] = utc_now()
         self.write_meta(meta)
         (self.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
-
-
-def _utc_now() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
 
 
 # -- the devices and the perception, as the run sees them ---------------------------------------

@@ -25,6 +25,8 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from tactile_rig.rig.poses import wrap_deg
+
 
 def _pyplot() -> Any:
     try:
@@ -45,11 +47,6 @@ def _finite_pair(true: Sequence[float], est: Sequence[float]) -> tuple[np.ndarra
         raise ValueError(f"true ({t.size} values) and estimated ({e.size} values) must have the same length")
     ok = np.isfinite(t) & np.isfinite(e)
     return t[ok], e[ok]
-
-
-def wrap_deg(a: np.ndarray | float) -> np.ndarray:
-    """Angles wrapped to [-180, 180) degrees."""
-    return (np.asarray(a, float) + 180.0) % 360.0 - 180.0
 
 
 def error_stats(true: Sequence[float], est: Sequence[float], *, angle: bool = False) -> dict[str, float]:
