@@ -14,8 +14,9 @@ from hypothesis import strategies as st
 from tactile_rig.control.common import as_touch
 from tactile_rig.control.following import Following, FollowingParams, rotate_xy
 from tactile_rig.control.grasp import LeakyIntegrator
+from tactile_rig.control.inhand import InHandRotation, InHandRotationParams
 from tactile_rig.control.insertion import gripper_goal, invert, matrix_to_pose, pose_to_matrix, velocity_command
-from tactile_rig.control.protocols import Pose, TouchReading
+from tactile_rig.control.protocols import GripperOutcome, Pose, TouchReading
 
 mm = st.floats(-500.0, 500.0)
 deg = st.floats(-180.0, 180.0)
@@ -111,3 +112,37 @@ def test_a_fingervision_like_result_adapts_and_junk_is_a_type_error() -> None:
     assert r.slip and r.slip_mm == 1.25 and r.contact and r.t_s == 1.5
     with pytest.raises(TypeError, match="TouchReading"):
         as_touch(object())
+
+
+class _RecordingGripper:
+    def __init__(self) -> None:
+        self.calls: list[tuple[float, float]] = []
+
+    def gripper_go(self, position: float, effort: float, **kw):
+        self.calls.append((position, effort))
+        return GripperOutcome.MOVING
+
+
+@given(g=st.floats(-0.01, 0.01), effort=st.floats(0.0, 1.0), y=st.floats(0.0, 0.1))
+def test_inhand_loosening_by_effort_scales_the_current_cap_and_keeps_the_fingers_pressed(g, effort, y) -> None:
+    p = InHandRotationParams(squeeze_by="effort", effort=effort)
+    grip = _RecordingGripper()
+    ctrl = InHandRotation(grip, None, None, p)  # type: ignore[arg-type]
+    ctrl._command(y, g)
+    pos, eff = grip.calls[-1]
+    assert pos == pytest.approx(max(0.0, y - p.regrip_m))  # the fingers stay pressed into the object
+    assert 0.0 <= eff <= 1.0
+    if g >= p.max_open_m:
+        assert eff == 0.0
+    elif 0.0 <= g:
+        assert eff == pytest.approx(effort * (1.0 - g / p.max_open_m))  # loosening lowers the cap
+    else:
+        assert eff >= effort or eff == 1.0  # a re-grip squeezes harder
+    ctrl.p.squeeze_by = "position"
+    ctrl._command(y, g)
+    assert grip.calls[-1] == (pytest.approx(max(0.0, y + g)), effort)
+
+
+def test_inhand_refuses_an_unknown_way_to_loosen() -> None:
+    with pytest.raises(ValueError, match="squeeze_by"):
+        InHandRotation(_RecordingGripper(), None, None, InHandRotationParams(squeeze_by="pressure"))  # type: ignore[arg-type]

@@ -11,6 +11,11 @@ writes π/2 as π).
   is stuck, ``τ = τ₀ cos θ / cos θ₀``. While it slides the torque is the lower kinetic one, which
   makes the estimate run ahead (the re-grip comes early); after each re-grip the controller waits
   for the object to stick, re-estimates, and opens again until the estimate is within tolerance.
+
+Near hanging (``cos θ < r_patch / r``) a squeeze that holds the weight out-resists gravity's torque:
+the object turns only while it slides. A stall at the squeeze floor learnt from slides, short of
+the target, therefore drops that floor for one more slide, while the slide budget
+(``slip_limit_mm``) still has room for one as large as the largest so far.
 """
 
 from __future__ import annotations
@@ -174,6 +179,9 @@ class InHandRotation:
         late: list[float] = []
         while self.clock.now_s() < t_end:
             r = self._read()
+            # a slide goes on until the re-grip bites: count it into the budget and the event's size
+            self.slid_mm += abs(r.slip_mm)
+            self._slide_event_mm += abs(r.slip_mm)
             if r.t_s >= t_avg:
                 late.append(self.angle_deg(r))
         late = [a for a in late if math.isfinite(a)]
@@ -206,6 +214,7 @@ class InHandRotation:
                 # estimate near hanging is noisy, by torque more than by orientation)
                 self._regrip(y_start)
                 ang, r = self._settled_angle()
+                self._slide_event_mm = 0.0
                 if r.contact and self._may_slide_again(ang, target):
                     # Near hanging, a squeeze that holds the weight (2 μs N ≥ m g) resists more torque
                     # than gravity's m g r cos θ once cos θ < r_patch / r: the object turns further
@@ -241,7 +250,6 @@ class InHandRotation:
                 regrips += 1
                 ang, r = self._settled_angle()
                 # the whole slide of this event, re-grip included: the size the next allowed slide may take
-                self._slide_event_mm += abs(r.slip_mm) if sliding else 0.0
                 self.max_slide_mm = max(self.max_slide_mm, self._slide_event_mm)
                 self._slide_event_mm = 0.0
                 self._recent = []
