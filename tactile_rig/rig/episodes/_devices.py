@@ -11,7 +11,7 @@ RealClock), exactly as the bench opens a USB adapter. Every opened thing is clos
 from __future__ import annotations
 
 import itertools
-from typing import Any
+from typing import Any, Callable
 
 from tactile_rig.mocks.registry import Params, create_device, register_instance, unregister_instance
 from tactile_rig.mocks.world.timeline import Timeline
@@ -127,3 +127,17 @@ class _ScaleGauge:
 
     def read_n(self, timeout_s: float | None = 1.0) -> float:
         return float(self.scale.force_n(timeout_s))
+
+
+def with_devices(run: "Callable[[EpisodeContext, Devices], Any]") -> "Callable[[EpisodeContext], Any]":
+    """Make ``run_episode(ctx)`` from ``run(ctx, devices)``: the episode's drivers are always closed."""
+
+    def run_episode(ctx: EpisodeContext) -> Any:
+        devices = Devices(ctx)
+        try:
+            return run(ctx, devices)
+        finally:
+            devices.close()
+
+    run_episode.__doc__ = run.__doc__
+    return run_episode

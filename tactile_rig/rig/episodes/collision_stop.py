@@ -18,7 +18,7 @@ from tactile_rig.errors import RigError
 from tactile_rig.mocks.sensors import touch
 from tactile_rig.mocks.world.table import Table
 from tactile_rig.rig.episodes import outcome_matches, params_for
-from tactile_rig.rig.episodes._devices import Devices
+from tactile_rig.rig.episodes._devices import Devices, with_devices
 from tactile_rig.rig.scene_runner import EpisodeContext, EpisodeReport
 
 
@@ -42,14 +42,6 @@ def _motion(ctx: EpisodeContext, devices: Devices) -> tuple[Any, Callable[[float
     known = {"stop_latency_s": arm.command_latency_s + 3 * arm.tracking_tau_s, "decel_mps2": arm.decel_mps2}
     samples = lambda: [(t, v[0][:3]) for t, v in arm.history.between(-math.inf, math.inf)]  # noqa: E731
     return arm, (lambda t: arm.position_at(t)[:3]), samples, known
-
-
-def run_episode(ctx: EpisodeContext) -> EpisodeReport:
-    devices = Devices(ctx)
-    try:
-        return _run(ctx, devices)
-    finally:
-        devices.close()
 
 
 def _run(ctx: EpisodeContext, devices: Devices) -> EpisodeReport:
@@ -95,3 +87,6 @@ def _run(ctx: EpisodeContext, devices: Devices) -> EpisodeReport:
     ok = outcome_matches(res, c) and still and worst <= allowed + 1e-6
     return EpisodeReport("", 0, ctx.seed, ok, res.outcome.value, figures, res.message, res.fault_device,
                          result=res)
+
+
+run_episode = with_devices(_run)

@@ -14,16 +14,8 @@ import numpy as np
 from tactile_rig.control.following import Following, FollowingParams, rotate_xy
 from tactile_rig.control.protocols import TouchReading
 from tactile_rig.rig.episodes import outcome_matches, params_for
-from tactile_rig.rig.episodes._devices import Devices
+from tactile_rig.rig.episodes._devices import Devices, with_devices
 from tactile_rig.rig.scene_runner import EpisodeContext, EpisodeReport
-
-
-def run_episode(ctx: EpisodeContext) -> EpisodeReport:
-    devices = Devices(ctx)
-    try:
-        return _run(ctx, devices)
-    finally:
-        devices.close()
 
 
 def _run(ctx: EpisodeContext, devices: Devices) -> EpisodeReport:
@@ -94,3 +86,6 @@ def _rendered_proximity(ctx: EpisodeContext, params: FollowingParams, offset):  
         return renderer.render(object=obj_at(float(ox), float(oy)))[0]
 
     return render, fv.process
+
+
+run_episode = with_devices(_run)

@@ -11,17 +11,9 @@ import math
 
 from tactile_rig.control.grasp import Handover, HandoverParams
 from tactile_rig.rig.episodes import outcome_matches, params_for
-from tactile_rig.rig.episodes._devices import Devices
+from tactile_rig.rig.episodes._devices import Devices, with_devices
 from tactile_rig.rig.episodes._grasp_probe import frame_period_s, grasp_probe
 from tactile_rig.rig.scene_runner import EpisodeContext, EpisodeReport
-
-
-def run_episode(ctx: EpisodeContext) -> EpisodeReport:
-    devices = Devices(ctx)
-    try:
-        return _run(ctx, devices)
-    finally:
-        devices.close()
 
 
 def _run(ctx: EpisodeContext, devices: Devices) -> EpisodeReport:
@@ -57,3 +49,6 @@ def _run(ctx: EpisodeContext, devices: Devices) -> EpisodeReport:
         ok = False
     return EpisodeReport("", 0, ctx.seed, ok, res.outcome.value, figures, res.message, res.fault_device,
                          result=res)
+
+
+run_episode = with_devices(_run)

@@ -11,16 +11,8 @@ import math
 from tactile_rig.control.protocols import TouchReading
 from tactile_rig.control.rotation import TorqueRotation, TorqueRotationParams
 from tactile_rig.rig.episodes import outcome_matches, params_for
-from tactile_rig.rig.episodes._devices import Devices
+from tactile_rig.rig.episodes._devices import Devices, with_devices
 from tactile_rig.rig.scene_runner import EpisodeContext, EpisodeReport
-
-
-def run_episode(ctx: EpisodeContext) -> EpisodeReport:
-    devices = Devices(ctx)
-    try:
-        return _run(ctx, devices)
-    finally:
-        devices.close()
 
 
 def _run(ctx: EpisodeContext, devices: Devices) -> EpisodeReport:
@@ -52,3 +44,6 @@ def _run(ctx: EpisodeContext, devices: Devices) -> EpisodeReport:
     ok = outcome_matches(res, c) and still and over <= ctrl.p.allowed_overturn_deg + 1e-6
     return EpisodeReport("", 0, ctx.seed, ok, res.outcome.value, figures, res.message, res.fault_device,
                          result=res)
+
+
+run_episode = with_devices(_run)
