@@ -1,9 +1,10 @@
 """GelSight perception benchmark: calibration accuracy, reconstruction speed, registration accuracy/speed.
 
-Run: ``python benchmarks/bench_gelsight.py [--quick]``. One core (cv2.setNumThreads(1), BLAS and FFT
-single-threaded). Writes ``benchmarks/results/gelsight.json`` and prints tables. Baselines run in the
-same process: a gs_sdk-style reconstruction (per-pixel MLP + DCT set up per frame) and off-the-shelf
-BRISK + RANSAC (OpenCV ``estimateAffinePartial2D``) on min-max normalised height maps.
+Run: ``python benchmarks/bench_gelsight.py [--quick] [--skip-calibration | --speed-only]``. One core
+(cv2.setNumThreads(1), BLAS and FFT single-threaded). Writes ``benchmarks/results/gelsight.json``
+(``--speed-only``: registration speeds only, into ``gelsight_speed.json``) and prints tables. Baselines
+run in the same process: a gs_sdk-style reconstruction (per-pixel MLP + DCT set up per frame) and
+off-the-shelf BRISK + RANSAC (OpenCV ``estimateAffinePartial2D``) on min-max normalised height maps.
 """
 
 from __future__ import annotations
@@ -175,12 +176,48 @@ def _errors(m_px, truth_mm, shape) -> tuple[float, float]:
     return abs(float(rot)), float(np.linalg.norm(d) * MM)
 
 
-def registration_table(quick: bool) -> tuple[list[dict], list[dict]]:
+def _test_maps() -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """(real presses reconstructed, textured test maps: four of them tiled 2x2, 240x320, 29.9 x 39.8 mm)."""
     presses = load_presses(PRESSES)
     rec = Reconstructor(calibrate_from_presses(presses, MM, BALL, "lut", bins=32))
     hs = [rec.height_mm(f) for f in presses.frames]
-    # Textured test maps: four real reconstructed presses tiled 2x2 (240x320, 29.9 x 39.8 mm).
-    surfaces = [tile([hs[0], hs[5], hs[11], hs[22]]), tile([hs[3], hs[9], hs[17], hs[26]])]
+    return hs, [tile([hs[0], hs[5], hs[11], hs[22]]), tile([hs[3], hs[9], hs[17], hs[26]])]
+
+
+def registration_speed(a: np.ndarray, quick: bool) -> list[dict]:
+    """Registration speed on map ``a`` and a moved copy: A's features cached, a fresh pair, a stored
+    tactile map, and the BRISK baseline (each the median of ROUNDS best-of-5-batch measurements)."""
+    b, _ = jig_move(a, 30, (2.0, -1.0), MM)
+    # Map use: A's features cached, only the touch is processed per call.
+    rows: list[dict] = []
+    from tactile_rig.perception.gelsight import extract_features
+
+    p = RegistrationParams()
+    fa = extract_features(a, p, scale=None)
+    dt = _timeit(lambda: register(a, b, MM, p, features_a=fa), 50 if quick else 200)
+    rows.append({"config": "default, A's features cached (map use), best of 5 batches", "ms": dt * 1e3,
+                 "per_s": 1.0 / dt})
+    print(f"  reg cached-A: {dt * 1e3:.2f} ms ({1 / dt:.0f}/s)", flush=True)
+    dt = _timeit(lambda: register(a, b, MM, p), 50 if quick else 200)
+    rows.append({"config": "default, pair (both maps processed), best of 5 batches", "ms": dt * 1e3,
+                 "per_s": 1.0 / dt})
+    print(f"  reg pair: {dt * 1e3:.2f} ms ({1 / dt:.0f}/s)", flush=True)
+    # A stored tactile map: root touch A on a 3x canvas, the touch localized against it.
+    tmap = TactileMap(MM, params=p)
+    tmap.add_touch(a)
+    tmap.localize(b)  # builds the map's cached features once, as any stored map would
+    dt = _timeit(lambda: tmap.localize(b), 50 if quick else 200)
+    rows.append({"config": "default, TactileMap.localize against a stored map (720x960 canvas), best of 5 batches",
+                 "ms": dt * 1e3, "per_s": 1.0 / dt})
+    print(f"  reg stored map: {dt * 1e3:.2f} ms ({1 / dt:.0f}/s)", flush=True)
+    dt = _timeit(lambda: _baseline_brisk(a, b), 50 if quick else 200)
+    rows.append({"config": "BASELINE BRISK + cv2 RANSAC, best of 5 batches", "ms": dt * 1e3, "per_s": 1.0 / dt})
+    print(f"  reg baseline: {dt * 1e3:.2f} ms ({1 / dt:.0f}/s)", flush=True)
+    return rows
+
+
+def registration_table(quick: bool) -> tuple[list[dict], list[dict]]:
+    hs, surfaces = _test_maps()
     rots = list(range(-90, 91, 10))
     shifts = [(-6, -6), (6, 0), (0, 6), (3, -3), (-6, 6), (0, 0)] if quick else \
         [(x, y) for x in (-6, -3, 0, 3, 6) for y in (-6, -3, 0, 3, 6)]
@@ -263,32 +300,7 @@ def registration_table(quick: bool) -> tuple[list[dict], list[dict]]:
         lone.append({"map": name, "ours": ours, "baseline": base})
         print(f"  low-texture {name}: ours {ours}  baseline {base}", flush=True)
 
-    # Map use: A's features cached, only the touch is processed per call.
-    a = surfaces[0]
-    b, _ = jig_move(a, 30, (2.0, -1.0), MM)
-    from tactile_rig.perception.gelsight import extract_features
-
-    p = RegistrationParams()
-    fa = extract_features(a, p, scale=None)
-    dt = _timeit(lambda: register(a, b, MM, p, features_a=fa), 50 if quick else 200)
-    rows.append({"config": "default, A's features cached (map use), best of 5 batches", "ms": dt * 1e3,
-                 "per_s": 1.0 / dt})
-    print(f"  reg cached-A: {dt * 1e3:.2f} ms ({1 / dt:.0f}/s)", flush=True)
-    dt = _timeit(lambda: register(a, b, MM, p), 50 if quick else 200)
-    rows.append({"config": "default, pair (both maps processed), best of 5 batches", "ms": dt * 1e3,
-                 "per_s": 1.0 / dt})
-    print(f"  reg pair: {dt * 1e3:.2f} ms ({1 / dt:.0f}/s)", flush=True)
-    # A stored tactile map: root touch A on a 3x canvas, the touch localized against it.
-    tmap = TactileMap(MM, params=p)
-    tmap.add_touch(a)
-    tmap.localize(b)  # builds the map's cached features once, as any stored map would
-    dt = _timeit(lambda: tmap.localize(b), 50 if quick else 200)
-    rows.append({"config": "default, TactileMap.localize against a stored map (720x960 canvas), best of 5 batches",
-                 "ms": dt * 1e3, "per_s": 1.0 / dt})
-    print(f"  reg stored map: {dt * 1e3:.2f} ms ({1 / dt:.0f}/s)", flush=True)
-    dt = _timeit(lambda: _baseline_brisk(a, b), 50 if quick else 200)
-    rows.append({"config": "BASELINE BRISK + cv2 RANSAC, best of 5 batches", "ms": dt * 1e3, "per_s": 1.0 / dt})
-    print(f"  reg baseline: {dt * 1e3:.2f} ms ({1 / dt:.0f}/s)", flush=True)
+    rows += registration_speed(surfaces[0], quick)
     return rows, lone
 
 
@@ -297,9 +309,22 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="fewer configurations and cases")
     ap.add_argument("--rounds", type=int, default=ROUNDS, help="speed figures: median of this many measurements")
     ap.add_argument("--skip-calibration", action="store_true", help="speed and registration tables only")
+    ap.add_argument("--speed-only", action="store_true",
+                    help="registration speed only (pair, cached A, stored map, baseline); writes "
+                         "benchmarks/results/gelsight_speed.json and leaves gelsight.json alone")
     args = ap.parse_args()
     globals()["ROUNDS"] = max(1, args.rounds)
     cv2.setNumThreads(1)
+    if args.speed_only:
+        load0 = os.getloadavg()
+        rows = registration_speed(_test_maps()[1][0], args.quick)
+        dest = ROOT / "benchmarks" / "results" / "gelsight_speed.json"
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        dest.write_text(json.dumps({"opencv": cv2.__version__, "numpy": np.__version__, "speed_rounds": ROUNDS,
+                                    "load_average_start": load0, "load_average_end": os.getloadavg(),
+                                    "registration_speed": rows}, indent=1) + "\n")
+        print(f"wrote {dest}")
+        return 0
     out: dict = {"opencv": cv2.__version__, "numpy": np.__version__, "quick": args.quick,
                  "load_average_start": os.getloadavg(), "speed_rounds": ROUNDS,
                  "protocol": {"calibration": f"{FOLDS}-fold, press i tested in fold i mod {FOLDS}; normal error "
