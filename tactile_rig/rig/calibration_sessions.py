@@ -210,7 +210,10 @@ class BallPressPlan:
             if len(g) != 3 or int(g[2]) < 1 or float(g[1]) < float(g[0]):
                 raise ValueError(f"{name}={g!r} must be (start, stop, count) with start <= stop and count >= 1")
         if int(self.grid_x_mm[2]) * int(self.grid_y_mm[2]) < 3:
-            raise ValueError("a GelSight calibration needs at least 3 presses (grid_x count x grid_y count)")
+            raise ValueError(
+                f"grid_x_mm count {int(self.grid_x_mm[2])} x grid_y_mm count {int(self.grid_y_mm[2])} gives "
+                f"{int(self.grid_x_mm[2]) * int(self.grid_y_mm[2])} presses; a GelSight calibration needs at least 3 presses"
+            )
         check_range("background_frames", float(self.background_frames), 1, 1000)
         if self.method not in ("lut", "poly", "mlp"):
             raise ValueError(f"method={self.method!r} must be 'lut', 'poly' or 'mlp'")

@@ -134,7 +134,10 @@ class JigAccuracyConfig:
             if float(rng[2]) <= 0 or float(rng[1]) < float(rng[0]):
                 raise ValueError(f"{name}={rng!r}: need start <= stop and step > 0")
         if _count(*self.rotations_deg) > 1000 or _count(*self.shifts_mm) > 1000:
-            raise ValueError("a sweep of more than 1000 points is a typo (check the step)")
+            raise ValueError(
+                f"rotations_deg={self.rotations_deg!r} gives {_count(*self.rotations_deg)} points and shifts_mm="
+                f"{self.shifts_mm!r} gives {_count(*self.shifts_mm)}: a sweep of more than 1000 points is a typo (check the step)"
+            )
         check_range("rotation sweep start", float(self.rotations_deg[0]), -180.0, 180.0, "deg")
         check_range("rotation sweep stop", float(self.rotations_deg[1]), -180.0, 180.0, "deg")
         if not self.map_touches_mm:

@@ -97,7 +97,9 @@ class RegistrationParams:
         if self.detect_scale is not None and not 0.1 <= self.detect_scale <= 4.0:
             raise ValueError(f"detect_scale must be None (auto) or in [0.1, 4], got {self.detect_scale!r}")
         if self.ransac_iters < 1 or self.min_inliers < 2:
-            raise ValueError("ransac_iters must be >= 1 and min_inliers >= 2")
+            raise ValueError(
+                f"ransac_iters={self.ransac_iters!r} must be >= 1 and min_inliers={self.min_inliers!r} must be >= 2"
+            )
         if self.orb_levels < 1 or not self.orb_scale > 1.0 or self.orb_fast_threshold < 0:
             raise ValueError(f"orb_levels must be >= 1, orb_scale > 1 and orb_fast_threshold >= 0, got "
                              f"{self.orb_levels!r}, {self.orb_scale!r}, {self.orb_fast_threshold!r}")

@@ -67,7 +67,10 @@ def tile(heights: list[np.ndarray], grid: tuple[int, int] = (2, 2)) -> np.ndarra
         raise ValueError(f"need {rows * cols} height maps for a {rows}x{cols} tile, got {len(heights)}")
     shape = heights[0].shape
     if any(h.shape != shape for h in heights[: rows * cols]):
-        raise ValueError("all tiled height maps must have the same shape")
+        raise ValueError(
+            f"all tiled height maps must have the shape of the first, {shape}; got "
+            f"{sorted({h.shape for h in heights[: rows * cols]})}"
+        )
     return np.block([[heights[r * cols + c] for c in range(cols)] for r in range(rows)]).astype(np.float32)
 
 
