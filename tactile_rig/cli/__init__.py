@@ -31,6 +31,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "calibrate",
     "replay",
     "sweep",
+    "trade",
 )
 
 EXIT_OK = 0

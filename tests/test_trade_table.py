@@ -1,0 +1,74 @@
+"""The trade table's Pareto front, default marking, text, JSON and plot."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from tactile_rig.rig.trade import TradeRow, TradeTable, topic_module
+
+
+def _table(points, default=0, tol=0.0):
+    rows = [TradeRow({"k": i}, s, e, is_default=(i == default)) for i, (s, e) in enumerate(points)]
+    return TradeTable("t", "frames_per_s", "error_mm", "unit test", rows, speed_tolerance=tol)
+
+
+def test_front_keeps_only_undominated_rows_fastest_first():
+    t = _table([(100, 1.0), (50, 0.5), (80, 1.2), (10, 0.4), (50, 0.7)])
+    # (80, 1.2) is slower and worse than (100, 1.0); (50, 0.7) worse than (50, 0.5) at equal speed
+    assert t.front() == [0, 1, 3]
+    assert t.default_on_front()
+
+
+def test_default_off_front_is_reported():
+    t = _table([(100, 1.0), (200, 0.5)], default=0)
+    assert t.front() == [1]
+    assert not t.default_on_front()
+    assert "NOT on the front" in t.format_text()
+
+
+def test_speed_tolerance_treats_near_equal_speeds_as_equal():
+    # 104 vs 100 is within 5 %: the slower but more accurate row stays on the front
+    strict = _table([(104, 1.0), (100, 0.9), (100, 1.1)], tol=0.0)
+    loose = _table([(104, 1.0), (100, 0.9), (100, 1.1)], tol=0.05)
+    assert strict.front() == [0, 1]
+    assert loose.front() == [1]
+
+
+def test_failed_measurement_is_never_on_front_and_serialises_as_null():
+    t = _table([(100, 1.0), (math.nan, 0.1)])
+    assert t.front() == [0]
+    d = json.loads(json.dumps(t.to_dict()))
+    assert d["rows"][1]["speed"] is None and d["rows"][1]["on_front"] is False
+    assert "failed" in t.format_text()
+
+
+def test_exactly_one_default_required():
+    with pytest.raises(ValueError, match="exactly 1"):
+        TradeTable("t", "s", "e", "", [TradeRow({}, 1, 1), TradeRow({}, 2, 2)])
+    with pytest.raises(ValueError, match="no rows"):
+        TradeTable("t", "s", "e", "", [])
+
+
+def test_unknown_topic_names_the_known_ones():
+    with pytest.raises(ValueError, match="unknown trade topic 'nope'"):
+        topic_module("nope")
+
+
+def test_plot_writes_png(tmp_path):
+    path = _table([(100, 1.0), (50, 0.5), (10, 0.4)]).plot(tmp_path / "t.png")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@given(st.lists(st.tuples(st.floats(0.1, 1e4), st.floats(0.0, 100.0)), min_size=1, max_size=25))
+def test_front_is_exactly_the_undominated_set(points):
+    t = _table(points)
+    front = set(t.front())
+    for i, (si, ei) in enumerate(points):
+        dominated = any((sj >= si and ej <= ei) and (sj > si or ej < ei)
+                        for j, (sj, ej) in enumerate(points) if j != i)
+        assert (i in front) == (not dominated)
