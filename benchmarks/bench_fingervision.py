@@ -261,7 +261,7 @@ def main() -> int:
 
 
 def bench_mock_renderer() -> dict:
-    from tactile_rig.mocks.world.fingervision_render import FingerVisionRenderer, FvObject
+    from tactile_rig.sim.render.fingervision import FingerVisionRenderer, FvObject
 
     rdr = FingerVisionRenderer(seed=1)
     errs, fps_ = [], 0

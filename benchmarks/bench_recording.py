@@ -31,7 +31,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tactile_rig.clock import VirtualClock  # noqa: E402
+from tactile_rig.core.clock import VirtualClock  # noqa: E402
 from tactile_rig.rig.recording import Recorder, read_recording  # noqa: E402
 
 

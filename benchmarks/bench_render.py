@@ -32,13 +32,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tactile_rig.clock import VirtualClock  # noqa: E402
+from tactile_rig.core.clock import VirtualClock  # noqa: E402
 from tactile_rig.drivers.camera import CameraConfig, FingertipCamera  # noqa: E402
 from tactile_rig.mocks.camera import SimulatedCamera  # noqa: E402
-from tactile_rig.mocks.world import World  # noqa: E402
-from tactile_rig.mocks.world.fingervision_render import FingerVisionRenderer, FvObject, contact_shear_field  # noqa: E402
-from tactile_rig.mocks.world.gelsight_render import TAXIM_LIGHTING, GelSightRenderer  # noqa: E402
-from tactile_rig.mocks.world.objects import pressed_indentation_mm, usb_connector_part, view_in_sensor  # noqa: E402
+from tactile_rig.sim import World  # noqa: E402
+from tactile_rig.sim.render.fingervision import FingerVisionRenderer, FvObject, contact_shear_field  # noqa: E402
+from tactile_rig.sim.render.gelsight import TAXIM_LIGHTING, GelSightRenderer  # noqa: E402
+from tactile_rig.sim.world.objects import pressed_indentation_mm, usb_connector_part, view_in_sensor  # noqa: E402
 
 CAMERA_FPS = 30.0
 GSMINI_MM_PER_PX_320 = 0.0634

@@ -25,10 +25,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tactile_rig.clock import RealClock, VirtualClock  # noqa: E402
+from tactile_rig.core.clock import RealClock, VirtualClock  # noqa: E402
 from tactile_rig.control.protocols import TouchReading  # noqa: E402
 from tactile_rig.control.safety import collision_speed_cap_mps, measure_sensing  # noqa: E402
-from tactile_rig.mocks.sensors import ModelSensor  # noqa: E402
+from tactile_rig.sim.fakes.sensors import ModelSensor  # noqa: E402
 from tactile_rig.rig.scene_runner import list_scenes, run_episodes  # noqa: E402
 
 # Full-run episode counts (the "hundreds of episodes"); --quick runs a handful of each.

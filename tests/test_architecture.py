@@ -157,7 +157,7 @@ def _cycles(graph: dict[str, set[str]]) -> list[frozenset[str]]:
 
 
 def test_package_is_found():
-    assert "tactile_rig.errors" in MODULES
+    assert "tactile_rig.core.errors" in MODULES
     assert any(_in_package(m, ("tactile_rig.control",)) for m in MODULES)
     assert any(_in_package(m, ("tactile_rig.perception",)) for m in MODULES)
 

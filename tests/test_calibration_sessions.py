@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tactile_rig.errors import CalibrationError, DeviceTimeout
+from tactile_rig.core.errors import CalibrationError, DeviceTimeout
 from tactile_rig.rig.calibration_sessions import (
     BallPressPlan,
     Guide,
@@ -190,7 +190,7 @@ def test_scale_session_on_the_mock(tmp_path, capsys):
     values = read_calibration(out, "scale")
     assert values["known_mass_g"] == 200.0
     # the mock bench's load cell has the sketch's default factor: the session must find it, not any factor
-    from tactile_rig.drivers.scale_protocol import DEFAULT_CAL_FACTOR
+    from tactile_rig.devices.scale import DEFAULT_CAL_FACTOR
 
     assert values["cal_factor_counts_per_g"] == pytest.approx(DEFAULT_CAL_FACTOR, rel=0.005)
     assert abs(res["values"]["verify_error_g"]) < 0.5
@@ -198,7 +198,7 @@ def test_scale_session_on_the_mock(tmp_path, capsys):
 
 
 def test_scale_without_a_mass_times_out():
-    from tactile_rig.clock import VirtualClock
+    from tactile_rig.core.clock import VirtualClock
     from tactile_rig.rig.bench import Bench, connect_bench, load_bench, mock_bench_path
 
     base = load_bench(mock_bench_path(), check_files=False)

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tactile_rig.clock import VirtualClock
+from tactile_rig.core.clock import VirtualClock
 from tactile_rig.drivers.camera import (
     PHOTOMETRIC_CONTROLS,
     CameraConfig,
@@ -19,7 +19,7 @@ from tactile_rig.drivers.camera import (
     FrozenStream,
     ReopenPolicy,
 )
-from tactile_rig.errors import DeviceTimeout, NotConnected
+from tactile_rig.core.errors import DeviceTimeout, NotConnected
 from tactile_rig.mocks.camera import C310_CONTROLS, SimulatedCamera, UvcControlTable
 
 
@@ -261,7 +261,7 @@ def test_control_table_invariants(name, value, manual):
 
 
 def test_camera_renders_the_scene_through_the_world():
-    from tactile_rig.mocks.world import World
+    from tactile_rig.sim import World
 
     clock = VirtualClock()
     world = World(clock, seed=0)

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tactile_rig.clock import RealClock
+from tactile_rig.core.clock import RealClock
 from tactile_rig.drivers.camera import (
     CameraConfig,
     ControlReadbackError,
@@ -20,7 +20,7 @@ from tactile_rig.drivers.camera import (
     ReopenPolicy,
     fourcc_text,
 )
-from tactile_rig.errors import DeviceTimeout, NotConnected
+from tactile_rig.core.errors import DeviceTimeout, NotConnected
 from tactile_rig.mocks.camera import FakeVideoCapture, SimulatedCamera
 
 PATH = "/dev/v4l/by-id/usb-Logitech_UVC_Camera_(046d:081b)_MOCKC310A-video-index0"

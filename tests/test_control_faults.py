@@ -5,16 +5,16 @@ from __future__ import annotations
 
 import pytest
 
-from tactile_rig.clock import VirtualClock
+from tactile_rig.core.clock import VirtualClock
 from tactile_rig.control.collision_stop import CollisionStop, CollisionStopParams
 from tactile_rig.control.common import Outcome
 from tactile_rig.control.following import Following, FollowingParams
 from tactile_rig.control.protocols import Gripper, Motion, Pose, TactileSensor, TouchReading
 from tactile_rig.control.rotation import TorqueRotation, TorqueRotationParams
-from tactile_rig.errors import DeviceTimeout, LimitError, NotConnected
-from tactile_rig.mocks.sensors import ModelSensor
-from tactile_rig.mocks.world.arm import SimArm
-from tactile_rig.mocks.world.sim_gripper import SimGripper
+from tactile_rig.core.errors import DeviceTimeout, LimitError, NotConnected
+from tactile_rig.sim.fakes.sensors import ModelSensor
+from tactile_rig.sim.fakes.arm import SimArm
+from tactile_rig.sim.fakes.gripper import SimGripper
 
 
 def _rig(**arm_kw):

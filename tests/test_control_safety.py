@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tactile_rig.clock import VirtualClock
+from tactile_rig.core.clock import VirtualClock
 from tactile_rig.control.protocols import TouchReading
 from tactile_rig.control.safety import (
     check_speed,
@@ -16,8 +16,8 @@ from tactile_rig.control.safety import (
     measure_sensing,
     worst_case_overtravel_mm,
 )
-from tactile_rig.errors import LimitError
-from tactile_rig.mocks.sensors import ModelSensor
+from tactile_rig.core.errors import LimitError
+from tactile_rig.sim.fakes.sensors import ModelSensor
 
 
 def test_the_thesis_cap_is_one_millimetre_per_look_at_16_hz() -> None:

@@ -10,7 +10,7 @@ import pytest
 
 from tactile_rig.cli import main
 from tactile_rig.mocks.dynamixel import make_bus
-from tactile_rig.mocks.world.fingers import Fingers
+from tactile_rig.sim.world.fingers import Fingers
 from tactile_rig.testing import serve_in_process
 
 

@@ -8,12 +8,12 @@ from contextlib import ExitStack
 import pytest
 
 from tactile_rig.control.protocols import Gripper, GripperOutcome
-from tactile_rig.drivers.dynamixel import errors as de
+from tactile_rig.devices.dynamixel import error_codes as de
 from tactile_rig.drivers.dynamixel.bus import CommandRejected, DynamixelBus, check_latency_timer
 from tactile_rig.drivers.dynamixel.gripper import DynamixelGripper, GripperCalibration, Lifecycle
-from tactile_rig.errors import DeviceFault, DeviceTimeout, LimitError, LinkCorrupt, NotConnected, RigError
+from tactile_rig.core.errors import DeviceFault, DeviceTimeout, LimitError, LinkCorrupt, NotConnected, RigError
 from tactile_rig.mocks.dynamixel import make_bus
-from tactile_rig.mocks.world.fingers import Fingers
+from tactile_rig.sim.world.fingers import Fingers
 from tactile_rig.testing import serve_in_process
 
 

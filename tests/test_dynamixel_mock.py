@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 from hypothesis import given, strategies as st
 
-from tactile_rig.clock import VirtualClock
-from tactile_rig.drivers.dynamixel import errors as de
+from tactile_rig.core.clock import VirtualClock
+from tactile_rig.devices.dynamixel import error_codes as de
 from tactile_rig.drivers.dynamixel.gripper import DynamixelGripper
 from tactile_rig.control.protocols import GripperOutcome
 from tactile_rig.mocks.dynamixel import make_bus

@@ -8,8 +8,8 @@ from contextlib import contextmanager
 import pytest
 import dynamixel_sdk as sdk
 
-from tactile_rig.drivers.dynamixel import control_table as ct
-from tactile_rig.drivers.dynamixel import errors as de
+from tactile_rig.devices.dynamixel import control_table as ct
+from tactile_rig.devices.dynamixel import error_codes as de
 from tactile_rig.drivers.dynamixel.bus import UrlPortHandler
 from tactile_rig.mocks.dynamixel import make_bus
 from tactile_rig.testing import serve_in_process, serve_on_pty

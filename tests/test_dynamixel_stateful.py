@@ -6,10 +6,10 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, precondition, rule
 
-from tactile_rig.clock import VirtualClock
-from tactile_rig.drivers.dynamixel import errors as de
+from tactile_rig.core.clock import VirtualClock
+from tactile_rig.devices.dynamixel import error_codes as de
 from tactile_rig.drivers.dynamixel.bus import CommandRejected, DynamixelBus
-from tactile_rig.errors import DeviceFault
+from tactile_rig.core.errors import DeviceFault
 from tactile_rig.mocks.dynamixel import make_bus
 from tactile_rig.mocks.registry import register_instance, unregister_instance
 from tactile_rig.testing import serve_in_process
@@ -120,7 +120,7 @@ TestBusModel.settings = settings(max_examples=30, stateful_step_count=10, deadli
     seed=st.integers(0, 1000),
 )
 def test_a_noisy_link_only_raises_rig_errors_and_the_bus_recovers(ops, fault: str, seed: int) -> None:
-    from tactile_rig.errors import RigError
+    from tactile_rig.core.errors import RigError
 
     dev = make_bus(ids=[1, 2], timing=True, return_delay_us=0)
     with serve_in_process(dev) as url, DynamixelBus(f"rigfault://{url}#{fault}&seed={seed}") as bus:

@@ -1,4 +1,4 @@
-"""FingerVision perception on frames of the simulated gel (tactile_rig.mocks.world.fingervision_render).
+"""FingerVision perception on frames of the simulated gel (tactile_rig.sim.render.fingervision).
 
 Same parameters as on the real frames. Skipped if the renderer is not importable.
 """
@@ -12,7 +12,7 @@ import pytest
 
 from tactile_rig.perception.fingervision import FingerVision, detect_markers
 
-import tactile_rig.mocks.world.fingervision_render as render_mod  # noqa: E402  (a broken import must fail, not skip)
+import tactile_rig.sim.render.fingervision as render_mod  # noqa: E402  (a broken import must fail, not skip)
 
 
 @pytest.fixture(scope="module")

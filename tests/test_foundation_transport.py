@@ -6,9 +6,9 @@ import serial
 import pytest
 from hypothesis import given, strategies as st
 
-from tactile_rig.clock import Deadline, RealClock, VirtualClock
+from tactile_rig.core.clock import Deadline, RealClock, VirtualClock
 from tactile_rig.drivers.transport import SerialTransport, bus_lock
-from tactile_rig.errors import DeviceTimeout, NotConnected, RigError
+from tactile_rig.core.errors import DeviceTimeout, NotConnected, RigError
 from tactile_rig.mocks.faults import FaultInjector
 from tactile_rig.mocks.serial_device import SerialDevice
 from tactile_rig.testing import expected_protocol, serve_in_process, serve_on_pty

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tactile_rig.errors import CalibrationError
+from tactile_rig.core.errors import CalibrationError
 from tactile_rig.perception.gelsight import (
     ContactParams, GelSightCalibration, IntegrationParams, Reconstructor, calibrate_from_presses, clamp_radius_px,
     cross_validate, load_presses, marker_mask, press_error)

@@ -1,4 +1,4 @@
-"""The same pipeline, same default parameters, on frames from the simulated gel (tactile_rig.mocks.world).
+"""The same pipeline, same default parameters, on frames from the simulated gel (tactile_rig.sim.world).
 
 Skips when the renderer is not available. Rendered touches are independent renders (own sensor
 noise), so registration here is a harder, more realistic test than re-sampling one height map.
@@ -14,8 +14,8 @@ import pytest
 from tactile_rig.perception.gelsight import (
     Reconstructor, calibrate_from_presses, clamp_radius_px, load_presses, press_error, register)
 
-from tactile_rig.mocks.world import gelsight_render as render  # noqa: E402  (a broken import must fail, not skip)
-from tactile_rig.mocks.world import objects  # noqa: E402
+from tactile_rig.sim.render import gelsight as render  # noqa: E402  (a broken import must fail, not skip)
+from tactile_rig.sim.world import objects  # noqa: E402
 
 MM = 0.1245
 SHAPE = (120, 160)

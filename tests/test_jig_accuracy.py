@@ -10,11 +10,11 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tactile_rig.mocks.world.objects import usb_connector_part, view_in_sensor
+from tactile_rig.sim.world.objects import usb_connector_part, view_in_sensor
 from tactile_rig.rig.jig_accuracy import (
     JigAccuracyConfig,
     JigPoint,
-    PlanarPose,
+    Pose,
     PointResult,
     RunConflict,
     RunStore,
@@ -83,7 +83,7 @@ def test_wrap_deg_range_and_equivalence(a):
 
 @given(finite, finite, st.floats(-180, 180, allow_nan=False))
 def test_pose_matrix_round_trip(x, y, th):
-    pose = PlanarPose(x, y, th)
+    pose = Pose(x, y, theta_deg=th)
     back = pose_from_touch_matrix(touch_matrix_from_pose(pose))
     assert abs(wrap_deg(back.theta_deg - th)) < 1e-7
     assert math.hypot(back.x_mm - x, back.y_mm - y) < 1e-7 * (1 + abs(x) + abs(y))
@@ -96,7 +96,7 @@ def test_pose_from_matrix_rejects_garbage():
         pose_from_touch_matrix(np.full((2, 3), np.nan))
 
 
-@pytest.mark.parametrize("pose", [PlanarPose(2.0, -1.0, 0.0), PlanarPose(0.0, 0.0, 30.0), PlanarPose(1.5, 0.5, -20.0)])
+@pytest.mark.parametrize("pose", [Pose(2.0, -1.0, theta_deg=0.0), Pose(0.0, 0.0, theta_deg=30.0), Pose(1.5, 0.5, theta_deg=-20.0)])
 def test_touch_matrix_matches_the_renderers_geometry(pose):
     """The matrix maps a sensor point of a touch at ``pose`` onto the same object point at home."""
     part = usb_connector_part(0.05)
@@ -126,11 +126,11 @@ def _result(i, sweep, truth, est, conf=0.99):
 
 def test_summary_uses_each_sweeps_own_error_and_skips_refusals():
     res = [
-        _result(0, "rotation", PlanarPose(0, 0, -10), PlanarPose(0.1, 0, -9.0)),
-        _result(1, "rotation", PlanarPose(0, 0, 10), PlanarPose(0, 0, 13.0)),
-        _result(2, "rotation", PlanarPose(0, 0, 20), None, conf=0.2),
-        _result(3, "translation", PlanarPose(-1, 0, 0), PlanarPose(-1.1, 0, 5.0)),
-        _result(4, "translation", PlanarPose(1, 0, 0), PlanarPose(1.0, 0.3, 0.0)),
+        _result(0, "rotation", Pose(0, 0, theta_deg=-10), Pose(0.1, 0, theta_deg=-9.0)),
+        _result(1, "rotation", Pose(0, 0, theta_deg=10), Pose(0, 0, theta_deg=13.0)),
+        _result(2, "rotation", Pose(0, 0, theta_deg=20), None, conf=0.2),
+        _result(3, "translation", Pose(-1, 0, theta_deg=0), Pose(-1.1, 0, theta_deg=5.0)),
+        _result(4, "translation", Pose(1, 0, theta_deg=0), Pose(1.0, 0.3, theta_deg=0.0)),
     ]
     s = summarize(res)
     assert s["n_points"] == 5 and s["n_localized"] == 4 and s["n_refused"] == 1
@@ -140,19 +140,19 @@ def test_summary_uses_each_sweeps_own_error_and_skips_refusals():
 
 
 def test_rotation_error_wraps_across_180():
-    r = _result(0, "rotation", PlanarPose(0, 0, 179.0), PlanarPose(0, 0, -179.0))
+    r = _result(0, "rotation", Pose(0, 0, theta_deg=179.0), Pose(0, 0, theta_deg=-179.0))
     assert r.rotation_error_deg == pytest.approx(2.0)
 
 
 def test_summary_of_one_sweep_leaves_the_other_empty():
-    s = summarize([_result(0, "rotation", PlanarPose(0, 0, 5), PlanarPose(0, 0, 5.5))])
+    s = summarize([_result(0, "rotation", Pose(0, 0, theta_deg=5), Pose(0, 0, theta_deg=5.5))])
     assert s["translation_mae_mm"] is None and s["rotation_mae_deg"] == pytest.approx(0.5)
     assert summarize([])["rotation_mae_deg"] is None
 
 
 @given(st.lists(st.tuples(st.floats(-90, 90), st.floats(-5, 5), st.booleans()), max_size=20))
 def test_summary_never_nan_and_mae_bounds_std(rows):
-    res = [_result(i, "rotation" if i % 2 else "translation", PlanarPose(0, 0, a), PlanarPose(e, 0, a + e) if ok else None)
+    res = [_result(i, "rotation" if i % 2 else "translation", Pose(0, 0, theta_deg=a), Pose(e, 0, theta_deg=a + e) if ok else None)
            for i, (a, e, ok) in enumerate(rows)]
     s = summarize(res)
     for key in ("rotation_mae_deg", "rotation_std_deg", "translation_mae_mm", "translation_std_mm"):
@@ -165,7 +165,7 @@ def test_store_resumes_same_config_and_refuses_another(tmp_path):
     cfg = JigAccuracyConfig(sweep="rotation", rotations_deg=(-10, 10, 10))
     store = RunStore(tmp_path)
     assert store.begin(cfg, bench={"kind": "mock"}, resume=None, overwrite=False) == []
-    r0 = _result(0, "rotation", PlanarPose(0, 0, -10), PlanarPose(0, 0, -10.2))
+    r0 = _result(0, "rotation", Pose(0, 0, theta_deg=-10), Pose(0, 0, theta_deg=-10.2))
     store.append_point(r0)
     done = RunStore(tmp_path).begin(cfg, bench={"kind": "mock"}, resume=None, overwrite=False)
     assert [r.index for r in done] == [0] and done[0].estimate == r0.estimate
@@ -190,7 +190,7 @@ def test_resume_without_a_run_is_refused(tmp_path):
 def test_torn_or_garbage_tail_of_points_file_is_dropped(tmp_path_factory, tail):
     d = tmp_path_factory.mktemp("torn")
     store = RunStore(d)
-    good = [_result(i, "rotation", PlanarPose(0, 0, i), PlanarPose(0, 0, i + 0.1)) for i in range(3)]
+    good = [_result(i, "rotation", Pose(0, 0, theta_deg=i), Pose(0, 0, theta_deg=i + 0.1)) for i in range(3)]
     for r in good:
         store.append_point(r)
     with open(store.points_path, "ab") as fh:
@@ -200,21 +200,21 @@ def test_torn_or_garbage_tail_of_points_file_is_dropped(tmp_path_factory, tail):
     # The file is left holding whole lines only, so the next append starts on a fresh line.
     raw = store.points_path.read_bytes()
     assert raw.endswith(b"\n")
-    store.append_point(_result(9, "rotation", PlanarPose(0, 0, 9), None))
+    store.append_point(_result(9, "rotation", Pose(0, 0, theta_deg=9), None))
     assert store.read_points()[-1].index == 9
 
 
 def test_point_json_round_trip():
-    r = _result(4, "translation", PlanarPose(2, 0, 0), PlanarPose(2.01, -0.02, 0.1))
+    r = _result(4, "translation", Pose(2, 0, theta_deg=0), Pose(2.01, -0.02, theta_deg=0.1))
     back = PointResult.from_json(json.loads(json.dumps(r.to_json())))
     assert back.estimate == r.estimate and back.translation_error_mm == pytest.approx(r.translation_error_mm)
-    refused = PointResult.from_json(json.loads(json.dumps(_result(5, "rotation", PlanarPose(), None, 0.1).to_json())))
+    refused = PointResult.from_json(json.loads(json.dumps(_result(5, "rotation", Pose(), None, 0.1).to_json())))
     assert refused.estimate is None and not refused.ok
 
 
 def test_table_lists_every_point_and_the_papers_figures():
-    res = [_result(0, "rotation", PlanarPose(0, 0, -10), PlanarPose(0, 0, -10.5)),
-           _result(1, "translation", PlanarPose(1, 0, 0), None, conf=0.3)]
+    res = [_result(0, "rotation", Pose(0, 0, theta_deg=-10), Pose(0, 0, theta_deg=-10.5)),
+           _result(1, "translation", Pose(1, 0, theta_deg=0), None, conf=0.3)]
     text = format_table(res, summarize(res))
     assert "refused" in text and "1.15" in text and "0.14 mm" in text
     assert "-10.500" in text

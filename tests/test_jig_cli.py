@@ -26,7 +26,9 @@ def test_jig_home_then_move_and_unlock(capsys) -> None:
 
 
 def test_jig_move_errors_exit_nonzero(capsys) -> None:
-    assert main(["jig", "move", "--port", "rigsim://jig", "--x", "3"]) == 3  # locked: a device fault
+    # Locked after boot: GRBL refuses the line (error:9), a rejected command like a Dynamixel's
+    # status error, so exit 2 (bad input for the device's state), not 3 (a latched device fault).
+    assert main(["jig", "move", "--port", "rigsim://jig", "--x", "3"]) == 2
     assert "error:9" in capsys.readouterr().err
     assert main(["jig", "move", "--port", "rigsim://jig"]) == 2
     assert "at least one of" in capsys.readouterr().err

@@ -7,12 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from tactile_rig.clock import VirtualClock
+from tactile_rig.core.clock import VirtualClock
 from tactile_rig.control.protocols import Motion, Pose
 from tactile_rig.drivers.jig import GrblAlarm, GrblError, GrblReset, Jig
-from tactile_rig.errors import DeviceTimeout, LimitError, NotConnected
+from tactile_rig.core.errors import DeviceTimeout, LimitError, NotConnected
 from tactile_rig.mocks.grbl import GrblMock
-from tactile_rig.mocks.world import World
+from tactile_rig.sim import World
 from tactile_rig.testing import serve_in_process
 
 STEP_MM = 1 / 1600

@@ -6,11 +6,11 @@ import pytest
 from hypothesis import settings, strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, rule
 
-from tactile_rig.clock import VirtualClock
+from tactile_rig.core.clock import VirtualClock
 from tactile_rig.drivers.jig import GrblAlarm, Jig
 from tactile_rig.mocks.grbl import GrblMock
 from tactile_rig.mocks.registry import register_instance, unregister_instance
-from tactile_rig.mocks.world.stage import Stage
+from tactile_rig.sim.world.stage import Stage
 
 REPORT_RES = 0.001  # status reports print 3 decimals
 STEP_MM = 1 / 1600 + REPORT_RES

@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 from hypothesis import given, strategies as st
 
-from tactile_rig.drivers import grbl_protocol as gp
-from tactile_rig.drivers.jig import GrblAlarm, GrblError, clean_gcode_line, parse_status
-from tactile_rig.errors import DeviceFault, LinkCorrupt
+from tactile_rig.devices import grbl as gp
+from tactile_rig.drivers.jig import clean_gcode_line, parse_status
+from tactile_rig.core.errors import CommandRejected, DeviceFault, GrblAlarm, GrblError, LinkCorrupt
 from tactile_rig.testing.strategies_grbl import status_reports
 
 
@@ -61,13 +61,16 @@ def test_every_error_and_alarm_maps_to_a_typed_error_with_grbls_message() -> Non
     assert set(range(1, 18)) <= set(gp.ERRORS) and set(range(20, 39)) <= set(gp.ERRORS)
     assert set(range(1, 11)) <= set(gp.ALARMS)
     for code, (name, message) in gp.ERRORS.items():
-        err = GrblError(code, device="jig", line="G5")
-        assert isinstance(err, DeviceFault) and err.code == code and message in str(err) and "'G5'" in str(err)
+        err = gp.error(code, device="jig", line="G5")
+        # a refused line is a rejected command (ValueError, exit 2), not a latched fault
+        assert isinstance(err, GrblError) and isinstance(err, CommandRejected) and not isinstance(err, DeviceFault)
+        assert err.code == code and message in str(err) and "'G5'" in str(err)
     for code, (name, message) in gp.ALARMS.items():
-        alarm = GrblAlarm(code, device="jig")
+        alarm = gp.alarm(code, device="jig")
+        assert isinstance(alarm, GrblAlarm) and isinstance(alarm, DeviceFault)
         assert alarm.code == code and message in str(alarm) and f"ALARM:{code}" in str(alarm)
-    assert "not in GRBL 1.1's table" in str(GrblError(99))
-    assert "Soft limit" in str(GrblAlarm(2))
+    assert "not in GRBL 1.1's table" in str(gp.error(99))
+    assert "Soft limit" in str(gp.alarm(2))
 
 
 def test_settings_table_has_every_axis_setting() -> None:

@@ -11,8 +11,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from tactile_rig.mocks.world import World
-from tactile_rig.mocks.world.fingervision_render import FingerVisionRenderer, FvObject, contact_shear_field
+from tactile_rig.sim import World
+from tactile_rig.sim.render.fingervision import FingerVisionRenderer, FvObject, contact_shear_field
 from tests._data import require_shared
 
 

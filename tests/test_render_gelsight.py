@@ -12,8 +12,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from tactile_rig.mocks.world import World
-from tactile_rig.mocks.world.gelsight_render import (
+from tactile_rig.sim import World
+from tactile_rig.sim.render.gelsight import (
     TAXIM_LIGHTING,
     GelSightRenderer,
     LightingModel,
@@ -24,7 +24,7 @@ from tactile_rig.mocks.world.gelsight_render import (
     read_labels,
     render_ball_press_dataset,
 )
-from tactile_rig.mocks.world.objects import (
+from tactile_rig.sim.world.objects import (
     HeightField,
     box,
     cone,
@@ -283,7 +283,7 @@ def test_renderer_model_without_object_renders_background():
 
 
 def test_scene_file_builds_objects_and_renderer(tmp_path):
-    from tactile_rig.mocks.scenes import load_scene
+    from tactile_rig.sim.scenes import load_scene
 
     path = tmp_path / "touch.toml"
     path.write_text(

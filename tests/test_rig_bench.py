@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tactile_rig.errors import ConnectErrors, NotConnected
+from tactile_rig.core.errors import ConnectErrors, NotConnected
 from tactile_rig.rig.bench import (
     BenchError,
     CameraConfig,

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 import mcap  # noqa: E402,F401  (extras [learn,record] are installed by .[all,test]; absent = fail, not skip)
 import sklearn  # noqa: E402,F401
 
-from tactile_rig.errors import CalibrationError  # noqa: E402
+from tactile_rig.core.errors import CalibrationError  # noqa: E402
 from tactile_rig.rig.learning import (  # noqa: E402
     STIR_FEATURES,
     ForceMapModel,
@@ -23,7 +23,7 @@ from tactile_rig.rig.learning import (  # noqa: E402
     stirring_features,
     substance_session,
 )
-from tactile_rig.rig.stick_press import StickPressScene, increasing_peaks  # noqa: E402
+from tactile_rig.sim.world.stick_press import StickPressScene, increasing_peaks  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 
 import mcap  # noqa: E402,F401  (extra [record] is installed by .[all,test]; absent = fail, not skip)
 
-from tactile_rig.clock import VirtualClock  # noqa: E402
+from tactile_rig.core.clock import VirtualClock  # noqa: E402
 from tactile_rig.control.protocols import Pose  # noqa: E402
 from tactile_rig.rig.recording import Recorder, read_recording  # noqa: E402
 
@@ -120,7 +120,7 @@ def test_truncated_file_reads_a_prefix(full_recording, tmp_path_factory, frac: f
 
 WRITER = textwrap.dedent("""
     import sys, time
-    from tactile_rig.clock import VirtualClock
+    from tactile_rig.core.clock import VirtualClock
     from tactile_rig.rig.recording import Recorder
     clock = VirtualClock()
     rec = Recorder(sys.argv[1], clock=clock, flush_interval_s=1.0)

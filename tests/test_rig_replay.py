@@ -9,8 +9,8 @@ import pytest
 
 import mcap  # noqa: E402,F401  (extra [record] is installed by .[all,test]; absent = fail, not skip)
 
-from tactile_rig.clock import VirtualClock  # noqa: E402
-from tactile_rig.errors import DeviceTimeout, NotConnected  # noqa: E402
+from tactile_rig.core.clock import VirtualClock  # noqa: E402
+from tactile_rig.core.errors import DeviceTimeout, NotConnected  # noqa: E402
 from tactile_rig.rig.recording import Recorder  # noqa: E402
 from tactile_rig.rig.replay import RecordedFrameSource, summarize  # noqa: E402
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from hypothesis import given, strategies as st
 
-from tactile_rig.drivers import scale_protocol as sp
+from tactile_rig.devices import scale as sp
 from tactile_rig.drivers.scale import ScaleLineParser, crc8, parse_line
 from tactile_rig.mocks.scale import _crc8 as mock_crc8, frame
 from tactile_rig.testing.strategies import split_stream

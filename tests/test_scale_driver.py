@@ -6,14 +6,14 @@ import os
 
 import pytest
 
-from tactile_rig.clock import VirtualClock
-from tactile_rig.drivers import scale_protocol as sp
+from tactile_rig.core.clock import VirtualClock
+from tactile_rig.devices import scale as sp
 from tactile_rig.drivers.scale import Scale, stable_port_path
 from tactile_rig.drivers.transport import SerialTransport
-from tactile_rig.errors import CalibrationError, DeviceTimeout, NotConnected
+from tactile_rig.core.errors import CalibrationError, DeviceTimeout, NotConnected
 from tactile_rig.mocks.scale import ScaleMock, frame
-from tactile_rig.mocks.world import World
-from tactile_rig.mocks.world.load_cell import LoadCell
+from tactile_rig.sim import World
+from tactile_rig.sim.world.load_cell import LoadCell
 from tactile_rig.testing import expected_protocol, serve_in_process
 
 G = sp.STANDARD_GRAVITY_MPS2

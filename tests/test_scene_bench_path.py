@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from tactile_rig.clock import RealClock
+from tactile_rig.core.clock import RealClock
 from tactile_rig.rig.scene_runner import run_episode
 
 pytestmark = pytest.mark.pty

@@ -49,7 +49,7 @@ def test_a_fault_scene_reports_the_device_and_a_failed_property_exits_1(capsys, 
     row = _lines(capsys)[0]
     assert row["outcome"] == "fault" and row["fault_device"] == "gripper"
     # the same scene expecting success: the episode fails its property and the exit code says so
-    src = (list_scenes() and __import__("tactile_rig.mocks.scenes", fromlist=["x"]).SCENE_DIR
+    src = (list_scenes() and __import__("tactile_rig.sim.scenes", fromlist=["x"]).SCENE_DIR
            / "handover_servo_overload.toml").read_text()
     bad = tmp_path / "expect_success.toml"
     bad.write_text(src.replace('expect = "fault"\n', ""))

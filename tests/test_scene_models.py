@@ -10,12 +10,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tactile_rig.clock import VirtualClock
+from tactile_rig.core.clock import VirtualClock
 from tactile_rig.control.protocols import Pose, TouchReading
-from tactile_rig.errors import DeviceTimeout
-from tactile_rig.mocks.sensors import ModelSensor
-from tactile_rig.mocks.world import World
-from tactile_rig.mocks.world.arm import SimArm
+from tactile_rig.core.errors import DeviceTimeout
+from tactile_rig.sim.fakes.sensors import ModelSensor
+from tactile_rig.sim import World
+from tactile_rig.sim.fakes.arm import SimArm
 
 
 @settings(max_examples=20)

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tactile_rig.errors import LimitError
+from tactile_rig.core.errors import LimitError
 from tactile_rig.rig.scene_runner import run_episode
 
 seeds = st.integers(0, 2**31 - 1)

@@ -2,7 +2,7 @@
 
 Each command group lives in its own module under :mod:`tactile_rig.cli` and exposes
 ``register(subparsers)``. A handler returns the process exit code. Errors from the rig
-(:class:`~tactile_rig.errors.RigError`) and bad arguments (``ValueError``) become one line on
+(:class:`~tactile_rig.core.errors.RigError`) and bad arguments (``ValueError``) become one line on
 stderr and exit code 2; a device fault exits 3 so scripts can tell it from a failed verdict (1).
 """
 
@@ -15,7 +15,7 @@ import sys
 from typing import Sequence
 
 from tactile_rig import __version__
-from tactile_rig.errors import DeviceFault, RigError
+from tactile_rig.core.errors import DeviceFault, RigError
 
 # Command groups, in the order they appear in --help.
 COMMAND_MODULES: tuple[str, ...] = (

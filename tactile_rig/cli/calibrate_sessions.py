@@ -88,7 +88,7 @@ def _connect(args: argparse.Namespace, names: list[str], *, scene: str | None = 
              connectors: dict[str, Callable[..., Any]] | None = None, bench_too: bool = False) -> Any:
     """Connect only ``names`` of the chosen bench (mocks: on ``scene``); ``connectors`` apply to
     mocks only unless ``bench_too``."""
-    from tactile_rig.clock import VirtualClock
+    from tactile_rig.core.clock import VirtualClock
     from tactile_rig.rig.bench import Bench, bench_from_args, connect_bench
 
     bench = bench_from_args(args, check_files=False)

@@ -59,7 +59,7 @@ def _open(args: argparse.Namespace, **kw):
 
 
 def _print_state(args: argparse.Namespace, state, extra: dict | None = None) -> None:
-    from tactile_rig.drivers.dynamixel.errors import decode_hardware_error
+    from tactile_rig.devices.dynamixel.error_codes import decode_hardware_error
 
     if args.json:
         d = {"state": state, "hardware_errors": decode_hardware_error(state.hardware_error)}

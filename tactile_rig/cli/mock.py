@@ -76,14 +76,14 @@ def serve_params(args: argparse.Namespace) -> dict[str, str]:
 
 
 def _serve(args: argparse.Namespace) -> int:
-    from tactile_rig.clock import RealClock
+    from tactile_rig.core.clock import RealClock
     from tactile_rig.mocks.pty_server import PtyServer
     from tactile_rig.mocks.registry import Params, create_device
 
     clock = RealClock()
     world = None
     if args.scene:
-        from tactile_rig.mocks.scenes import load_scene
+        from tactile_rig.sim.scenes import load_scene
 
         world = load_scene(args.scene, clock=clock, seed=args.seed).world
     params = Params(serve_params(args), source=f"mock serve {args.device}")

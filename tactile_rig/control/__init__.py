@@ -1,4 +1,5 @@
-"""Closed-loop tactile controllers; they depend only on the protocols in :mod:`.protocols`."""
+"""Closed-loop tactile controllers; they depend only on the protocols in :mod:`.protocols` and the
+shared types of :mod:`tactile_rig.core`."""
 
 from tactile_rig.control.protocols import (
     Gripper,
@@ -12,7 +13,7 @@ from tactile_rig.control.protocols import (
 
 __all__ = ["Gripper", "GripperOutcome", "GripperState", "Motion", "Pose", "TactileSensor", "Trace"]
 
-# Controllers (issue 7): each a small class with its parameters, ``step()`` and ``run()``.
+# Controllers: each a small class with its parameters, ``step()`` and ``run()``.
 from tactile_rig.control.collision_stop import CollisionStop, CollisionStopParams  # noqa: E402
 from tactile_rig.control.common import ControllerResult, Outcome  # noqa: E402
 from tactile_rig.control.following import Following, FollowingParams  # noqa: E402

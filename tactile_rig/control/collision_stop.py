@@ -5,7 +5,7 @@ while moving, a frame whose force differs from that mean by more than ``force_ep
 collision: stop, report the direction of the change, back off along the path. The approach speed
 is capped (:mod:`tactile_rig.control.safety`) from the measured sensing rate and latency so that
 the axis never travels more than ``allowed_overtravel_mm`` past contact; faster commands are
-refused with a :class:`~tactile_rig.errors.LimitError` before anything moves.
+refused with a :class:`~tactile_rig.core.errors.LimitError` before anything moves.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from tactile_rig.clock import Clock
+from tactile_rig.core.clock import Clock
 from tactile_rig.control.common import (
     ControllerResult,
     Outcome,

@@ -1,6 +1,6 @@
 """What every controller shares: the outcome type, the fault guard, sensor adaptation, waiting.
 
-A controller ends in an :class:`Outcome`. Any :class:`~tactile_rig.errors.RigError` raised by a
+A controller ends in an :class:`Outcome`. Any :class:`~tactile_rig.core.errors.RigError` raised by a
 device inside a run is caught by :func:`fault_result`'s callers, motion is stopped
 (:func:`safe_stop`) and the result names the device; no controller leaves an axis moving.
 """
@@ -12,9 +12,9 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-from tactile_rig.clock import Clock
+from tactile_rig.core.clock import Clock
 from tactile_rig.control.protocols import Gripper, GripperOutcome, Motion, Pose, TouchReading, Trace
-from tactile_rig.errors import DeviceFault, DeviceTimeout, RigError
+from tactile_rig.core.errors import DeviceFault, DeviceTimeout, RigError
 
 
 class Outcome(str, enum.Enum):

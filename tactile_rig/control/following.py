@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from tactile_rig.clock import Clock
+from tactile_rig.core.clock import Clock
 from tactile_rig.control.common import ControllerResult, Outcome, guarded, read_touch
 from tactile_rig.control.protocols import Motion, Pose, TactileSensor, TouchReading, Trace
 

@@ -21,10 +21,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tactile_rig.clock import Clock
+from tactile_rig.core.clock import Clock
 from tactile_rig.control.common import ControllerResult, Outcome, guarded, move_and_wait, pose_vec, go
 from tactile_rig.control.protocols import Gripper, GripperOutcome, Localization, Motion, Pose, TactileSensor, Trace
-from tactile_rig.errors import DeviceTimeout
+from tactile_rig.core.errors import DeviceTimeout
 
 
 def pose_to_matrix(p: Pose) -> np.ndarray:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from tactile_rig.clock import Clock
+from tactile_rig.core.clock import Clock
 from tactile_rig.control.common import ControllerResult, Outcome, guarded, move_and_wait, read_touch, go
 from tactile_rig.control.protocols import Gripper, GripperOutcome, Motion, Pose, TactileSensor, Trace
 

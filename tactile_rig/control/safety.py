@@ -16,8 +16,8 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from tactile_rig.clock import Clock
-from tactile_rig.errors import LimitError, check_range
+from tactile_rig.core.clock import Clock
+from tactile_rig.core.errors import LimitError, check_range
 
 
 def collision_speed_cap_mps(allowed_overtravel_mm: float, sensing_rate_hz: float, latency_s: float = 0.0,

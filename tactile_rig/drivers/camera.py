@@ -14,7 +14,7 @@ close). :class:`OpenCVSource` is the hardware path (``cv2.VideoCapture(path, cv2
 - Each :class:`Frame` carries a sequence number, host monotonic time, device time, and a
   ``duplicate`` flag (same content or same device timestamp as the previous frame). A run of
   identical frames raises :class:`FrozenStream`; no frame within the timeout raises
-  :class:`~tactile_rig.errors.DeviceTimeout`.
+  :class:`~tactile_rig.core.errors.DeviceTimeout`.
 - A vanished device is reopened with exponential backoff (:class:`ReopenPolicy`), reconfigured and
   re-verified; the frames are always BGR (:attr:`FrameSource.channel_order` says what the source
   gives, so an RGB source is converted once, here, and nowhere else).
@@ -32,8 +32,16 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from tactile_rig.clock import Clock, Deadline, RealClock
-from tactile_rig.errors import DeviceTimeout, NotConnected, RigError
+from tactile_rig.core.clock import Clock, Deadline, RealClock
+from tactile_rig.core.errors import ControlReadbackError, DeviceTimeout, FrozenStream, NotConnected, RigError
+from tactile_rig.core.types import RawFrame
+from tactile_rig.devices.camera import (
+    AUTO_SWITCHES,
+    CONTROL_ALIASES,
+    PHOTOMETRIC_CONTROLS,
+    canonical_control,
+    fourcc_text,
+)
 
 log = logging.getLogger("tactile_rig.camera")
 
@@ -51,48 +59,6 @@ __all__ = [
     "PHOTOMETRIC_CONTROLS",
     "canonical_control",
 ]
-
-# Kernels ≥ 5.x renamed several UVC controls; accept both spellings, store the new one.
-CONTROL_ALIASES = {
-    "exposure_auto": "auto_exposure",
-    "exposure_absolute": "exposure_time_absolute",
-    "white_balance_temperature_auto": "white_balance_automatic",
-    "exposure_auto_priority": "exposure_dynamic_framerate",
-}
-# Written first: a manual value is ignored (inactive) while its auto switch is on.
-AUTO_SWITCHES = ("auto_exposure", "white_balance_automatic", "exposure_dynamic_framerate")
-
-PHOTOMETRIC_CONTROLS: dict[str, float] = {
-    "auto_exposure": 1,  # V4L2 menu: 1 = manual, 3 = aperture priority
-    "exposure_time_absolute": 166,  # 100 µs units
-    "white_balance_automatic": 0,
-    "white_balance_temperature": 4000,
-    "gain": 64,
-}
-"""Locked controls for photometric (GelSight) work: no auto exposure, no auto white balance."""
-
-
-def canonical_control(name: str) -> str:
-    """The current kernel name of a UVC control (old names accepted)."""
-    return CONTROL_ALIASES.get(name, name)
-
-
-class ControlReadbackError(RigError, ValueError):
-    """The camera did not keep a format or control value we wrote (read back differs)."""
-
-
-class FrozenStream(DeviceTimeout):
-    """Frames keep arriving but their content does not change: the stream is frozen."""
-
-
-@dataclass(frozen=True)
-class RawFrame:
-    """What a source returns: the image in ``channel_order`` and the device's own timestamp/counter."""
-
-    image: np.ndarray
-    t_device_s: float | None = None
-    device_seq: int | None = None
-
 
 @dataclass(frozen=True)
 class Frame:
@@ -445,11 +411,6 @@ def _control_props() -> dict[str, int]:
 
 def fourcc_code(fourcc: str) -> int:
     return int(_cv2().VideoWriter_fourcc(*fourcc))
-
-
-def fourcc_text(code: float) -> str:
-    c = int(code)
-    return "".join(chr((c >> (8 * i)) & 0xFF) for i in range(4))
 
 
 class OpenCVSource:

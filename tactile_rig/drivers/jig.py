@@ -17,39 +17,22 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Callable, Iterable
 
-from tactile_rig.clock import Clock, Deadline
-from tactile_rig.drivers import grbl_protocol as gp
+from tactile_rig.core.clock import Clock, Deadline
+from tactile_rig.core.geometry import Pose
+from tactile_rig.devices import grbl as gp
 from tactile_rig.drivers.transport import SerialTransport
-from tactile_rig.errors import DeviceFault, DeviceTimeout, LimitError, LinkCorrupt, check_range
+from tactile_rig.core.errors import (
+    DeviceFault,
+    DeviceTimeout,
+    GrblAlarm,
+    GrblError,
+    GrblReset,
+    LimitError,
+    LinkCorrupt,
+    check_range,
+)
 
 log = logging.getLogger("tactile_rig.jig")
-
-
-# -- errors ------------------------------------------------------------------------------------------
-
-class GrblError(DeviceFault):
-    """GRBL answered ``error:N`` to a line; ``code`` is N, ``line`` the line it rejected."""
-
-    def __init__(self, code: int, *, device: str | None = None, line: str | None = None) -> None:
-        name, message = gp.ERRORS.get(code, ("Unknown error", f"error code {code} is not in GRBL 1.1's table"))
-        where = f" for line {line!r}" if line is not None else ""
-        super().__init__(f"error:{code} ({name}){where}: {message}", device=device, code=code, detail=message)
-        self.name = name
-        self.line = line
-
-
-class GrblAlarm(DeviceFault):
-    """GRBL reported ``ALARM:N``: motion has stopped and G-code is locked until ``$X`` or a reset."""
-
-    def __init__(self, code: int, *, device: str | None = None, hint: str = "") -> None:
-        name, message = gp.ALARMS.get(code, ("Unknown alarm", f"alarm code {code} is not in GRBL 1.1's table"))
-        super().__init__(f"ALARM:{code} ({name}): {message}" + (f" ({hint})" if hint else ""),
-                         device=device, code=code, detail=message)
-        self.name = name
-
-
-class GrblReset(DeviceFault):
-    """GRBL printed its banner when no reset was asked for (power glitch, DTR, watchdog)."""
 
 
 # -- status reports -----------------------------------------------------------------------------------
@@ -326,7 +309,7 @@ class Jig:
             raise GrblReset("GRBL reset unexpectedly (banner mid-session): buffered motion was lost",
                             device=self.device)
         if self._alarms:
-            raise GrblAlarm(self._alarms.popleft(), device=self.device)
+            raise gp.alarm(self._alarms.popleft(), device=self.device)
 
     def _send_line(self, line: str, deadline: Deadline) -> int:
         """Send one line when GRBL's receive buffer has room for it (character counting)."""
@@ -360,7 +343,7 @@ class Jig:
         """Send one line, wait for its ``ok``; return the info lines it printed. ``error:N`` → GrblError."""
         self._check_events()
         if self.needs_reset:
-            raise GrblAlarm(self.last_alarm or 0, device=self.device, hint=f"{line!r} not sent: only a soft "
+            raise gp.alarm(self.last_alarm or 0, device=self.device, hint=f"{line!r} not sent: only a soft "
                             "reset (soft_reset()) clears this alarm")
         dl = Deadline(self.clock, timeout_s)
         self._info.clear()
@@ -369,7 +352,7 @@ class Jig:
         info = list(self._info)
         self._info.clear()
         if result != "ok":
-            raise GrblError(_error_code(result), device=self.device, line=line)
+            raise gp.error(_error_code(result), device=self.device, line=line)
         return info
 
     # -- status and waiting ---------------------------------------------------------------------------------
@@ -396,7 +379,7 @@ class Jig:
             if st.state == "Idle" and not self._outstanding:
                 return st
             if st.state == "Alarm":
-                raise GrblAlarm(self._alarms.popleft() if self._alarms else 0, device=self.device)
+                raise gp.alarm(self._alarms.popleft() if self._alarms else 0, device=self.device)
             if dl.expired():
                 raise DeviceTimeout(f"not Idle within {timeout_s:.3g} s (state {st.state}, "
                                     f"{len(self._outstanding)} line(s) unanswered)", device=self.device)
@@ -556,7 +539,7 @@ class Jig:
                     code = _error_code(r)
                     res.errors.append((no, code, text))
                     if first_error is None:
-                        first_error = GrblError(code, device=self.device, line=f"{no}: {text}")
+                        first_error = gp.error(code, device=self.device, line=f"{no}: {text}")
 
         for no, raw in enumerate(lines, start=1):
             text = clean_gcode_line(raw)
@@ -593,14 +576,12 @@ class Jig:
         words = self._axis_words(target.x_mm, target.y_mm, target.theta_deg)
         self.command(f"$J=G90{words}F{speed_mps * 60000.0:.1f}")
 
-    def pose(self):
-        """The work-coordinate pose now (a control.protocols.Pose-compatible object)."""
-        from tactile_rig.control.protocols import Pose  # a plain dataclass; no controller logic
+    def pose(self) -> Pose:
+        """The work-coordinate pose now (mm, θ in degrees)."""
+        return self.pose_from_status(self.status())
 
-        st = self.status()
-        return self.pose_from_status(st, Pose)
-
-    def pose_from_status(self, st: GrblStatus, pose_type=None):
+    def pose_from_status(self, st: GrblStatus) -> Pose:
+        """The work-coordinate pose in a status report (WPos, else MPos); ``LinkCorrupt`` if it has none."""
         pos = st.wpos or st.mpos
         if pos is None:
             raise LinkCorrupt(f"status report has no position: {st.raw!r}", device=self.device)
@@ -608,9 +589,7 @@ class Jig:
         if idx >= len(pos):
             raise LinkCorrupt(f"status reports {len(pos)} axes; θ is on {self.theta_axis}: {st.raw!r}",
                               device=self.device)
-        if pose_type is None:
-            from tactile_rig.control.protocols import Pose as pose_type
-        return pose_type(x_mm=pos[0], y_mm=pos[1], z_mm=0.0, theta_deg=pos[idx])
+        return Pose(x_mm=pos[0], y_mm=pos[1], z_mm=0.0, theta_deg=pos[idx])
 
     def stop(self) -> None:
         """Stop as fast as GRBL allows: jog cancel when jogging, else feed hold, then flush the plan

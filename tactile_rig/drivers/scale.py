@@ -5,7 +5,7 @@ deadline; garbage and half lines dropped; explicit DTR toggles guarded, since a 
 and delivers every sample in order as a :class:`ScaleReading` (grams, raw counts, newtons, sequence
 number, host time). Drops and device resets are detected from the sequence numbers and the banner,
 bad checksums are counted and rejected, and a scale that stops talking raises
-:class:`~tactile_rig.errors.DeviceTimeout`. Nothing is lost or duplicated without being counted in
+:class:`~tactile_rig.core.errors.DeviceTimeout`. Nothing is lost or duplicated without being counted in
 :attr:`Scale.stats`. The wire codec (:class:`ScaleLineParser`) is pure and usable on its own.
 """
 
@@ -22,10 +22,10 @@ from typing import Callable
 
 import serial
 
-from tactile_rig.clock import Clock, Deadline
-from tactile_rig.drivers import scale_protocol as sp
+from tactile_rig.core.clock import Clock, Deadline
+from tactile_rig.devices import scale as sp
 from tactile_rig.drivers.transport import SerialTransport
-from tactile_rig.errors import CalibrationError, DeviceTimeout, NotConnected, check_range
+from tactile_rig.core.errors import CalibrationError, DeviceTimeout, NotConnected, check_range
 
 log = logging.getLogger("tactile_rig.scale")
 
@@ -543,6 +543,6 @@ class Scale:
 
 
 def _wall() -> Clock:
-    from tactile_rig.clock import RealClock
+    from tactile_rig.core.clock import RealClock
 
     return RealClock()

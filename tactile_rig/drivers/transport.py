@@ -16,15 +16,10 @@ from typing import Any
 
 import serial
 
-from tactile_rig.clock import Clock, Deadline, RealClock
-from tactile_rig.errors import DeviceTimeout, NotConnected
+from tactile_rig.core.clock import Clock, Deadline, RealClock
+from tactile_rig.core.errors import DeviceTimeout, NotConnected
 
 log = logging.getLogger("tactile_rig.transport")
-
-# Registers rigsim:// and rigfault:// with pyserial (importing the package is enough).
-_URL_HANDLER_PACKAGE = "tactile_rig.mocks.urlhandlers"
-if _URL_HANDLER_PACKAGE not in serial.protocol_handler_packages:
-    serial.protocol_handler_packages.append(_URL_HANDLER_PACKAGE)
 
 _BUS_LOCKS: dict[str, threading.RLock] = {}
 _BUS_LOCKS_GUARD = threading.Lock()

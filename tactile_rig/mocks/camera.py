@@ -22,10 +22,11 @@ from typing import Any, Callable
 import cv2
 import numpy as np
 
-from tactile_rig.clock import Clock, RealClock
-from tactile_rig.drivers.camera import RawFrame, canonical_control, fourcc_text
-from tactile_rig.errors import NotConnected
-from tactile_rig.mocks.world.gelsight_render import SensorNoise
+from tactile_rig.core.clock import Clock, RealClock
+from tactile_rig.core.types import RawFrame
+from tactile_rig.devices.camera import canonical_control, fourcc_text
+from tactile_rig.core.errors import NotConnected
+from tactile_rig.sim.render.gelsight import SensorNoise
 
 __all__ = ["UvcControl", "C310_CONTROLS", "C310_MODES", "UvcControlTable", "SimulatedCamera", "FakeVideoCapture"]
 

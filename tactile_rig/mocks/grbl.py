@@ -27,12 +27,12 @@ from typing import Any
 
 import numpy as np
 
-from tactile_rig.clock import Clock
-from tactile_rig.drivers import grbl_protocol as gp
+from tactile_rig.core.clock import Clock
+from tactile_rig.devices import grbl as gp
 from tactile_rig.mocks.grbl_motion import Profile, line_limits, trapezoid
 from tactile_rig.mocks.registry import Params, register_kind
 from tactile_rig.mocks.serial_device import SerialDevice
-from tactile_rig.mocks.world.stage import Stage
+from tactile_rig.sim.world.stage import Stage
 
 _WORD_RE = re.compile(r"([A-Z])([-+]?(?:\d+\.?\d*|\.\d+))?")
 _MAX_STEP_RATE_HZ = 30000.0

@@ -20,7 +20,7 @@ import threading
 import time
 import tty
 
-from tactile_rig.clock import Clock, RealClock
+from tactile_rig.core.clock import Clock, RealClock
 from tactile_rig.mocks.serial_device import SerialDevice
 
 log = logging.getLogger("tactile_rig.mocks.pty")

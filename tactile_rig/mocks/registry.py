@@ -2,7 +2,7 @@
 
 A device kind (``dynamixel``, ``scale``, ``jig``) registers a factory
 ``factory(params: Params, *, clock, world) -> SerialDevice``. ``rigsim://KIND?key=value&...``
-builds a fresh device on its own :class:`~tactile_rig.clock.VirtualClock` (or ``clock=real``);
+builds a fresh device on its own :class:`~tactile_rig.core.clock.VirtualClock` (or ``clock=real``);
 ``rigsim://@NAME`` connects to an instance that a test or a scene registered with
 :func:`register_instance` (so a driver and the test share one device, clock and world).
 """
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from typing import Any, Callable
 from urllib.parse import parse_qsl, urlsplit
 
-from tactile_rig.clock import Clock, RealClock, VirtualClock
+from tactile_rig.core.clock import Clock, RealClock, VirtualClock
 from tactile_rig.mocks.serial_device import SerialDevice
 
 _BUILTIN_KIND_MODULES = {
@@ -173,7 +173,7 @@ def device_from_url(url: str) -> tuple[SerialDevice, Clock]:
     world = None
     scene = params.str("scene")
     if scene:
-        from tactile_rig.mocks.scenes import load_scene
+        from tactile_rig.sim.scenes import load_scene
 
         world = load_scene(scene, clock=clock, seed=params.int("seed")).world
     return create_device(target, params, clock=clock, world=world), clock

@@ -24,11 +24,11 @@ from typing import Any
 
 import numpy as np
 
-from tactile_rig.clock import Clock
-from tactile_rig.drivers import scale_protocol as sp
+from tactile_rig.core.clock import Clock
+from tactile_rig.devices import scale as sp
 from tactile_rig.mocks.registry import Params, register_kind
 from tactile_rig.mocks.serial_device import SerialDevice
-from tactile_rig.mocks.world.load_cell import LoadCell
+from tactile_rig.sim.world.load_cell import LoadCell
 
 
 def _crc8(body: bytes) -> int:

@@ -8,7 +8,7 @@ stop) after an optional processing delay, one byte after another on a half-duple
 as the host would see it. Set ``timing=False`` to make replies instantaneous.
 
 The same class is served two ways (see :mod:`tactile_rig.mocks.pty_server` and the ``rigsim://``
-URL handler): on a pty pair in real time, and in process on a :class:`~tactile_rig.clock.VirtualClock`.
+URL handler): on a pty pair in real time, and in process on a :class:`~tactile_rig.core.clock.VirtualClock`.
 """
 
 from __future__ import annotations

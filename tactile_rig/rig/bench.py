@@ -49,7 +49,7 @@ after the file is read; the value is parsed as a TOML value when it parses (numb
 booleans, quoted strings), else taken as a bare string.
 
 Mocks: a port ``rigsim://KIND?key=value`` in a bench is **not** opened on its own clock. On
-:func:`connect_bench` every such device is built on ONE :class:`~tactile_rig.clock.VirtualClock`
+:func:`connect_bench` every such device is built on ONE :class:`~tactile_rig.core.clock.VirtualClock`
 and ONE world (the ``[bench] scene``), registered as ``rigsim://@<bench>.<device>``, and the driver
 opens that instance: the devices of a mock bench see the same time and the same world. A port
 ``rigsim://@NAME`` (an instance a test registered) is used as it is.
@@ -68,7 +68,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from tactile_rig.errors import ConnectErrors, RigError
+from tactile_rig.core.errors import BenchError, ConnectErrors, RigError
 
 ENV_PREFIX = "TACTILE_RIG_"
 SENSOR_TYPES = ("gelsight", "fingervision")
@@ -83,17 +83,6 @@ CALIBRATION_COMMANDS = {
     "fingervision": "tactile-rig calibrate fingervision",
     "force_map": "tactile-rig calibrate force-map",
 }
-
-
-class BenchError(RigError, ValueError):
-    """A bench file that cannot be used; ``problems`` lists every ``(line, message)`` found."""
-
-    def __init__(self, source: str, problems: list[tuple[int | None, str]]) -> None:
-        self.source = source
-        self.problems = sorted(problems, key=lambda p: p[0] or 0)
-        lines = [f"{source} line {ln}: {msg}" if ln else f"{source}: {msg}" for ln, msg in self.problems]
-        super().__init__("\n".join(lines) if len(lines) == 1 else
-                         f"{len(lines)} problems in {source}:\n  " + "\n  ".join(lines))
 
 
 # -- typed configuration ----------------------------------------------------------------------
@@ -644,7 +633,7 @@ def _connect_gripper(cfg: DeviceConfig, ctx: ConnectContext) -> Any:
     if cfg.calibration is not None:
         import json
 
-        from tactile_rig.errors import CalibrationError
+        from tactile_rig.core.errors import CalibrationError
 
         try:
             d = json.loads(cfg.calibration.read_text(encoding="utf-8"))
@@ -705,7 +694,7 @@ def connect_bench(bench: Bench, *, connectors: Mapping[str, Connector] | None = 
     Devices that did connect are closed again when any fails. ``connectors`` maps a device kind to
     ``fn(config, context) -> driver`` (defaults: :data:`CONNECTORS`).
     """
-    from tactile_rig.clock import RealClock, VirtualClock
+    from tactile_rig.core.clock import RealClock, VirtualClock
 
     table = dict(CONNECTORS)
     if connectors:
@@ -715,7 +704,7 @@ def connect_bench(bench: Bench, *, connectors: Mapping[str, Connector] | None = 
         clock = VirtualClock() if any_sim else RealClock()
     world = None
     if any_sim and bench.scene:
-        from tactile_rig.mocks.scenes import load_scene
+        from tactile_rig.sim.scenes import load_scene
 
         world = load_scene(bench.scene, clock=clock, seed=bench.seed).world
     ctx = ConnectContext(bench=bench, clock=clock, world=world)
@@ -751,7 +740,7 @@ def _with_port(cfg: DeviceConfig, port: str) -> DeviceConfig:
 def _name_port(cfg: DeviceConfig, exc: BaseException) -> BaseException:
     """Make sure the reported error says which port the device was on (keeping the error's class
     when it is one of the plain ones, so callers can still tell a timeout from a missing port)."""
-    from tactile_rig.errors import CalibrationError, DeviceTimeout, LimitError, LinkCorrupt, NotConnected
+    from tactile_rig.core.errors import CalibrationError, DeviceTimeout, LimitError, LinkCorrupt, NotConnected
 
     if cfg.port in str(exc):
         return exc

@@ -35,8 +35,9 @@ from typing import Any, Callable, Protocol, Sequence, TextIO
 import cv2
 import numpy as np
 
-from tactile_rig.rig.poses import PlanarPose, utc_now
-from tactile_rig.errors import CalibrationError, check_range
+from tactile_rig.core.clock import utc_now
+from tactile_rig.core.geometry import Pose
+from tactile_rig.core.errors import CalibrationError, check_range
 
 __all__ = [
     "CALIBRATION_FORMAT",
@@ -176,7 +177,7 @@ def _short(v: Any) -> str:
 
 # -- GelSight ball presses --------------------------------------------------------------------
 class PressRig(Protocol):
-    """What the GelSight session needs: the jig (``move_to`` a :class:`PlanarPose`) and a frame."""
+    """What the GelSight session needs: the jig (``move_to`` a :class:`Pose`) and a frame."""
 
     def move_to(self, pose: Any) -> None: ...
 
@@ -289,7 +290,7 @@ def even_colour_direction(frames: Sequence[np.ndarray], background_bgr: np.ndarr
 
 
 def collect_ball_presses(rig: PressRig, plan: BallPressPlan, mm_per_px: float, out_dir: str | Path | None = None,
-                         *, guide: Guide | None = None, pose_type: Callable[..., Any] | None = None) -> Any:
+                         *, guide: Guide | None = None) -> Any:
     """Press the ball at every grid position; return a labelled PressSet (and write a ``presses/`` folder).
 
     The ball's offset from the sensor centre at the jig's home is the median over the presses of
@@ -298,12 +299,11 @@ def collect_ball_presses(rig: PressRig, plan: BallPressPlan, mm_per_px: float, o
     """
     from tactile_rig.perception.gelsight.calibration import PressSet
 
-    make_pose = pose_type or PlanarPose
     guide = guide or Guide(False, quiet=True)
     check_range("mm_per_px", float(mm_per_px), 1e-4, 10.0, "mm/px")
     bx, by = plan.background_mm
     guide.say(f"moving the ball out of view ({bx:+.1f}, {by:+.1f}) mm for the no-contact frame")
-    rig.move_to(make_pose(float(bx), float(by), 0.0))
+    rig.move_to(Pose(float(bx), float(by)))
     # The mean of several no-contact frames: the sensor noise and the lamp flicker of one frame would
     # otherwise be subtracted from every later frame as a false colour change.
     stack = np.stack([rig.touch() for _ in range(int(plan.background_frames))]).astype(np.float32)
@@ -312,7 +312,7 @@ def collect_ball_presses(rig: PressRig, plan: BallPressPlan, mm_per_px: float, o
     frames: list[np.ndarray] = []
     guide.say(f"pressing at {len(positions)} jig positions")
     for x, y in positions:
-        rig.move_to(make_pose(x, y, 0.0))
+        rig.move_to(Pose(x, y))
         frames.append(np.ascontiguousarray(rig.touch()))
     rows, cols = background.shape[:2]
     centre = np.array([(cols - 1) / 2.0, (rows - 1) / 2.0])
@@ -408,8 +408,8 @@ def wait_for_load(scale: Any, empty_g: float, noise_g: float, *, timeout_s: floa
     """Wait until the scale reads a load that is clearly there (> 20 noise σ and > 1 g above the
     empty reading) and steady (σ of the last ``window`` readings < 3 noise σ + 0.05 g); return those
     readings in grams. For scripted sessions: whoever places the mass has ``timeout_s`` to do it."""
-    from tactile_rig.clock import Deadline
-    from tactile_rig.errors import DeviceTimeout
+    from tactile_rig.core.clock import Deadline
+    from tactile_rig.core.errors import DeviceTimeout
 
     dl = Deadline(clock or scale.clock, timeout_s)
     recent: list[float] = []

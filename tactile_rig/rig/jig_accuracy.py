@@ -11,7 +11,7 @@ Frames (all planar, mm and degrees, image axes: x right, y down, θ clockwise on
 * the *sensor* frame S: millimetres from the image centre;
 * the *map* frame M: the sensor frame of the first map touch, taken at the jig's home pose;
 * a stage pose ``(x_mm, y_mm, theta_deg)`` puts the object at ``p_s = R(θ) p_m + t`` in S, the
-  convention of :func:`tactile_rig.mocks.world.objects.view_in_sensor`.
+  convention of :func:`tactile_rig.sim.world.objects.view_in_sensor`.
 
 A registration of a touch B onto the map returns the 2x3 matrix taking B's sensor points into the
 map, ``p_m = R(−θ) (p_s − t)``; :func:`pose_from_touch_matrix` inverts it into the stage pose.
@@ -41,15 +41,16 @@ from typing import Any, Callable, Iterable, Protocol, Sequence
 
 import numpy as np
 
-from tactile_rig.rig.poses import PlanarPose, utc_now, wrap_deg
-from tactile_rig.errors import CalibrationError, RigError, check_range
+from tactile_rig.core.clock import utc_now
+from tactile_rig.core.geometry import Pose, wrap_deg
+from tactile_rig.core.errors import CalibrationError, RigError, RunConflict, check_range
 
 __all__ = [
     "SWEEPS",
     "PAPER_FIGURES",
     "JigAccuracyConfig",
     "JigPoint",
-    "PlanarPose",
+    "Pose",
     "PointResult",
     "plan_points",
     "pose_from_touch_matrix",
@@ -191,7 +192,7 @@ class JigPoint:
 
     index: int
     sweep: str  # "rotation" or "translation"
-    pose: PlanarPose
+    pose: Pose
 
 
 def plan_points(cfg: JigAccuracyConfig) -> list[JigPoint]:
@@ -199,16 +200,16 @@ def plan_points(cfg: JigAccuracyConfig) -> list[JigPoint]:
     points: list[JigPoint] = []
     if cfg.sweep in ("rotation", "both"):
         for th in _inclusive_range(*cfg.rotations_deg):
-            points.append(JigPoint(len(points), "rotation", PlanarPose(0.0, 0.0, th)))
+            points.append(JigPoint(len(points), "rotation", Pose(0.0, 0.0, theta_deg=th)))
     if cfg.sweep in ("translation", "both"):
         for s in _inclusive_range(*cfg.shifts_mm):
-            pose = PlanarPose(s, 0.0, 0.0) if cfg.shift_axis == "x" else PlanarPose(0.0, s, 0.0)
+            pose = Pose(s, 0.0, theta_deg=0.0) if cfg.shift_axis == "x" else Pose(0.0, s, theta_deg=0.0)
             points.append(JigPoint(len(points), "translation", pose))
     return points
 
 
 # -- pose algebra -----------------------------------------------------------------------------
-def touch_matrix_from_pose(pose: PlanarPose) -> np.ndarray:
+def touch_matrix_from_pose(pose: Pose) -> np.ndarray:
     """The 2x3 matrix (mm) taking a sensor point of a touch at stage ``pose`` into the map frame."""
     t = math.radians(pose.theta_deg)
     c, s = math.cos(t), math.sin(t)
@@ -217,7 +218,7 @@ def touch_matrix_from_pose(pose: PlanarPose) -> np.ndarray:
     return np.hstack([r_inv, (-r_inv @ tvec)[:, None]])
 
 
-def pose_from_touch_matrix(matrix_mm: np.ndarray) -> PlanarPose:
+def pose_from_touch_matrix(matrix_mm: np.ndarray) -> Pose:
     """The stage pose whose touch maps into the map frame by ``matrix_mm`` (2x3, mm)."""
     m = np.asarray(matrix_mm, dtype=np.float64)
     if m.shape != (2, 3) or not np.all(np.isfinite(m)):
@@ -227,7 +228,7 @@ def pose_from_touch_matrix(matrix_mm: np.ndarray) -> PlanarPose:
     c, s = math.cos(t), math.sin(t)
     r = np.array([[c, -s], [s, c]])  # R(θ)
     tvec = -r @ m[:, 2]
-    return PlanarPose(float(tvec[0]), float(tvec[1]), wrap_deg(theta))
+    return Pose(float(tvec[0]), float(tvec[1]), theta_deg=wrap_deg(theta))
 
 
 # -- results ----------------------------------------------------------------------------------
@@ -237,9 +238,9 @@ class PointResult:
 
     index: int
     sweep: str
-    commanded: PlanarPose
-    truth: PlanarPose
-    estimate: PlanarPose | None
+    commanded: Pose
+    truth: Pose
+    estimate: Pose | None
     ok: bool
     confidence: float
     method: str
@@ -251,7 +252,7 @@ class PointResult:
     wall_s: float = 0.0
 
     @classmethod
-    def make(cls, point: JigPoint, truth: PlanarPose, estimate: PlanarPose | None, **kw: Any) -> "PointResult":
+    def make(cls, point: JigPoint, truth: Pose, estimate: Pose | None, **kw: Any) -> "PointResult":
         """Fill in the errors: rotation |Δθ| (wrapped) and translation |Δ(x, y)| of estimate vs truth."""
         r = cls(point.index, point.sweep, point.pose, truth, estimate, ok=estimate is not None, **kw)
         if estimate is not None:
@@ -271,9 +272,9 @@ class PointResult:
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> "PointResult":
         return cls(index=int(d["index"]), sweep=str(d["sweep"]),
-                   commanded=PlanarPose.from_dict(d["commanded"]),  # type: ignore[arg-type]
-                   truth=PlanarPose.from_dict(d["truth"]),  # type: ignore[arg-type]
-                   estimate=PlanarPose.from_dict(d.get("estimate")), ok=bool(d["ok"]),
+                   commanded=Pose.from_dict(d["commanded"]),  # type: ignore[arg-type]
+                   truth=Pose.from_dict(d["truth"]),  # type: ignore[arg-type]
+                   estimate=Pose.from_dict(d.get("estimate")), ok=bool(d["ok"]),
                    confidence=float(d["confidence"]) if d.get("confidence") is not None else float("nan"),
                    method=str(d.get("method", "")), reason=d.get("reason"), touches=int(d.get("touches", 1)),
                    rotation_error_deg=d.get("rotation_error_deg"),
@@ -320,10 +321,6 @@ def summarize(results: Iterable[PointResult]) -> dict[str, Any]:
 
 
 # -- persistence ------------------------------------------------------------------------------
-class RunConflict(RigError, ValueError):
-    """OUT holds a run with another configuration (or an unreadable one)."""
-
-
 class RunStore:
     """``OUT/run.json`` (config, fingerprint, status) and ``OUT/points.jsonl`` (one finished point a line)."""
 
@@ -433,7 +430,7 @@ class RunStore:
 class JigRig(Protocol):
     """What a jig accuracy run needs of the bench: move, touch, and (mocks) the truth."""
 
-    def move_to(self, pose: PlanarPose) -> None:
+    def move_to(self, pose: Pose) -> None:
         """Move the jig to ``pose`` and return once it is idle there and settled."""
         ...
 
@@ -441,7 +438,7 @@ class JigRig(Protocol):
         """A fresh GelSight frame (BGR uint8) of the object pressed at the current pose."""
         ...
 
-    def truth(self, commanded: PlanarPose) -> PlanarPose:
+    def truth(self, commanded: Pose) -> Pose:
         """The true pose: the world's stage pose on a mock, ``commanded`` on a bench."""
         ...
 
@@ -458,7 +455,7 @@ class JigRig(Protocol):
 class Localization:
     """A touch localized in the map: the stage pose estimate (None: refused) and why."""
 
-    pose: PlanarPose | None
+    pose: Pose | None
     confidence: float
     method: str
     reason: str | None = None
@@ -497,13 +494,13 @@ class TouchLocalizer:
     def map_size(self) -> int:
         return len(self.map.poses)
 
-    def add_to_map(self, height_mm: np.ndarray, hint: PlanarPose | None = None) -> Localization:
+    def add_to_map(self, height_mm: np.ndarray, hint: Pose | None = None) -> Localization:
         """Add a touch: the first defines the map frame; later ones join when localized with c above threshold."""
         first = self.map.empty
         rec = self.map.add_touch(height_mm, None if hint is None else touch_matrix_from_pose(hint))
         res = rec.result
         if first:
-            return Localization(PlanarPose(), 1.0, "root", None, res)
+            return Localization(Pose(), 1.0, "root", None, res)
         if not rec.accepted:
             reason = res.reason or f"confidence {res.confidence:.3f} <= {self.min_map_confidence}"
             return Localization(None, float(res.confidence), res.method, reason, res)
@@ -551,7 +548,7 @@ def build_map(rig: JigRig, localizer: TouchLocalizer, cfg: JigAccuracyConfig) ->
     """
     rows: list[dict[str, Any]] = []
     for i, (x, y) in enumerate(cfg.map_touches_mm):
-        pose = PlanarPose(float(x), float(y), 0.0)
+        pose = Pose(float(x), float(y), theta_deg=0.0)
         rig.move_to(pose)
         height = localizer.height_mm(rig.touch())
         if i == 0 and float(np.ptp(height)) < 1e-3:
@@ -699,7 +696,7 @@ class DeviceJigRig:
     def now_s(self) -> float:
         return float(self.clock.now_s())
 
-    def move_to(self, pose: PlanarPose) -> None:
+    def move_to(self, pose: Pose) -> None:
         if self.recorder is not None:
             self.recorder.write_command("jig", "move_to", **pose.as_dict(), feed_mm_per_min=self.feed_mm_per_min)
         self.jig.move_to(pose.x_mm, pose.y_mm, pose.theta_deg, feed_mm_per_min=self.feed_mm_per_min)
@@ -718,12 +715,12 @@ class DeviceJigRig:
             self.recorder.write_frame(self.camera_name, image, compress="png")
         return image
 
-    def truth(self, commanded: PlanarPose) -> PlanarPose:
+    def truth(self, commanded: Pose) -> Pose:
         if self.world is None:
             return commanded
         self.world.advance_to()
         st = self.world.require(self.stage_name, "the jig accuracy run")
-        return PlanarPose(float(st.x_mm), float(st.y_mm), float(st.theta_deg))
+        return Pose(float(st.x_mm), float(st.y_mm), theta_deg=float(st.theta_deg))
 
     def describe(self) -> dict[str, Any]:
         return dict(self.description)
@@ -756,7 +753,7 @@ def connect_mock_jig_rig(*, scene: str = "jig_accuracy", seed: int = 0, start_s:
     jig driver talks to the GRBL mock over ``rigsim://@mock.jig`` and the camera renders
     ``sensor_model`` at the stage's pose. ``start_s`` starts the clock later (a resumed run).
     """
-    from tactile_rig.clock import VirtualClock
+    from tactile_rig.core.clock import VirtualClock
     from tactile_rig.rig.bench import Bench, connect_bench, load_bench, mock_bench_path
 
     base = load_bench(mock_bench_path(), check_files=False)
@@ -775,7 +772,7 @@ def connect_bench_jig_rig(bench: Any, camera: str | None = None, *, start_s: flo
     A bench file made of mocks (every port ``rigsim://``) runs on its ``[bench] scene`` (default: the
     jig accuracy scene), with the simulated camera rendering the scene's ``gelsight`` model.
     """
-    from tactile_rig.clock import VirtualClock
+    from tactile_rig.core.clock import VirtualClock
     from tactile_rig.rig.bench import Bench, connect_bench
 
     cams = [n for n, c in bench.cameras.items() if c.sensor == "gelsight"]

@@ -30,7 +30,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from tactile_rig.errors import CalibrationError
+from tactile_rig.core.errors import CalibrationError
 
 FORCE_MAP_FORMAT = "tactile-rig/force-map"
 SUBSTANCE_FORMAT = "tactile-rig/substance-classifier"
@@ -190,7 +190,7 @@ class ForceTrialData:
 def record_force_map_session(path: str | Path, trials: Sequence[Any], *, camera: str = "fingervision",
                              bench: Any = None, gap_s: float = 1.0) -> Path:
     """Record press trials (``stick_press.PressTrial``) as a session would: perception + scale + commands."""
-    from tactile_rig.clock import VirtualClock
+    from tactile_rig.core.clock import VirtualClock
     from tactile_rig.rig.recording import Recorder
 
     clock = VirtualClock()
@@ -286,14 +286,14 @@ def force_map_session(out_dir: str | Path, *, n_trials: int = 10, max_force_n: f
                       figures: bool = True) -> dict[str, Any]:
     """The whole session: collect (mock) or read (``recording``) trials, fit, save, report.
 
-    On mocks the trials come from :class:`~tactile_rig.rig.stick_press.StickPressScene` and are
+    On mocks the trials come from :class:`~tactile_rig.sim.world.stick_press.StickPressScene` and are
     recorded to ``OUT/force_map.mcap`` first; the fit always reads a recording.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     scene = None
     if recording is None:
-        from tactile_rig.rig.stick_press import StickPressScene, increasing_peaks
+        from tactile_rig.sim.world.stick_press import StickPressScene, increasing_peaks
 
         scene = StickPressScene()
         trials_sim = scene.trials(increasing_peaks(n_trials, max_force_n), seed=seed)
@@ -454,7 +454,7 @@ def fit_substance(X: np.ndarray, labels: Sequence[str], *, seed: int = 0,
 def record_stirring_session(path: str | Path, trials: Sequence[Any], *, camera: str = "fingervision",
                             gap_s: float = 1.0) -> Path:
     """Record stirring trials (``stirring.StirTrial``): a labelled trial start, then the marker series."""
-    from tactile_rig.clock import VirtualClock
+    from tactile_rig.core.clock import VirtualClock
     from tactile_rig.rig.recording import Recorder
 
     clock = VirtualClock()
@@ -513,7 +513,7 @@ def substance_session(out_dir: str | Path, *, per_substance: int = 12, seed: int
     if not 0 < test_fraction < 1:
         raise ValueError(f"test_fraction={test_fraction!r} must be in (0, 1)")
     if recording is None:
-        from tactile_rig.rig.stirring import StirringScene
+        from tactile_rig.sim.world.stirring import StirringScene
 
         recording = record_stirring_session(out / "substance.mcap", StirringScene().trials(per_substance, seed=seed))
     trials = stirring_trials_from_recording(recording, camera=camera)

@@ -36,7 +36,7 @@ from typing import Any, Iterator, Mapping
 
 import numpy as np
 
-from tactile_rig.clock import Clock, RealClock
+from tactile_rig.core.clock import Clock, RealClock
 
 __all__ = ["Recorder", "Recording", "Message", "read_recording", "iter_messages", "SCHEMAS"]
 

@@ -13,8 +13,8 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from tactile_rig.clock import Clock
-from tactile_rig.errors import NotConnected
+from tactile_rig.core.clock import Clock
+from tactile_rig.core.errors import NotConnected
 from tactile_rig.rig.recording import Message, Recording, decode_image, iter_messages, read_recording
 
 IMAGE_SCHEMAS = ("foxglove.RawImage", "foxglove.CompressedImage")

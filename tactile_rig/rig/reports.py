@@ -25,7 +25,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from tactile_rig.rig.poses import wrap_deg
+from tactile_rig.core.geometry import wrap_deg
 
 
 def _pyplot() -> Any:

@@ -1,6 +1,6 @@
 """Run a controller in a simulated scene: wire world, sensors, clock and controller; record the trace.
 
-A scene file (see :mod:`tactile_rig.mocks.scenes`) names the world models; three more sections
+A scene file (see :mod:`tactile_rig.sim.scenes`) names the world models; three more sections
 drive an episode:
 
 ``[controller]``  ``kind`` (which episode wiring in :mod:`tactile_rig.rig.episodes` to use) and the
@@ -26,10 +26,10 @@ from typing import Any, Callable
 
 import numpy as np
 
-from tactile_rig.clock import Clock, VirtualClock
+from tactile_rig.core.clock import Clock, VirtualClock
 from tactile_rig.control.common import ControllerResult
-from tactile_rig.errors import RigError
-from tactile_rig.mocks.scenes import Scene, builtin_scenes, load_scene, resolve_scene_path
+from tactile_rig.core.errors import RigError
+from tactile_rig.sim.scenes import Scene, builtin_scenes, load_scene, resolve_scene_path
 
 
 @dataclass
@@ -89,7 +89,7 @@ class EpisodeContext:
                     process: Callable[[Any, float], Any] | None = None) -> Any:
         """Build the scene's TactileSensor from ``[sensor]``: a model sensor over ``probe`` or,
         with ``kind = "rendered"``, ``render``/``process``."""
-        from tactile_rig.mocks.sensors import ModelSensor, RenderedSensor
+        from tactile_rig.sim.fakes.sensors import ModelSensor, RenderedSensor
 
         s = dict(self.sensor)
         kind = s.pop("kind", "model")

@@ -6,7 +6,7 @@ import itertools
 from contextlib import contextmanager
 from typing import Iterator, Sequence
 
-from tactile_rig.clock import VirtualClock
+from tactile_rig.core.clock import VirtualClock
 from tactile_rig.mocks.registry import register_instance, unregister_instance
 from tactile_rig.mocks.serial_device import SerialDevice
 

@@ -6,7 +6,7 @@ import itertools
 from contextlib import contextmanager
 from typing import Iterator
 
-from tactile_rig.clock import Clock, VirtualClock
+from tactile_rig.core.clock import Clock, VirtualClock
 from tactile_rig.mocks.pty_server import PtyServer
 from tactile_rig.mocks.registry import register_instance, unregister_instance
 from tactile_rig.mocks.serial_device import SerialDevice

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from hypothesis import strategies as st
 
-from tactile_rig.drivers import grbl_protocol as gp
+from tactile_rig.devices import grbl as gp
 
 
 def _coords(n: int) -> st.SearchStrategy[tuple[float, ...]]:

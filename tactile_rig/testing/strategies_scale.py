@@ -1,7 +1,7 @@
 """Hypothesis strategies for the scale's lines: valid framed samples, stock lines, corrupted frames.
 
 The frames are built here with an independent CRC (a third implementation, bitwise, reflected from
-the spec in :mod:`tactile_rig.drivers.scale_protocol`), so a test never builds its expectations with
+the spec in :mod:`tactile_rig.devices.scale`), so a test never builds its expectations with
 the code under test.
 """
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from hypothesis import strategies as st
 
-from tactile_rig.drivers import scale_protocol as sp
+from tactile_rig.devices import scale as sp
 
 
 def crc8_reference(data: bytes) -> int:

@@ -6,10 +6,10 @@
 the bus lock for every transaction (the SDK's ``is_using`` flag is not a lock) and turns SDK
 result codes into exceptions:
 
-* ``COMM_RX_TIMEOUT`` → :class:`~tactile_rig.errors.DeviceTimeout` (wrong ID, baud, power)
-* ``COMM_RX_CORRUPT`` → :class:`~tactile_rig.errors.LinkCorrupt` (noise, cut-off status; retryable)
+* ``COMM_RX_TIMEOUT`` → :class:`~tactile_rig.core.errors.DeviceTimeout` (wrong ID, baud, power)
+* ``COMM_RX_CORRUPT`` → :class:`~tactile_rig.core.errors.LinkCorrupt` (noise, cut-off status; retryable)
 * a status error number (P2) or command bit (P1) → :class:`CommandRejected` naming it
-* the Alert bit (P2) or a hardware bit (P1) → :class:`~tactile_rig.errors.DeviceFault` with the
+* the Alert bit (P2) or a hardware bit (P1) → :class:`~tactile_rig.core.errors.DeviceFault` with the
   decoded Hardware Error Status, for writes; reads still return their data while a fault is latched.
 """
 
@@ -23,14 +23,21 @@ from typing import Iterable
 import dynamixel_sdk as sdk
 
 import tactile_rig.drivers.transport as transport
-from tactile_rig.clock import Clock
-from tactile_rig.drivers.dynamixel import control_table as ct
-from tactile_rig.drivers.dynamixel import errors as de
-from tactile_rig.errors import DeviceFault, DeviceTimeout, LinkCorrupt, LimitError, NotConnected, RigError
+from tactile_rig.core.clock import Clock
+from tactile_rig.devices.dynamixel import control_table as ct
+from tactile_rig.devices.dynamixel import error_codes as de
+from tactile_rig.core.errors import (
+    CommandRejected,
+    DeviceFault,
+    DeviceTimeout,
+    LimitError,
+    LinkCorrupt,
+    NotConnected,
+    RigError,
+)
 
 log = logging.getLogger("tactile_rig.dynamixel")
 
-CommandRejected = de.CommandRejected
 
 
 def check_latency_timer(port: str, *, sysfs_root: str | Path = "/sys") -> int | None:
@@ -140,7 +147,7 @@ class DynamixelBus:
             if number:
                 name = de.P2_ERROR_NUMBERS.get(number, f"error {number}")
                 raise CommandRejected(f"{what}: the servo answered error {number} ({name})", device=dev,
-                                      error_number=number, error_name=name)
+                                      code=number, detail=name)
             if not alert:
                 self.hardware_errors[dxl_id] = 0
                 return
@@ -155,7 +162,7 @@ class DynamixelBus:
             if cmd:
                 names = ", ".join(de.decode_bits(cmd, de.P1_ERROR_BITS))
                 raise CommandRejected(f"{what}: the servo answered error bits 0x{cmd:02x} ({names})", device=dev,
-                                      error_number=cmd, error_name=names)
+                                      code=cmd, detail=names)
             hw = de.p1_hardware_to_status_bits(error & de.P1_HARDWARE_MASK)
             self.hardware_errors[dxl_id] = hw
             if not hw:

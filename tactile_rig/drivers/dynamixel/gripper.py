@@ -20,11 +20,11 @@ from collections import deque
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from tactile_rig.clock import Deadline
-from tactile_rig.control.protocols import GripperOutcome, GripperState
-from tactile_rig.drivers.dynamixel import control_table as ct
+from tactile_rig.core.clock import Deadline
+from tactile_rig.devices.dynamixel import control_table as ct
 from tactile_rig.drivers.dynamixel.bus import DynamixelBus
-from tactile_rig.errors import CalibrationError, DeviceFault, LimitError, NotConnected, check_range
+from tactile_rig.core.errors import CalibrationError, DeviceFault, LimitError, NotConnected, check_range
+from tactile_rig.core.types import GripperOutcome, GripperState
 
 log = logging.getLogger("tactile_rig.dynamixel.gripper")
 

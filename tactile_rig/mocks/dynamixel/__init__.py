@@ -27,7 +27,7 @@ from typing import Any
 from tactile_rig.mocks.dynamixel.device import DynamixelBusDevice, nominal_baud
 from tactile_rig.mocks.dynamixel.firmware import Servo
 from tactile_rig.mocks.registry import Params, register_kind
-from tactile_rig.mocks.world.fingers import Fingers
+from tactile_rig.sim.world.fingers import Fingers
 
 __all__ = ["DynamixelBusDevice", "Servo", "make_bus"]
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from tactile_rig.drivers.dynamixel import errors as de
+from tactile_rig.devices.dynamixel import error_codes as de
 from tactile_rig.mocks.dynamixel.codec import (
     BROADCAST_ID, ChecksumFailure, Packet, StreamParser, crc16, encode_p1, encode_p2_status)
 from tactile_rig.mocks.dynamixel.firmware import Servo

@@ -1,8 +1,8 @@
 """One MX-64's firmware: register memory, access rules, instructions' effects and hardware errors.
 
 The servo keeps its control table in a byte array initialised from the shared table data
-(:mod:`tactile_rig.drivers.dynamixel.control_table`), refreshes the present-value registers from
-its plant (:class:`~tactile_rig.mocks.world.fingers.Fingers`) before every read, checks every
+(:mod:`tactile_rig.devices.dynamixel.control_table`), refreshes the present-value registers from
+its plant (:class:`~tactile_rig.sim.world.fingers.Fingers`) before every read, checks every
 write against the table (read-only or undefined address → Access Error; EEPROM while torque is on
 → Access Error; partial item → Data Length Error; outside the item's range → Data Range Error;
 beyond a limit register → Data Limit Error) and latches Overheating / Overload when the plant's
@@ -14,9 +14,9 @@ from __future__ import annotations
 import math
 import struct
 
-from tactile_rig.drivers.dynamixel import control_table as ct
-from tactile_rig.drivers.dynamixel import errors as de
-from tactile_rig.mocks.world.fingers import STALL_CURRENT_A, TICKS_PER_REV, Fingers
+from tactile_rig.devices.dynamixel import control_table as ct
+from tactile_rig.devices.dynamixel import error_codes as de
+from tactile_rig.sim.world.fingers import STALL_CURRENT_A, TICKS_PER_REV, Fingers
 
 #: an overload latches after this long at >= OVERLOAD_FRACTION of the stall current
 OVERLOAD_TIME_S = 2.0

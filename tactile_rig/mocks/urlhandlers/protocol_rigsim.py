@@ -1,7 +1,7 @@
 """``rigsim://`` — a mock device in the same process, no threads, on the device's clock.
 
 ``serial.serial_for_url("rigsim://dynamixel?ids=1,2&protocol=2")`` or ``"rigsim://@name"`` (see
-:mod:`tactile_rig.mocks.registry`). On a :class:`~tactile_rig.clock.VirtualClock` a read that must
+:mod:`tactile_rig.mocks.registry`). On a :class:`~tactile_rig.core.clock.VirtualClock` a read that must
 wait advances virtual time to when the device's bytes arrive (or to the read's timeout), so a
 driver sees exactly the timing it would see on a wire, instantly. A read with ``timeout=0`` (the
 busy polling of dynamixel-sdk) may advance time only to deliver a reply already in flight, never
@@ -14,7 +14,7 @@ import math
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
-from tactile_rig.clock import Clock
+from tactile_rig.core.clock import Clock
 from tactile_rig.mocks.registry import device_from_url
 from tactile_rig.mocks.serial_device import SerialDevice
 

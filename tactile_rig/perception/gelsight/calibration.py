@@ -16,7 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from tactile_rig.errors import CalibrationError
+from tactile_rig.core.errors import CalibrationError
 from tactile_rig.perception.gelsight.models import COLOUR_SCALE, MODELS, LutModel
 
 FORMAT_VERSION = 1

@@ -14,7 +14,7 @@ import itertools
 from typing import Any, Callable
 
 from tactile_rig.mocks.registry import Params, create_device, register_instance, unregister_instance
-from tactile_rig.mocks.world.timeline import Timeline
+from tactile_rig.sim.world.timeline import Timeline
 from tactile_rig.rig.scene_runner import EpisodeContext
 
 _names = itertools.count()

@@ -7,7 +7,7 @@ import math
 from typing import Any, Callable
 
 from tactile_rig.control.protocols import TouchReading
-from tactile_rig.mocks.world.friction import GraspedObject
+from tactile_rig.sim.world.friction import GraspedObject
 
 
 def grasp_probe(obj: GraspedObject, frame_period_s: float, *, slip_threshold_mm: float = 0.05,

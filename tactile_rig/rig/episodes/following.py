@@ -66,7 +66,7 @@ def _run(ctx: EpisodeContext, devices: Devices) -> EpisodeReport:
 def _rendered_proximity(ctx: EpisodeContext, params: FollowingParams, offset):  # noqa: ANN001, ANN202
     """The FingerVision renderer drawing the object where it is, and the real FingerVision
     processor (calibrated on empty frames, object colours taught from one frame) reading it."""
-    from tactile_rig.mocks.world.fingervision_render import FingerVisionRenderer, FvObject
+    from tactile_rig.sim.render.fingervision import FingerVisionRenderer, FvObject
     from tactile_rig.perception.fingervision.processor import FingerVision, FingerVisionParams
 
     renderer = FingerVisionRenderer(seed=ctx.seed)

@@ -14,7 +14,7 @@ import numpy as np
 
 from tactile_rig.control.insertion import InsertionParams, Insertion
 from tactile_rig.control.protocols import Localization, Pose
-from tactile_rig.mocks.world.part import _inv, _mat
+from tactile_rig.sim.world.part import _inv, _mat
 from tactile_rig.rig.episodes import params_for
 from tactile_rig.rig.scene_runner import EpisodeContext, EpisodeReport
 

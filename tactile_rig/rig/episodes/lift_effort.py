@@ -30,7 +30,7 @@ def _run(ctx: EpisodeContext, devices: Devices) -> EpisodeReport:
     effort = res.figures.get("effort", float("nan"))
     if hasattr(gripper, "current_limit_a") and effort == effort:
         # the MX-64 applies a whole number of 3.36 mA current units: judge the effort it applied
-        from tactile_rig.drivers.dynamixel import control_table as ct
+        from tactile_rig.devices.dynamixel import control_table as ct
 
         unit = ct.P2_CURRENT_A_PER_UNIT
         effort = round(effort * gripper.current_limit_a / unit) * unit / gripper.current_limit_a

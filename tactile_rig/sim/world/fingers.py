@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from tactile_rig.mocks.world import register_model
+from tactile_rig.sim.base import register_model
 
 TICKS_PER_REV = 4096
 NO_LOAD_RPM = 63.0  # at 12 V (e-manual)

@@ -7,6 +7,8 @@ and ``doc/csv/{error,alarm}_codes_en_US.csv``. Messages are GRBL's own wording. 
 
 from __future__ import annotations
 
+from tactile_rig.core.errors import GrblAlarm, GrblError
+
 BAUD = 115200
 VERSION = "1.1h"
 BUILD_DATE = "20190825"
@@ -121,3 +123,15 @@ MASK_BUFFER = 2  # Bf:planner,rx
 # Fields of a status report (everything after the state), in GRBL's printing order.
 STATUS_FIELDS = ("MPos", "WPos", "Bf", "Ln", "F", "FS", "WCO", "Pn", "Ov", "A")
 PIN_LETTERS = "XYZAPDHRS"  # Pn: limits X Y Z (A), probe, door, hold, soft-reset, cycle-start
+
+
+def error(code: int, *, device: str | None = None, line: str | None = None) -> GrblError:
+    """The typed error for GRBL's ``error:<code>`` answering ``line``, with GRBL 1.1's name and message."""
+    name, meaning = ERRORS.get(code, ("Unknown error", f"error code {code} is not in GRBL 1.1's table"))
+    return GrblError(code, name, meaning, device=device, line=line)
+
+
+def alarm(code: int, *, device: str | None = None, hint: str = "") -> GrblAlarm:
+    """The typed fault for GRBL's ``ALARM:<code>``, with GRBL 1.1's name and message."""
+    name, meaning = ALARMS.get(code, ("Unknown alarm", f"alarm code {code} is not in GRBL 1.1's table"))
+    return GrblAlarm(code, name, meaning, device=device, hint=hint)

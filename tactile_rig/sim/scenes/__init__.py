@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from tactile_rig.clock import Clock
-from tactile_rig.mocks.world import World
+from tactile_rig.core.clock import Clock
+from tactile_rig.sim import World
 
 SCENE_DIR = Path(__file__).resolve().parent
 

@@ -8,8 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from tactile_rig.errors import check_range
-from tactile_rig.mocks.world import register_model
+from tactile_rig.core.errors import check_range
+from tactile_rig.sim.base import register_model
 
 
 class TorsionStop:

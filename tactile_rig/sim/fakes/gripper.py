@@ -8,7 +8,7 @@ squeezes with ``min(k (w − goal), effort · stall)`` and the fingers stop wher
 The Dynamixel mock with the ``fingers`` plant is the faithful version of the same thing.
 
 ``overload_at_s`` latches an Overload hardware error at that time: torque off, and every call
-raises :class:`~tactile_rig.errors.DeviceFault` naming ``gripper``.
+raises :class:`~tactile_rig.core.errors.DeviceFault` naming ``gripper``.
 """
 
 from __future__ import annotations
@@ -18,10 +18,11 @@ from typing import Any, Callable
 
 import numpy as np
 
-from tactile_rig.clock import Clock
-from tactile_rig.errors import DeviceFault, check_range
-from tactile_rig.mocks.world import register_model
-from tactile_rig.mocks.world.timeline import Timeline
+from tactile_rig.core.clock import Clock
+from tactile_rig.core.errors import DeviceFault, check_range
+from tactile_rig.core.types import GripperOutcome, GripperState
+from tactile_rig.sim.base import register_model
+from tactile_rig.sim.world.timeline import Timeline
 
 OVERLOAD_BIT = 0x20  # Hardware Error Status bit 5 of the MX series
 
@@ -65,7 +66,6 @@ class SimGripper:
     # -- Gripper protocol ----------------------------------------------------------------------
     def gripper_go(self, position: float, effort: float, *, blocking: bool = True,
                    timeout_s: float | None = None) -> Any:
-        from tactile_rig.control.protocols import GripperOutcome
 
         self.advance_to(self.clock.now_s())
         self._check_fault()
@@ -90,7 +90,6 @@ class SimGripper:
             self.clock.sleep(0.005)
 
     def state(self) -> Any:
-        from tactile_rig.control.protocols import GripperState
 
         self.advance_to(self.clock.now_s())
         self._check_fault()

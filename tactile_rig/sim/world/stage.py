@@ -3,7 +3,7 @@
 The GRBL mock integrates the motion (planner, acceleration, holds, limits) and writes the pose
 here; its machine position IS this pose. Renderers call ``advance_to(t_s)`` and read ``x_mm``,
 ``y_mm``, ``theta_deg``. A stage with no controller attached holds still (or is set by a test with
-:meth:`Stage.set_pose`). Pose convention: see :mod:`tactile_rig.mocks.world.objects`.
+:meth:`Stage.set_pose`). Pose convention: see :mod:`tactile_rig.sim.world.objects`.
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from tactile_rig.errors import LimitError
-from tactile_rig.mocks.world import register_model
+from tactile_rig.core.errors import LimitError
+from tactile_rig.sim.base import register_model
 
 
 class StageDriver(Protocol):

@@ -10,7 +10,7 @@ integrator:
   an acceleration limit, so the arm lags its command and overshoots nothing but brakes over
   ``v²/(2·decel)``;
 * faults: from ``fault_at_s`` on, the arm latches a protective stop (brakes by itself) and every
-  call but ``stop`` raises :class:`~tactile_rig.errors.DeviceFault` naming ``arm``.
+  call but ``stop`` raises :class:`~tactile_rig.core.errors.DeviceFault` naming ``arm``.
 
 Model kind ``"arm"``.
 """
@@ -22,10 +22,11 @@ from typing import Any
 
 import numpy as np
 
-from tactile_rig.clock import Clock
-from tactile_rig.errors import DeviceFault, check_range
-from tactile_rig.mocks.world import register_model
-from tactile_rig.mocks.world.timeline import Timeline
+from tactile_rig.core.clock import Clock
+from tactile_rig.core.errors import DeviceFault, check_range
+from tactile_rig.core.geometry import Pose
+from tactile_rig.sim.base import register_model
+from tactile_rig.sim.world.timeline import Timeline
 
 
 def _norm(v: np.ndarray) -> float:
@@ -79,9 +80,8 @@ class SimArm:
         self._pending.append((self._t + self.command_latency_s, tgt, speed))
         self.commands += 1
 
-    def pose(self) -> Any:
-        from tactile_rig.control.protocols import Pose  # a dataclass only: no cycle, no device code
-
+    def pose(self) -> Pose:
+        """The end effector's pose now (mm, deg)."""
         self.advance_to(self.clock.now_s())
         self._check_fault()
         return Pose(*map(float, self._p))

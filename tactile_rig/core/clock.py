@@ -8,6 +8,7 @@ and world models read ``clock.now_s()`` lazily and integrate their state up to i
 
 from __future__ import annotations
 
+import datetime as _dt
 import threading
 import time
 from typing import Callable, Protocol, runtime_checkable
@@ -113,3 +114,8 @@ class Deadline:
 
     def expired(self) -> bool:
         return self.t_end_s is not None and self.clock.now_s() >= self.t_end_s
+
+
+def utc_now() -> str:
+    """The current UTC wall time as an ISO 8601 string to the second (calibration and run stamps)."""
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")

@@ -23,9 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from tactile_rig.errors import check_range
-from tactile_rig.mocks.world import register_model
-from tactile_rig.mocks.world.timeline import Timeline
+from tactile_rig.core.errors import check_range
+from tactile_rig.sim.base import register_model
+from tactile_rig.sim.world.timeline import Timeline
 
 G_MPS2 = 9.81
 

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from tactile_rig.mocks.world import register_model
+from tactile_rig.sim.base import register_model
 
 
 def _mat(x: float, y: float, z: float, th_deg: float) -> np.ndarray:

@@ -24,8 +24,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from tactile_rig.errors import check_range
-from tactile_rig.mocks.world import register_model
+from tactile_rig.core.errors import check_range
+from tactile_rig.sim.base import register_model
 
 __all__ = [
     "HeightField",

@@ -27,9 +27,9 @@ from typing import Any, Callable
 import cv2
 import numpy as np
 
-from tactile_rig.errors import check_range
-from tactile_rig.mocks.world import register_model
-from tactile_rig.mocks.world.gelsight_render import SensorNoise
+from tactile_rig.core.errors import check_range
+from tactile_rig.sim.base import register_model
+from tactile_rig.sim.render.gelsight import SensorNoise
 
 __all__ = ["FvObject", "FingerVisionRenderer", "contact_shear_field", "FingerVisionRendererModel"]
 

@@ -1,4 +1,4 @@
-"""Dynamixel error numbers and bits as data, and the typed errors the driver raises.
+"""Dynamixel error numbers and bits as data (the driver raises :class:`~tactile_rig.core.errors.CommandRejected`).
 
 Protocol 2.0 status packets carry an error *number* (bits 6-0) plus the Alert bit (bit 7: read
 Hardware Error Status, address 70). Protocol 1.0 status packets carry a *bit field* that mixes
@@ -7,8 +7,6 @@ overheating, overload).
 """
 
 from __future__ import annotations
-
-from tactile_rig.errors import RigError
 
 ALERT_BIT = 0x80
 
@@ -71,16 +69,3 @@ def p1_hardware_to_status_bits(p1_bits: int) -> int:
     if p1_bits & P1_OVERLOAD:
         out |= HW_OVERLOAD
     return out
-
-
-class CommandRejected(RigError, ValueError):
-    """The servo answered but refused the command: a status error number (P2) or command bit (P1).
-
-    ``error_number`` is the P2 error number (1-7) or the P1 error bit field; ``error_name`` its
-    meaning (e.g. ``"Access Error"`` for an EEPROM write with torque on).
-    """
-
-    def __init__(self, message: str, *, device: str | None = None, error_number: int, error_name: str) -> None:
-        super().__init__(message, device=device)
-        self.error_number = error_number
-        self.error_name = error_name

@@ -5,8 +5,9 @@ a handover needs fingers, object, FingerVision renderer and a scripted hand). Ea
 class with units in its names that integrates its own state lazily up to a time:
 ``advance_to(t_s)``. A :class:`World` holds the models of one scene by name, on one clock.
 
-Model kinds register a factory with :func:`register_model`; :func:`tactile_rig.mocks.scenes.load_scene`
-builds a World from a TOML scene file.
+Model kinds register a factory with :func:`register_model`; :func:`tactile_rig.sim.scenes.load_scene`
+builds a World from a TOML scene file. The package :mod:`tactile_rig.sim` imports every built-in
+model module, so importing anything of it (this module included) registers them all.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from typing import Any, Callable, Iterator, Protocol, runtime_checkable
 
 import numpy as np
 
-from tactile_rig.clock import Clock, VirtualClock
+from tactile_rig.core.clock import Clock, VirtualClock
 
 
 @runtime_checkable
@@ -47,15 +48,9 @@ def register_model(kind: str) -> Callable[[ModelFactory], ModelFactory]:
 
 
 def model_kinds() -> list[str]:
-    """Names of the registered model kinds (importing :mod:`tactile_rig.mocks.world.models` first)."""
-    _import_builtin_models()
+    """Names of the registered model kinds (every built-in one registers when :mod:`tactile_rig.sim`
+    is imported, which importing this module implies)."""
     return sorted(_MODEL_FACTORIES)
-
-
-def _import_builtin_models() -> None:
-    import importlib
-
-    importlib.import_module("tactile_rig.mocks.world.models")
 
 
 class World:
@@ -77,7 +72,6 @@ class World:
 
     def build(self, name: str, kind: str, **params: Any) -> WorldModel:
         """Create a model of a registered ``kind`` with its own seeded RNG and add it under ``name``."""
-        _import_builtin_models()
         try:
             factory = _MODEL_FACTORIES[kind]
         except KeyError:

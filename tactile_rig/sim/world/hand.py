@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from tactile_rig.mocks.world import register_model
+from tactile_rig.sim.base import register_model
 
 
 def _interp(points: list[list[float]], t_s: float) -> np.ndarray:

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from tactile_rig.mocks.world import register_model
+from tactile_rig.sim.base import register_model
 
 
 class Stick:

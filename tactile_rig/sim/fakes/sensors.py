@@ -10,7 +10,7 @@ loop is paced by its sensor, as on the bench).
   real perception processor on it (slower; proves the perception path in closed loop).
 
 ``freeze_at_s`` simulates a frozen camera: no frame captured after that time is ever delivered,
-and ``read`` raises :class:`~tactile_rig.errors.DeviceTimeout` after its timeout.
+and ``read`` raises :class:`~tactile_rig.core.errors.DeviceTimeout` after its timeout.
 """
 
 from __future__ import annotations
@@ -21,9 +21,9 @@ from typing import Any, Callable
 
 import numpy as np
 
-from tactile_rig.clock import Clock
-from tactile_rig.control.protocols import Localization, TouchReading
-from tactile_rig.errors import DeviceTimeout, check_range
+from tactile_rig.core.clock import Clock
+from tactile_rig.core.types import Localization, TouchReading
+from tactile_rig.core.errors import DeviceTimeout, check_range
 
 
 class _FramedSensor:

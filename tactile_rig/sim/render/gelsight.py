@@ -33,11 +33,11 @@ from typing import Any, Sequence
 import cv2
 import numpy as np
 
-from tactile_rig.errors import check_range
-from tactile_rig.mocks.world import register_model
-from tactile_rig.mocks.world.objects import HeightField, ObjectModel, ball, pressed_indentation_mm, view_in_sensor
+from tactile_rig.core.errors import check_range
+from tactile_rig.sim.base import register_model
+from tactile_rig.sim.world.objects import HeightField, ObjectModel, ball, pressed_indentation_mm, view_in_sensor
 
-ASSETS = Path(__file__).resolve().parent / "assets"
+ASSETS = Path(__file__).resolve().parent.parent / "assets"
 BACKGROUNDS: dict[str, tuple[str, float]] = {
     # name -> (file, mm_per_px at the file's native size)
     "taxim": ("taxim_background_120x160.png", 0.1245),
