@@ -15,7 +15,10 @@ from tactile_rig.control.common import as_touch
 from tactile_rig.control.following import Following, FollowingParams, rotate_xy
 from tactile_rig.control.grasp import LeakyIntegrator
 from tactile_rig.control.inhand import InHandRotation, InHandRotationParams
-from tactile_rig.control.insertion import gripper_goal, invert, matrix_to_pose, pose_to_matrix, velocity_command
+from tactile_rig.control.insertion import gripper_goal, velocity_command
+from tactile_rig.core.geometry import invert_rigid as invert
+from tactile_rig.core.geometry import matrix_from_pose as pose_to_matrix
+from tactile_rig.core.geometry import pose_from_matrix as matrix_to_pose
 from tactile_rig.control.protocols import GripperOutcome, Pose, TouchReading
 
 mm = st.floats(-500.0, 500.0)

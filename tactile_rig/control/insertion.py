@@ -25,35 +25,13 @@ from tactile_rig.core.clock import Clock
 from tactile_rig.control.common import ControllerResult, Outcome, guarded, move_and_wait, pose_vec, go
 from tactile_rig.control.protocols import Gripper, GripperOutcome, Localization, Motion, Pose, TactileSensor, Trace
 from tactile_rig.core.errors import DeviceTimeout
-
-
-def pose_to_matrix(p: Pose) -> np.ndarray:
-    """4×4 homogeneous transform of a pose (rotation θ about z, then translation; mm)."""
-    c, s = math.cos(math.radians(p.theta_deg)), math.sin(math.radians(p.theta_deg))
-    return np.array([[c, -s, 0.0, p.x_mm], [s, c, 0.0, p.y_mm], [0.0, 0.0, 1.0, p.z_mm], [0.0, 0.0, 0.0, 1.0]])
-
-
-def matrix_to_pose(m: np.ndarray) -> Pose:
-    """The pose of a 4×4 transform whose rotation is about z (θ in (−180, 180])."""
-    m = np.asarray(m, dtype=float)
-    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
-        raise ValueError(f"expected a finite 4x4 transform, got shape {m.shape}")
-    return Pose(float(m[0, 3]), float(m[1, 3]), float(m[2, 3]), math.degrees(math.atan2(m[1, 0], m[0, 0])))
-
-
-def invert(m: np.ndarray) -> np.ndarray:
-    """Inverse of a rigid 4×4 transform."""
-    r = m[:3, :3]
-    out = np.eye(4)
-    out[:3, :3] = r.T
-    out[:3, 3] = -r.T @ m[:3, 3]
-    return out
+from tactile_rig.core.geometry import compose, invert_rigid, matrix_from_pose, pose_from_matrix
 
 
 def gripper_goal(b_T_o_goal: Pose, m_T_o: Pose, g_T_m: Pose) -> Pose:
     """``b_T_g* = b_T_o* (m_T_o)⁻¹ (g_T_m)⁻¹``: where the gripper must be to put the object at the goal."""
-    return matrix_to_pose(pose_to_matrix(b_T_o_goal) @ invert(pose_to_matrix(m_T_o))
-                          @ invert(pose_to_matrix(g_T_m)))
+    return pose_from_matrix(compose(matrix_from_pose(b_T_o_goal), invert_rigid(matrix_from_pose(m_T_o)),
+                                    invert_rigid(matrix_from_pose(g_T_m))))
 
 
 def velocity_command(q: Pose, q_goal: Pose, speed: float) -> tuple[float, float, float, float]:

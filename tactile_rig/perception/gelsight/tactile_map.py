@@ -14,6 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from tactile_rig.core.geometry import invert_rigid
 from tactile_rig.perception.gelsight.registration import (
     Features, RegistrationParams, RegistrationResult, _check_height, _result, dense_refine, detect_scale,
     extract_features,
@@ -21,11 +22,6 @@ from tactile_rig.perception.gelsight.registration import (
 
 MAP_FORMAT_VERSION = 1
 ACCEPT_CONFIDENCE = 0.98  # Li 2014: a touch joins the map only above this confidence
-
-
-def invert_rigid(m: np.ndarray) -> np.ndarray:
-    """Inverse of a 2x3 rigid (or affine) transform."""
-    return cv2.invertAffineTransform(np.asarray(m, np.float64)).astype(np.float64)
 
 
 @dataclass

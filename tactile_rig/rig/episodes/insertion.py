@@ -14,7 +14,7 @@ import numpy as np
 
 from tactile_rig.control.insertion import InsertionParams, Insertion
 from tactile_rig.control.protocols import Localization, Pose
-from tactile_rig.sim.world.part import _inv, _mat
+from tactile_rig.core.geometry import invert_rigid, matrix_from_pose, pose_from_matrix
 from tactile_rig.rig.episodes import params_for
 from tactile_rig.rig.scene_runner import EpisodeContext, EpisodeReport
 
@@ -25,7 +25,7 @@ def run_episode(ctx: EpisodeContext) -> EpisodeReport:
     gripper = ctx.model("gripper")
     c = ctx.controller
     mount = Pose(*c.get("sensor_mount", [0.0, 0.0, 0.0, 0.0]))
-    m_T_g = _inv(_mat(mount.x_mm, mount.y_mm, mount.z_mm, mount.theta_deg))
+    m_T_g = invert_rigid(matrix_from_pose(mount))
     rng = np.random.default_rng([ctx.seed, 29])
 
     seen_featured = []
@@ -36,8 +36,8 @@ def run_episode(ctx: EpisodeContext) -> EpisodeReport:
         featured = part.attached and abs(centre) <= part.feature_half_length_mm
         seen_featured.append(featured)
         conf = float(rng.uniform(0.985, 1.0)) if featured else float(rng.uniform(0.3, 0.9))
-        return Localization(t_s, float(m_T_o[0, 3]), float(m_T_o[1, 3]),
-                            math.degrees(math.atan2(m_T_o[1, 0], m_T_o[0, 0])), conf)
+        pose = pose_from_matrix(m_T_o)
+        return Localization(t_s, pose.x_mm, pose.y_mm, pose.theta_deg, conf)
 
     sensor = ctx.make_sensor(probe, name="gelsight")
     hole = Pose(*c.get("hole_mm", [0.0, 0.0, 0.0, 0.0]))

@@ -13,19 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from tactile_rig.core.geometry import Pose, invert_rigid, matrix_from_pose, pose_from_matrix
 from tactile_rig.sim.base import register_model
-
-
-def _mat(x: float, y: float, z: float, th_deg: float) -> np.ndarray:
-    c, s = math.cos(math.radians(th_deg)), math.sin(math.radians(th_deg))
-    return np.array([[c, -s, 0, x], [s, c, 0, y], [0, 0, 1, z], [0, 0, 0, 1.0]])
-
-
-def _inv(m: np.ndarray) -> np.ndarray:
-    out = np.eye(4)
-    out[:3, :3] = m[:3, :3].T
-    out[:3, 3] = -m[:3, :3].T @ m[:3, 3]
-    return out
 
 
 class GraspedPart:
@@ -41,7 +30,7 @@ class GraspedPart:
         self.hold_force_n = float(hold_force_n)
         self._t = world.clock.now_s()
         # where the part sits in the gripper frame: along the fingers' x by the grasp offset
-        self.g_T_o = _inv(_mat(grasp_offset_mm, grasp_y_mm, 0.0, grasp_theta_deg))
+        self.g_T_o = invert_rigid(matrix_from_pose(Pose(grasp_offset_mm, grasp_y_mm, 0.0, grasp_theta_deg)))
         self.b_T_o = self._b_T_g(self._t) @ self.g_T_o
         self.attached = True
         self.grasps = 1
@@ -50,7 +39,7 @@ class GraspedPart:
 
     def _b_T_g(self, t_s: float) -> np.ndarray:
         p = self.arm.position_at(t_s)
-        return _mat(p[0], p[1], p[2], p[3])
+        return matrix_from_pose(Pose(*map(float, p[:4])))
 
     def advance_to(self, t_s: float) -> None:
         if t_s <= self._t:
@@ -63,7 +52,7 @@ class GraspedPart:
                 self.b_T_o = self._b_T_g(t) @ self.g_T_o  # let go here
                 self.attached = False
             elif not self.attached and held:
-                self.g_T_o = _inv(self._b_T_g(t)) @ self.b_T_o  # grasped again, wherever it lies
+                self.g_T_o = invert_rigid(self._b_T_g(t)) @ self.b_T_o  # grasped again, wherever it lies
                 self.attached = True
                 self.grasps += 1
         if self.attached:
@@ -73,12 +62,12 @@ class GraspedPart:
     def pose_mm_deg(self, t_s: float | None = None) -> tuple[float, float, float, float]:
         """(x, y, z mm, θ deg) of the part in the base frame."""
         self.advance_to(self._t if t_s is None else t_s)
-        m = self.b_T_o
-        return float(m[0, 3]), float(m[1, 3]), float(m[2, 3]), math.degrees(math.atan2(m[1, 0], m[0, 0]))
+        p = pose_from_matrix(self.b_T_o)
+        return p.x_mm, p.y_mm, p.z_mm, p.theta_deg
 
     def skin_centre_in_part_mm(self) -> float:
         """Where along the part's x axis the fingertips' centre lies (mm from the part origin)."""
-        return float(_inv(self.g_T_o)[0, 3]) if self.attached else math.nan
+        return float(invert_rigid(self.g_T_o)[0, 3]) if self.attached else math.nan
 
     def g_T_o_at(self, t_s: float) -> np.ndarray:
         self.advance_to(max(t_s, self._t))
