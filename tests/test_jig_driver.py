@@ -9,7 +9,8 @@ import pytest
 
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.control.protocols import Motion, Pose
-from tactile_rig.drivers.jig import GrblAlarm, GrblError, GrblReset, Jig
+from tactile_rig.core.errors import GrblAlarm, GrblError, GrblReset
+from tactile_rig.drivers.jig import Jig
 from tactile_rig.core.errors import DeviceTimeout, LimitError, NotConnected
 from tactile_rig.mocks.grbl import GrblMock
 from tactile_rig.sim import World

@@ -7,7 +7,8 @@ from hypothesis import settings, strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, rule
 
 from tactile_rig.core.clock import VirtualClock
-from tactile_rig.drivers.jig import GrblAlarm, Jig
+from tactile_rig.core.errors import GrblAlarm
+from tactile_rig.drivers.jig import Jig
 from tactile_rig.mocks.grbl import GrblMock
 from tactile_rig.mocks.registry import register_instance, unregister_instance
 from tactile_rig.sim.world.stage import Stage

@@ -11,8 +11,11 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from tactile_rig.cli.calibrate_sessions import register_sessions
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.cli.replay import extras_as_errors
+from tactile_rig.rig.bench import add_bench_arguments, bench_from_args
+from tactile_rig.rig.learning import DEFAULT_GAMMA, force_map_session, substance_session
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -20,15 +23,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     csub = p.add_subparsers(dest="calibrate_command", metavar="SESSION")
     for reg in (_register_force_map, _register_substance):
         reg(csub)
-    from tactile_rig.cli.calibrate_sessions import register_sessions  # gelsight, fingervision, scale, gripper
 
     register_sessions(csub)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
 def _source_arguments(p: argparse.ArgumentParser) -> None:
-    from tactile_rig.rig.bench import add_bench_arguments
-
     add_bench_arguments(p)
     p.add_argument("--from-recording", metavar="FILE.mcap",
                    help="learn from a recorded session instead of collecting one")
@@ -43,7 +43,6 @@ def _check_source(args: argparse.Namespace, what: str) -> Any:
     recording of it (live guided collection is not available yet)."""
     if not (getattr(args, "mock", False) or getattr(args, "bench", None)):
         return None
-    from tactile_rig.rig.bench import bench_from_args
 
     bench = bench_from_args(args, check_files=False)
     if not bench.is_mock and not args.from_recording:
@@ -70,8 +69,6 @@ def _register_force_map(csub: argparse._SubParsersAction) -> None:
 
 @extras_as_errors
 def _force_map(args: argparse.Namespace) -> int:
-    from tactile_rig.rig.learning import DEFAULT_GAMMA, force_map_session
-
     bench = _check_source(args, "force-map")
     if args.trials < 2:
         raise ValueError(f"--trials {args.trials} must be >= 2 (one trial is held out)")
@@ -106,8 +103,6 @@ def _register_substance(csub: argparse._SubParsersAction) -> None:
 
 @extras_as_errors
 def _substance(args: argparse.Namespace) -> int:
-    from tactile_rig.rig.learning import substance_session
-
     _check_source(args, "substance")
     if args.per_substance < 2:
         raise ValueError(f"--per-substance {args.per_substance} must be >= 2 (train and test trials)")

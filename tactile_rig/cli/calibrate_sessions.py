@@ -17,13 +17,35 @@ import argparse
 from typing import Any, Callable
 
 from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.core.clock import VirtualClock
+from tactile_rig.drivers.dynamixel import DynamixelGripper
+from tactile_rig.mocks.registry import device_from_url
+from tactile_rig.rig.bench import (
+    Bench,
+    add_bench_arguments,
+    bench_from_args,
+    connect_bench,
+)
+from tactile_rig.rig.calibration_sessions import (
+    BallPressPlan,
+    Guide,
+    fingervision_session,
+    gelsight_session,
+    gripper_session,
+    scale_session,
+)
+from tactile_rig.rig.jig_accuracy import (
+    MOCK_PRESS_SCENE,
+    DeviceJigRig,
+    prepare_jig,
+    sim_camera_connector,
+)
 
 GRAVITY_MPS2 = 9.80665
 
 
 def register_sessions(csub: Any) -> None:
     """Add the four device calibration sessions to the ``calibrate`` subparsers."""
-    from tactile_rig.rig.bench import add_bench_arguments
 
     def common(p: argparse.ArgumentParser, out: str) -> None:
         add_bench_arguments(p)
@@ -78,8 +100,6 @@ def register_sessions(csub: Any) -> None:
 
 
 def _guide(args: argparse.Namespace) -> Any:
-    from tactile_rig.rig.calibration_sessions import Guide
-
     # Nobody needs to place a ball or a mass on a mock: the session scripts the simulated operator.
     return Guide(False if args.yes or args.mock else None, quiet=bool(args.json))
 
@@ -88,8 +108,6 @@ def _connect(args: argparse.Namespace, names: list[str], *, scene: str | None = 
              connectors: dict[str, Callable[..., Any]] | None = None, bench_too: bool = False) -> Any:
     """Connect only ``names`` of the chosen bench (mocks: on ``scene``); ``connectors`` apply to
     mocks only unless ``bench_too``."""
-    from tactile_rig.core.clock import VirtualClock
-    from tactile_rig.rig.bench import Bench, bench_from_args, connect_bench
 
     bench = bench_from_args(args, check_files=False)
     missing = [n for n in names if n not in bench.devices]
@@ -103,8 +121,6 @@ def _connect(args: argparse.Namespace, names: list[str], *, scene: str | None = 
 
 
 def _camera_name(args: argparse.Namespace, sensor: str) -> str:
-    from tactile_rig.rig.bench import bench_from_args
-
     bench = bench_from_args(args, check_files=False)
     if args.mock:
         return "camera"
@@ -130,9 +146,6 @@ def _run(args: argparse.Namespace, rig: Any, session: Callable[[Any], Any], summ
 
 
 def _gelsight(args: argparse.Namespace) -> int:
-    from tactile_rig.rig.calibration_sessions import BallPressPlan, gelsight_session
-    from tactile_rig.rig.jig_accuracy import MOCK_PRESS_SCENE, DeviceJigRig, sim_camera_connector, prepare_jig
-
     plan = BallPressPlan(ball_radius_mm=args.ball_radius_mm, press_depth_mm=args.press_depth_mm,
                          grid_x_mm=(args.grid_x[0], args.grid_x[1], int(args.grid_x[2])),
                          grid_y_mm=(args.grid_y[0], args.grid_y[1], int(args.grid_y[2])),
@@ -152,8 +165,6 @@ def _gelsight(args: argparse.Namespace) -> int:
 
 
 def _scale(args: argparse.Namespace) -> int:
-    from tactile_rig.rig.calibration_sessions import scale_session
-
     rig = _connect(args, ["scale"])
     place = _mock_mass_placer(rig) if rig.bench.is_mock else None
     return _run(args, rig, lambda rig: scale_session(
@@ -165,7 +176,6 @@ def _scale(args: argparse.Namespace) -> int:
 
 def _mock_mass_placer(rig: Any) -> Callable[[float], None]:
     """On the mock bench: put a mass on the simulated load cell (the operator's hand, simulated)."""
-    from tactile_rig.mocks.registry import device_from_url
 
     name = next(n for n in rig.mock_instances if n.endswith(".scale"))
     device, _ = device_from_url(f"rigsim://@{name}")
@@ -179,10 +189,7 @@ def _mock_mass_placer(rig: Any) -> Callable[[float], None]:
 
 
 def _gripper(args: argparse.Namespace) -> int:
-    from tactile_rig.rig.calibration_sessions import gripper_session
-
     def connect_gripper(cfg: Any, ctx: Any) -> Any:
-        from tactile_rig.drivers.dynamixel import DynamixelGripper
 
         return DynamixelGripper(cfg.port, dxl_id=cfg.ids[0], protocol=cfg.protocol, baudrate=cfg.baud)
 
@@ -195,9 +202,6 @@ def _gripper(args: argparse.Namespace) -> int:
 
 
 def _fingervision(args: argparse.Namespace) -> int:
-    from tactile_rig.rig.calibration_sessions import fingervision_session
-    from tactile_rig.rig.jig_accuracy import sim_camera_connector
-
     cam = _camera_name(args, "fingervision")
     rig = _connect(args, [cam], scene="fingervision_rest", connectors={"camera": sim_camera_connector("fingervision")})
     return _run(args, rig, lambda rig: fingervision_session(rig.devices[cam], args.out, frames=args.frames,

@@ -6,6 +6,8 @@ import argparse
 import tempfile
 
 from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.drivers.discovery import discover
+from tactile_rig.mocks.usb import FakeUsbBackend, build_fake_tree
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -18,10 +20,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tactile_rig.drivers.discovery import discover
-
     if args.mock:
-        from tactile_rig.mocks.usb import FakeUsbBackend, build_fake_tree
 
         with tempfile.TemporaryDirectory(prefix="tactile-rig-usb-") as tmp:
             sysfs, dev = build_fake_tree(tmp)

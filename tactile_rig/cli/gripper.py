@@ -7,6 +7,9 @@ import json
 from pathlib import Path
 
 from tactile_rig.cli.common import print_json
+from tactile_rig.control.protocols import GripperOutcome
+from tactile_rig.devices.dynamixel.error_codes import decode_hardware_error
+from tactile_rig.drivers.dynamixel.gripper import DynamixelGripper, GripperCalibration
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -49,8 +52,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _open(args: argparse.Namespace, **kw):
-    from tactile_rig.drivers.dynamixel.gripper import DynamixelGripper, GripperCalibration
-
     cal = None
     if args.calibration:
         cal = GripperCalibration.from_dict(json.loads(args.calibration.read_text()))
@@ -59,8 +60,6 @@ def _open(args: argparse.Namespace, **kw):
 
 
 def _print_state(args: argparse.Namespace, state, extra: dict | None = None) -> None:
-    from tactile_rig.devices.dynamixel.error_codes import decode_hardware_error
-
     if args.json:
         d = {"state": state, "hardware_errors": decode_hardware_error(state.hardware_error)}
         d.update(extra or {})
@@ -84,8 +83,6 @@ def _state(args: argparse.Namespace) -> int:
 
 
 def _go(args: argparse.Namespace) -> int:
-    from tactile_rig.control.protocols import GripperOutcome
-
     with _open(args, normalized=args.normalized) as g:
         g.activate(args.effort)
         outcome = g.gripper_go(args.position, args.effort, blocking=not args.no_wait, timeout_s=args.timeout)

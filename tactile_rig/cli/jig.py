@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from tactile_rig.cli.common import print_json
+from tactile_rig.drivers.jig import Jig
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -44,8 +45,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _open(args: argparse.Namespace):
-    from tactile_rig.drivers.jig import Jig
-
     return Jig(args.port, baudrate=args.baud, theta_axis=args.theta_axis)
 
 

@@ -9,6 +9,10 @@ import sys
 import threading
 
 from tactile_rig.cli.common import print_json
+from tactile_rig.core.clock import RealClock
+from tactile_rig.mocks.pty_server import PtyServer
+from tactile_rig.mocks.registry import Params, create_device, kinds
+from tactile_rig.sim.scenes import load_scene
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -39,8 +43,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _list(args: argparse.Namespace) -> int:
-    from tactile_rig.mocks.registry import kinds
-
     rows = [
         {"device": k.name, "default_baud": k.default_baud, "description": k.description}
         for k in kinds().values()
@@ -76,14 +78,9 @@ def serve_params(args: argparse.Namespace) -> dict[str, str]:
 
 
 def _serve(args: argparse.Namespace) -> int:
-    from tactile_rig.core.clock import RealClock
-    from tactile_rig.mocks.pty_server import PtyServer
-    from tactile_rig.mocks.registry import Params, create_device
-
     clock = RealClock()
     world = None
     if args.scene:
-        from tactile_rig.sim.scenes import load_scene
 
         world = load_scene(args.scene, clock=clock, seed=args.seed).world
     params = Params(serve_params(args), source=f"mock serve {args.device}")

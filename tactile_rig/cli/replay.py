@@ -6,6 +6,7 @@ import argparse
 from typing import Any
 
 from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.rig import replay as recordings
 
 
 def extras_as_errors(handler: Any) -> Any:
@@ -36,12 +37,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 @extras_as_errors
 def _replay(args: argparse.Namespace) -> int:
-    from tactile_rig.rig.replay import dump, summarize
-
     if args.topic or args.dump:
         n = 0
         try:
-            for row in dump(args.file, topic=args.topic, include_images=args.images):
+            for row in recordings.dump(args.file, topic=args.topic, include_images=args.images):
                 n += 1
                 if args.json:
                     print_json(row)
@@ -50,11 +49,11 @@ def _replay(args: argparse.Namespace) -> int:
         except BrokenPipeError:  # `| head`: the reader has seen enough
             return 0
         if n == 0 and args.topic:
-            topics = summarize(args.file)["topics"]
+            topics = recordings.summarize(args.file)["topics"]
             raise ValueError(f"{args.file}: no messages on topic {args.topic!r}; topics: "
                              f"{', '.join(topics) or '(none)'}")
         return 0
-    s = summarize(args.file)
+    s = recordings.summarize(args.file)
     if args.json:
         print_json(s)
         return 0

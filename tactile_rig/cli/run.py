@@ -16,13 +16,19 @@ from pathlib import Path
 from typing import Any
 
 from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.rig.bench import add_bench_arguments, bench_from_args
+from tactile_rig.rig.jig_accuracy import (
+    JigAccuracyConfig,
+    execute_jig_accuracy,
+    format_table,
+    plan_points,
+)
+from tactile_rig.rig.progress import Progress
 
 DEFAULT_OUT_ROOT = "runs/jig-accuracy"
 
 
 def register(subparsers: Any) -> None:
-    from tactile_rig.rig.bench import add_bench_arguments
-
     run = subparsers.add_parser("run", help="long rig runs (jig accuracy)", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = run.add_subparsers(dest="run_command", metavar="RUN")
@@ -61,9 +67,6 @@ def register(subparsers: Any) -> None:
 
 
 def _jig_accuracy(args: argparse.Namespace) -> int:
-    from tactile_rig.rig.bench import bench_from_args
-    from tactile_rig.rig.jig_accuracy import JigAccuracyConfig, execute_jig_accuracy, format_table, plan_points
-
     cfg = JigAccuracyConfig(sweep=args.sweep, rotations_deg=tuple(args.rotations), shifts_mm=tuple(args.shifts),
                             shift_axis=args.shift_axis, seed=args.seed)
     bench = None if args.mock else bench_from_args(args)
@@ -72,7 +75,6 @@ def _jig_accuracy(args: argparse.Namespace) -> int:
     total = len(plan_points(cfg))
     progress = None
     if not args.json:
-        from tactile_rig.rig.progress import Progress
 
         isatty = getattr(sys.stderr, "isatty", None)
         progress = Progress(total, label="jig accuracy", mode="bar" if callable(isatty) and isatty() else "off")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from tactile_rig.cli.common import print_json
+from tactile_rig.drivers.scale import Scale
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -36,8 +37,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _open(args: argparse.Namespace):
-    from tactile_rig.drivers.scale import Scale
-
     if args.boot_timeout <= 0:
         raise ValueError(f"--boot-timeout={args.boot_timeout!r} must be > 0 seconds")
     return Scale(args.port, baudrate=args.baud, boot_timeout_s=args.boot_timeout)

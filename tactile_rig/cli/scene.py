@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 
 from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.rig.scene_runner import list_scenes, run_episodes
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -33,8 +34,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _list(args: argparse.Namespace) -> int:
-    from tactile_rig.rig.scene_runner import list_scenes
-
     rows = list_scenes()
     for r in rows:
         if args.json:
@@ -46,8 +45,6 @@ def _list(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from tactile_rig.rig.scene_runner import run_episodes
-
     if args.episodes < 1:
         raise ValueError(f"--episodes={args.episodes} must be ≥ 1")
 

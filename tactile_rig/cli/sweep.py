@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 
 from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.rig.progress import Progress
+from tactile_rig.rig.sweep import _scalar, grid, make_executor, parse_axis, run_sweep
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -30,9 +32,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    from tactile_rig.rig.progress import Progress
-    from tactile_rig.rig.sweep import _scalar, grid, make_executor, parse_axis, run_sweep
-
     if args.workers is not None and args.workers < 1:
         raise ValueError(f"--workers {args.workers} must be >= 1")
     axes = dict(parse_axis(s) for s in args.param)

@@ -11,9 +11,8 @@ refused with a :class:`~tactile_rig.core.errors.LimitError` before anything move
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
-from tactile_rig.core.clock import Clock
 from tactile_rig.control.common import (
     ControllerResult,
     Outcome,
@@ -25,7 +24,12 @@ from tactile_rig.control.common import (
     vec_norm,
 )
 from tactile_rig.control.protocols import Motion, Pose, TactileSensor, Trace
-from tactile_rig.control.safety import check_speed, collision_speed_cap_mps, measure_sensing
+from tactile_rig.control.safety import (
+    check_speed,
+    collision_speed_cap_mps,
+    measure_sensing,
+)
+from tactile_rig.core.clock import Clock
 
 _AXES = ("x", "y", "z")
 

@@ -12,8 +12,15 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+from tactile_rig.control.protocols import (
+    Gripper,
+    GripperOutcome,
+    Motion,
+    Pose,
+    TouchReading,
+    Trace,
+)
 from tactile_rig.core.clock import Clock
-from tactile_rig.control.protocols import Gripper, GripperOutcome, Motion, Pose, TouchReading, Trace
 from tactile_rig.core.errors import DeviceFault, DeviceTimeout, RigError
 
 

@@ -13,9 +13,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from tactile_rig.core.clock import Clock
 from tactile_rig.control.common import ControllerResult, Outcome, guarded, read_touch
-from tactile_rig.control.protocols import Motion, Pose, TactileSensor, TouchReading, Trace
+from tactile_rig.control.protocols import (
+    Motion,
+    Pose,
+    TactileSensor,
+    TouchReading,
+    Trace,
+)
+from tactile_rig.core.clock import Clock
 
 
 def rotate_xy(x: float, y: float, angle_deg: float) -> tuple[float, float]:

@@ -23,10 +23,17 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from tactile_rig.core.clock import Clock
-from tactile_rig.control.common import ControllerResult, Outcome, check_gripper, guarded, read_touch, go
+from tactile_rig.control.common import (
+    ControllerResult,
+    Outcome,
+    check_gripper,
+    go,
+    guarded,
+    read_touch,
+)
 from tactile_rig.control.grasp import LeakyIntegrator
 from tactile_rig.control.protocols import Gripper, TactileSensor, TouchReading, Trace
+from tactile_rig.core.clock import Clock
 
 
 @dataclass

@@ -19,13 +19,31 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-import numpy as np
-
+from tactile_rig.control.common import (
+    ControllerResult,
+    Outcome,
+    go,
+    guarded,
+    move_and_wait,
+    pose_vec,
+)
+from tactile_rig.control.protocols import (
+    Gripper,
+    GripperOutcome,
+    Localization,
+    Motion,
+    Pose,
+    TactileSensor,
+    Trace,
+)
 from tactile_rig.core.clock import Clock
-from tactile_rig.control.common import ControllerResult, Outcome, guarded, move_and_wait, pose_vec, go
-from tactile_rig.control.protocols import Gripper, GripperOutcome, Localization, Motion, Pose, TactileSensor, Trace
 from tactile_rig.core.errors import DeviceTimeout
-from tactile_rig.core.geometry import compose, invert_rigid, matrix_from_pose, pose_from_matrix
+from tactile_rig.core.geometry import (
+    compose,
+    invert_rigid,
+    matrix_from_pose,
+    pose_from_matrix,
+)
 
 
 def gripper_goal(b_T_o_goal: Pose, m_T_o: Pose, g_T_m: Pose) -> Pose:

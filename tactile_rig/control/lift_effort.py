@@ -11,9 +11,23 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from tactile_rig.control.common import (
+    ControllerResult,
+    Outcome,
+    go,
+    guarded,
+    move_and_wait,
+    read_touch,
+)
+from tactile_rig.control.protocols import (
+    Gripper,
+    GripperOutcome,
+    Motion,
+    Pose,
+    TactileSensor,
+    Trace,
+)
 from tactile_rig.core.clock import Clock
-from tactile_rig.control.common import ControllerResult, Outcome, guarded, move_and_wait, read_touch, go
-from tactile_rig.control.protocols import Gripper, GripperOutcome, Motion, Pose, TactileSensor, Trace
 
 
 @dataclass

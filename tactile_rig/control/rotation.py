@@ -12,10 +12,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from tactile_rig.core.clock import Clock
 from tactile_rig.control.common import ControllerResult, Outcome, guarded, read_touch
 from tactile_rig.control.protocols import Motion, Pose, TactileSensor, Trace
 from tactile_rig.control.safety import check_speed, collision_speed_cap_mps
+from tactile_rig.core.clock import Clock
 
 
 @dataclass

@@ -17,10 +17,25 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from tactile_rig.core.clock import Clock
 from tactile_rig.control.collision_stop import CollisionStop, CollisionStopParams
-from tactile_rig.control.common import ControllerResult, Outcome, guarded, move_and_wait, read_fresh, go
-from tactile_rig.control.protocols import ForceGauge, Gripper, GripperOutcome, Motion, Pose, TactileSensor, Trace
+from tactile_rig.control.common import (
+    ControllerResult,
+    Outcome,
+    go,
+    guarded,
+    move_and_wait,
+    read_fresh,
+)
+from tactile_rig.control.protocols import (
+    ForceGauge,
+    Gripper,
+    GripperOutcome,
+    Motion,
+    Pose,
+    TactileSensor,
+    Trace,
+)
+from tactile_rig.core.clock import Clock
 
 
 @dataclass

@@ -23,8 +23,22 @@ from tactile_rig.core.errors import (
     RunConflict,
     check_range,
 )
-from tactile_rig.core.geometry import Pose, compose, invert_rigid, matrix_from_pose, pose_from_matrix, wrap_deg
-from tactile_rig.core.types import GripperOutcome, GripperState, Localization, RawFrame, TouchReading, Trace
+from tactile_rig.core.geometry import (
+    Pose,
+    compose,
+    invert_rigid,
+    matrix_from_pose,
+    pose_from_matrix,
+    wrap_deg,
+)
+from tactile_rig.core.types import (
+    GripperOutcome,
+    GripperState,
+    Localization,
+    RawFrame,
+    TouchReading,
+    Trace,
+)
 
 __all__ = [
     "BenchError", "CalibrationError", "Clock", "CommandRejected", "ConnectErrors", "ControlReadbackError",

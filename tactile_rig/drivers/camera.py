@@ -33,11 +33,16 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from tactile_rig.core.clock import Clock, Deadline, RealClock
-from tactile_rig.core.errors import ControlReadbackError, DeviceTimeout, FrozenStream, NotConnected, RigError
+from tactile_rig.core.errors import (
+    ControlReadbackError,
+    DeviceTimeout,
+    FrozenStream,
+    NotConnected,
+    RigError,
+)
 from tactile_rig.core.types import RawFrame
 from tactile_rig.devices.camera import (
     AUTO_SWITCHES,
-    CONTROL_ALIASES,
     PHOTOMETRIC_CONTROLS,
     canonical_control,
     fourcc_text,

@@ -18,19 +18,17 @@ from dataclasses import dataclass, field
 from typing import Callable, Iterable
 
 from tactile_rig.core.clock import Clock, Deadline
-from tactile_rig.core.geometry import Pose
-from tactile_rig.devices import grbl as gp
-from tactile_rig.drivers.transport import SerialTransport
 from tactile_rig.core.errors import (
-    DeviceFault,
     DeviceTimeout,
-    GrblAlarm,
     GrblError,
     GrblReset,
     LimitError,
     LinkCorrupt,
     check_range,
 )
+from tactile_rig.core.geometry import Pose
+from tactile_rig.devices import grbl as gp
+from tactile_rig.drivers.transport import SerialTransport
 
 log = logging.getLogger("tactile_rig.jig")
 

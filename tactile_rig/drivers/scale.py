@@ -22,10 +22,15 @@ from typing import Callable
 
 import serial
 
-from tactile_rig.core.clock import Clock, Deadline
+from tactile_rig.core.clock import Clock, Deadline, RealClock
+from tactile_rig.core.errors import (
+    CalibrationError,
+    DeviceTimeout,
+    NotConnected,
+    check_range,
+)
 from tactile_rig.devices import scale as sp
 from tactile_rig.drivers.transport import SerialTransport
-from tactile_rig.core.errors import CalibrationError, DeviceTimeout, NotConnected, check_range
 
 log = logging.getLogger("tactile_rig.scale")
 
@@ -543,6 +548,4 @@ class Scale:
 
 
 def _wall() -> Clock:
-    from tactile_rig.core.clock import RealClock
-
     return RealClock()

@@ -23,9 +23,9 @@ import cv2
 import numpy as np
 
 from tactile_rig.core.clock import Clock, RealClock
+from tactile_rig.core.errors import NotConnected
 from tactile_rig.core.types import RawFrame
 from tactile_rig.devices.camera import canonical_control, fourcc_text
-from tactile_rig.core.errors import NotConnected
 from tactile_rig.sim.render.gelsight import SensorNoise
 
 __all__ = ["UvcControl", "C310_CONTROLS", "C310_MODES", "UvcControlTable", "SimulatedCamera", "FakeVideoCapture"]

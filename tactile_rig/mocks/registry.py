@@ -17,6 +17,7 @@ from urllib.parse import parse_qsl, urlsplit
 
 from tactile_rig.core.clock import Clock, RealClock, VirtualClock
 from tactile_rig.mocks.serial_device import SerialDevice
+from tactile_rig.sim.scenes import load_scene
 
 _BUILTIN_KIND_MODULES = {
     "dynamixel": "tactile_rig.mocks.dynamixel",
@@ -173,7 +174,6 @@ def device_from_url(url: str) -> tuple[SerialDevice, Clock]:
     world = None
     scene = params.str("scene")
     if scene:
-        from tactile_rig.sim.scenes import load_scene
 
         world = load_scene(scene, clock=clock, seed=params.int("seed")).world
     return create_device(target, params, clock=clock, world=world), clock

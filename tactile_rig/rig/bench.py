@@ -62,13 +62,38 @@ import difflib
 import glob
 import os
 import re
-import tomllib
 from dataclasses import dataclass, field, fields
 from importlib import resources
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from tactile_rig.core.errors import BenchError, ConnectErrors, RigError
+import tomllib
+
+from tactile_rig.core.clock import RealClock, VirtualClock
+from tactile_rig.core.errors import (
+    BenchError,
+    CalibrationError,
+    ConnectErrors,
+    DeviceTimeout,
+    LimitError,
+    LinkCorrupt,
+    NotConnected,
+    RigError,
+)
+from tactile_rig.core.jsonable import to_jsonable
+from tactile_rig.drivers.camera import FingertipCamera
+from tactile_rig.drivers.dynamixel.gripper import DynamixelGripper, GripperCalibration
+from tactile_rig.drivers.jig import Jig
+from tactile_rig.drivers.scale import Scale
+from tactile_rig.mocks.camera import SimulatedCamera
+from tactile_rig.mocks.registry import (
+    Params,
+    create_device,
+    register_instance,
+    unregister_instance,
+)
+from tactile_rig.rig.replay import RecordedFrameSource
+from tactile_rig.sim.scenes import load_scene
 
 ENV_PREFIX = "TACTILE_RIG_"
 SENSOR_TYPES = ("gelsight", "fingervision")
@@ -197,7 +222,6 @@ class Bench:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able dict (for recordings and reports)."""
-        from tactile_rig.cli.common import to_jsonable
 
         return {"name": self.name, "source": self.source, "scene": self.scene, "seed": self.seed,
                 "force_map": to_jsonable(self.force_map),
@@ -565,7 +589,6 @@ class Rig:
         """Close every device (errors while closing are ignored: the rig is going away)."""
         for dev in self.devices.values():
             _close_quietly(dev)
-        from tactile_rig.mocks.registry import unregister_instance
 
         for name in self.mock_instances:
             unregister_instance(name)
@@ -604,7 +627,6 @@ def _port_for(cfg: DeviceConfig, ctx: ConnectContext, instances: list[str]) -> s
         return cfg.port
     from urllib.parse import parse_qsl, urlsplit
 
-    from tactile_rig.mocks.registry import Params, create_device, register_instance
 
     parts = urlsplit(cfg.port)
     kind = parts.netloc or parts.path.lstrip("/")
@@ -627,13 +649,11 @@ def _port_for(cfg: DeviceConfig, ctx: ConnectContext, instances: list[str]) -> s
 
 def _connect_gripper(cfg: DeviceConfig, ctx: ConnectContext) -> Any:
     assert isinstance(cfg, GripperConfig)
-    from tactile_rig.drivers.dynamixel.gripper import DynamixelGripper, GripperCalibration
 
     cal = None
     if cfg.calibration is not None:
         import json
 
-        from tactile_rig.core.errors import CalibrationError
 
         try:
             d = json.loads(cfg.calibration.read_text(encoding="utf-8"))
@@ -645,14 +665,11 @@ def _connect_gripper(cfg: DeviceConfig, ctx: ConnectContext) -> Any:
 
 
 def _connect_scale(cfg: DeviceConfig, ctx: ConnectContext) -> Any:
-    from tactile_rig.drivers.scale import Scale
-
     return Scale(cfg.port, baudrate=cfg.baud, device=cfg.name)
 
 
 def _connect_jig(cfg: DeviceConfig, ctx: ConnectContext) -> Any:
     assert isinstance(cfg, JigConfig)
-    from tactile_rig.drivers.jig import Jig
 
     return Jig(cfg.port, baudrate=cfg.baud, x_range_mm=cfg.x_limits_mm, y_range_mm=cfg.y_limits_mm,
                theta_range_deg=cfg.theta_limits_deg, device=cfg.name)
@@ -661,17 +678,14 @@ def _connect_jig(cfg: DeviceConfig, ctx: ConnectContext) -> Any:
 def _connect_camera(cfg: DeviceConfig, ctx: ConnectContext) -> Any:
     """A V4L2 camera, or for ``rigsim://camera?model=NAME`` a camera rendering the bench's world."""
     assert isinstance(cfg, CameraConfig)
-    from tactile_rig.drivers.camera import FingertipCamera
 
     fmt = {"fourcc": cfg.fourcc, "width": cfg.width, "height": cfg.height, "fps": cfg.fps}
     path, _, topic = cfg.port.partition("#")
     if path.endswith(".mcap"):  # a recording served as the camera: "run.mcap" or "run.mcap#/camera/left/image"
-        from tactile_rig.rig.replay import RecordedFrameSource
 
         src = RecordedFrameSource(path, topic=topic or None, clock=ctx.clock)
         return FingertipCamera(src, clock=ctx.clock, name=cfg.name, **fmt).open()
     if cfg.port.startswith("rigsim://"):
-        from tactile_rig.mocks.camera import SimulatedCamera
 
         sim = SimulatedCamera(cfg.port, clock=ctx.clock, name=cfg.name, world=ctx.world, seed=ctx.bench.seed, **fmt)
         return FingertipCamera(sim, clock=ctx.clock, name=cfg.name, **fmt).open()
@@ -694,7 +708,6 @@ def connect_bench(bench: Bench, *, connectors: Mapping[str, Connector] | None = 
     Devices that did connect are closed again when any fails. ``connectors`` maps a device kind to
     ``fn(config, context) -> driver`` (defaults: :data:`CONNECTORS`).
     """
-    from tactile_rig.core.clock import RealClock, VirtualClock
 
     table = dict(CONNECTORS)
     if connectors:
@@ -704,7 +717,6 @@ def connect_bench(bench: Bench, *, connectors: Mapping[str, Connector] | None = 
         clock = VirtualClock() if any_sim else RealClock()
     world = None
     if any_sim and bench.scene:
-        from tactile_rig.sim.scenes import load_scene
 
         world = load_scene(bench.scene, clock=clock, seed=bench.seed).world
     ctx = ConnectContext(bench=bench, clock=clock, world=world)
@@ -740,7 +752,6 @@ def _with_port(cfg: DeviceConfig, port: str) -> DeviceConfig:
 def _name_port(cfg: DeviceConfig, exc: BaseException) -> BaseException:
     """Make sure the reported error says which port the device was on (keeping the error's class
     when it is one of the plain ones, so callers can still tell a timeout from a missing port)."""
-    from tactile_rig.core.errors import CalibrationError, DeviceTimeout, LimitError, LinkCorrupt, NotConnected
 
     if cfg.port in str(exc):
         return exc

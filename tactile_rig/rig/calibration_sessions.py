@@ -35,9 +35,17 @@ from typing import Any, Callable, Protocol, Sequence, TextIO
 import cv2
 import numpy as np
 
-from tactile_rig.core.clock import utc_now
+from tactile_rig.core.clock import Deadline, utc_now
+from tactile_rig.core.errors import CalibrationError, DeviceTimeout, check_range
 from tactile_rig.core.geometry import Pose
-from tactile_rig.core.errors import CalibrationError, check_range
+from tactile_rig.core.jsonable import to_jsonable
+from tactile_rig.perception.fingervision import (
+    FingerVision,
+    FingerVisionParams,
+    detect_markers,
+)
+from tactile_rig.perception.gelsight.calibration import PressSet, calibrate_from_presses
+from tactile_rig.perception.gelsight.report import cross_validate
 
 __all__ = [
     "CALIBRATION_FORMAT",
@@ -120,7 +128,6 @@ def write_calibration(path: str | Path, kind: str, values: dict[str, Any], repor
     the values at the top level (so a driver's ``from_dict`` reads it as it is, e.g.
     ``GripperCalibration.from_dict``) and the ``report``. Returns (calibration path, report path).
     """
-    from tactile_rig.cli.common import to_jsonable
 
     clash = sorted(set(values) & set(_ENVELOPE))
     if clash:
@@ -297,7 +304,6 @@ def collect_ball_presses(rig: PressRig, plan: BallPressPlan, mm_per_px: float, o
     (measured contact centroid − commanded position); it is reported in ``PressSet.names``' folder
     ``labels.csv`` and returned as ``presses.offset_px``.
     """
-    from tactile_rig.perception.gelsight.calibration import PressSet
 
     guide = guide or Guide(False, quiet=True)
     check_range("mm_per_px", float(mm_per_px), 1e-4, 10.0, "mm/px")
@@ -362,8 +368,6 @@ def gelsight_session(rig: PressRig, plan: BallPressPlan, mm_per_px: float, out: 
     ``out`` is the calibration's base path (``out.npz`` + ``out.json``); the presses go to
     ``<out>_presses/`` and the report to ``<out>.report.json`` / ``.md``.
     """
-    from tactile_rig.perception.gelsight.calibration import calibrate_from_presses
-    from tactile_rig.perception.gelsight.report import cross_validate
 
     guide = guide or Guide(False, quiet=True)
     base = Path(out)
@@ -387,7 +391,6 @@ def gelsight_session(rig: PressRig, plan: BallPressPlan, mm_per_px: float, out: 
               "per_press": [{"name": e.name, "normal_deg": e.normal_deg, "height_rms_mm": e.height_rms_mm}
                             for e in cv.presses]}
     rpath = base.with_name(base.name + ".report.json")
-    from tactile_rig.cli.common import to_jsonable
 
     rpath.write_text(json.dumps(to_jsonable({"kind": "gelsight", **report}), indent=2) + "\n", encoding="utf-8")
     _write_report_md(base.with_name(base.name + ".report.md"), "gelsight", npz, cal.metadata(), report)
@@ -408,8 +411,6 @@ def wait_for_load(scale: Any, empty_g: float, noise_g: float, *, timeout_s: floa
     """Wait until the scale reads a load that is clearly there (> 20 noise σ and > 1 g above the
     empty reading) and steady (σ of the last ``window`` readings < 3 noise σ + 0.05 g); return those
     readings in grams. For scripted sessions: whoever places the mass has ``timeout_s`` to do it."""
-    from tactile_rig.core.clock import Deadline
-    from tactile_rig.core.errors import DeviceTimeout
 
     dl = Deadline(clock or scale.clock, timeout_s)
     recent: list[float] = []
@@ -492,7 +493,6 @@ def fingervision_session(camera: Any, out: str | Path, *, frames: int = 10, guid
     """Average ``frames`` no-contact frames into the marker baseline (rest positions, sizes, valid
     flags) and the proximity-vision background histogram; write ``<out>.npz`` (arrays) and
     ``<out>.json`` (versioned, with the report)."""
-    from tactile_rig.perception.fingervision import FingerVision, FingerVisionParams
 
     guide = guide or Guide(False, quiet=True)
     check_range("frames", float(frames), 1, 1000)
@@ -516,7 +516,6 @@ def fingervision_session(camera: Any, out: str | Path, *, frames: int = 10, guid
     np.savez_compressed(npz, positions_px=base.positions_px, sizes_px=base.sizes_px, valid=base.valid,
                         bg_hist=np.zeros(0) if bg_hist is None else bg_hist)
     # Repeatability: how far each frame's detections sit from the baseline (nearest valid marker).
-    from tactile_rig.perception.fingervision import detect_markers
 
     jitter = []
     for img in imgs:

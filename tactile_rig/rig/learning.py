@@ -30,7 +30,18 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from tactile_rig.core.clock import VirtualClock
 from tactile_rig.core.errors import CalibrationError
+from tactile_rig.core.jsonable import to_jsonable
+from tactile_rig.rig.recording import Recorder, read_recording
+from tactile_rig.rig.reports import (
+    Report,
+    plot_estimated_vs_true,
+    plot_trace,
+    write_summary,
+)
+from tactile_rig.sim.world.stick_press import StickPressScene, increasing_peaks
+from tactile_rig.sim.world.stirring import StirringScene
 
 FORCE_MAP_FORMAT = "tactile-rig/force-map"
 SUBSTANCE_FORMAT = "tactile-rig/substance-classifier"
@@ -116,7 +127,6 @@ class ForceMapModel:
         meta = {"format": FORCE_MAP_FORMAT, "version": FORMAT_VERSION, "kernel": "rbf", "gamma": self.gamma,
                 "alpha": self.alpha, "features": list(self.feature_names), "n_train": int(self.x_fit.shape[0]),
                 "arrays": npz.name, **self.meta}
-        from tactile_rig.cli.common import to_jsonable
 
         js.write_text(json.dumps(to_jsonable(meta), indent=1) + "\n", encoding="utf-8")
         return npz, js
@@ -190,8 +200,6 @@ class ForceTrialData:
 def record_force_map_session(path: str | Path, trials: Sequence[Any], *, camera: str = "fingervision",
                              bench: Any = None, gap_s: float = 1.0) -> Path:
     """Record press trials (``stick_press.PressTrial``) as a session would: perception + scale + commands."""
-    from tactile_rig.core.clock import VirtualClock
-    from tactile_rig.rig.recording import Recorder
 
     clock = VirtualClock()
     with Recorder(path, clock=clock) as rec:
@@ -216,7 +224,6 @@ def force_trials_from_recording(path: str | Path, *, camera: str | None = None,
 
     Trials come from the ``trial`` field of the messages (or the ``/command/session`` trial starts).
     """
-    from tactile_rig.rig.recording import read_recording
 
     rec = read_recording(path)
     perc_topics = sorted({m.topic for m in rec.messages if m.topic.startswith("/perception/")})
@@ -293,7 +300,6 @@ def force_map_session(out_dir: str | Path, *, n_trials: int = 10, max_force_n: f
     out.mkdir(parents=True, exist_ok=True)
     scene = None
     if recording is None:
-        from tactile_rig.sim.world.stick_press import StickPressScene, increasing_peaks
 
         scene = StickPressScene()
         trials_sim = scene.trials(increasing_peaks(n_trials, max_force_n), seed=seed)
@@ -313,7 +319,6 @@ def force_map_session(out_dir: str | Path, *, n_trials: int = 10, max_force_n: f
     npz, js = model.save(out / "force_map")
     report["model"] = {"npz": str(npz), "json": str(js)}
     if figures:
-        from tactile_rig.rig.reports import Report, plot_estimated_vs_true, plot_trace, write_summary
 
         f1 = plot_estimated_vs_true(test.force_n, pred, out / "force_map_holdout.png", quantity="force", unit="N",
                                     true_label="scale force", est_label="force map estimate",
@@ -406,7 +411,6 @@ class SubstanceModel:
         meta = {"format": SUBSTANCE_FORMAT, "version": FORMAT_VERSION, "classes": self.classes,
                 "layers": len(self.weights), "activation": "logistic", "out_activation": self.out_activation,
                 "features": list(self.feature_names), "arrays": npz.name, **self.meta}
-        from tactile_rig.cli.common import to_jsonable
 
         js.write_text(json.dumps(to_jsonable(meta), indent=1) + "\n", encoding="utf-8")
         return npz, js
@@ -454,8 +458,6 @@ def fit_substance(X: np.ndarray, labels: Sequence[str], *, seed: int = 0,
 def record_stirring_session(path: str | Path, trials: Sequence[Any], *, camera: str = "fingervision",
                             gap_s: float = 1.0) -> Path:
     """Record stirring trials (``stirring.StirTrial``): a labelled trial start, then the marker series."""
-    from tactile_rig.core.clock import VirtualClock
-    from tactile_rig.rig.recording import Recorder
 
     clock = VirtualClock()
     with Recorder(path, clock=clock) as rec:
@@ -474,7 +476,6 @@ def record_stirring_session(path: str | Path, trials: Sequence[Any], *, camera: 
 def stirring_trials_from_recording(path: str | Path, *, camera: str | None = None
                                    ) -> list[tuple[str, np.ndarray, float]]:
     """(label, series T × 3, rate_hz) per labelled trial of a recording."""
-    from tactile_rig.rig.recording import read_recording
 
     rec = read_recording(path)
     labels = {int(m.data["trial"]): str(m.data["label"]) for m in rec.on("/command/session")
@@ -513,7 +514,6 @@ def substance_session(out_dir: str | Path, *, per_substance: int = 12, seed: int
     if not 0 < test_fraction < 1:
         raise ValueError(f"test_fraction={test_fraction!r} must be in (0, 1)")
     if recording is None:
-        from tactile_rig.sim.world.stirring import StirringScene
 
         recording = record_stirring_session(out / "substance.mcap", StirringScene().trials(per_substance, seed=seed))
     trials = stirring_trials_from_recording(recording, camera=camera)
@@ -553,7 +553,6 @@ def substance_session(out_dir: str | Path, *, per_substance: int = 12, seed: int
     npz, js = model.save(out / "substance")
     report["model"] = {"npz": str(npz), "json": str(js)}
     if figures:
-        from tactile_rig.rig.reports import Report, write_summary
 
         write_summary(out, report, [{"true": t, "predicted": p} for t, p in zip(yte, pred)], name="substance_summary")
         rows = [{"true \\ predicted": a, **{b: confusion[i][j] for j, b in enumerate(classes)}}

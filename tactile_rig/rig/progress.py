@@ -12,6 +12,8 @@ import sys
 import time
 from typing import Any, TextIO
 
+from tactile_rig.core.jsonable import to_jsonable
+
 
 class Progress:
     """Report ``done / total`` points; ``update(**fields)`` after each completed point.
@@ -40,7 +42,6 @@ class Progress:
         """Count ``n`` more points done; ``fields`` (the point's parameters, its result) go in the JSON line."""
         self.done += n
         if self.mode == "json":
-            from tactile_rig.cli.common import to_jsonable
 
             row = {"event": "point", "label": self.label, "done": self.done, "total": self.total, **fields}
             self.stream.write(json.dumps(to_jsonable(row), separators=(",", ":")) + "\n")

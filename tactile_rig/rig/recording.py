@@ -37,6 +37,7 @@ from typing import Any, Iterator, Mapping
 import numpy as np
 
 from tactile_rig.core.clock import Clock, RealClock
+from tactile_rig.core.jsonable import to_jsonable
 
 __all__ = ["Recorder", "Recording", "Message", "read_recording", "iter_messages", "SCHEMAS"]
 
@@ -78,8 +79,6 @@ LIBRARY = "tactile-rig"
 
 
 def _jsonable(obj: Any) -> Any:
-    from tactile_rig.cli.common import to_jsonable
-
     return to_jsonable(obj)
 
 

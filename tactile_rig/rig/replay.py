@@ -15,7 +15,14 @@ import numpy as np
 
 from tactile_rig.core.clock import Clock
 from tactile_rig.core.errors import NotConnected
-from tactile_rig.rig.recording import Message, Recording, decode_image, iter_messages, read_recording
+from tactile_rig.drivers.camera import RawFrame
+from tactile_rig.rig.recording import (
+    Message,
+    Recording,
+    decode_image,
+    iter_messages,
+    read_recording,
+)
 
 IMAGE_SCHEMAS = ("foxglove.RawImage", "foxglove.CompressedImage")
 
@@ -135,7 +142,6 @@ class RecordedFrameSource:
 
     def read(self, timeout_s: float | None = None) -> Any:
         """The next frame as a ``RawFrame`` (recorded time as device time), or None on timeout."""
-        from tactile_rig.drivers.camera import RawFrame
 
         if not self._open:
             raise NotConnected("replay source is not open", device=self.name)

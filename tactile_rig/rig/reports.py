@@ -26,6 +26,7 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 
 from tactile_rig.core.geometry import wrap_deg
+from tactile_rig.core.jsonable import to_jsonable
 
 
 def _pyplot() -> Any:
@@ -209,7 +210,6 @@ def _save(fig: Any, path: str | Path) -> Path:
 def write_summary(out_dir: str | Path, summary: Mapping[str, Any], rows: Iterable[Mapping[str, Any]] | None = None,
                   *, name: str = "summary") -> dict[str, Path]:
     """Write ``<name>.json`` (the summary, plus the rows) and ``<name>.csv`` (the rows, one per point)."""
-    from tactile_rig.cli.common import to_jsonable
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -20,15 +20,16 @@ import copy
 import importlib
 import math
 import time
-import tomllib
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
+import tomllib
 
-from tactile_rig.core.clock import Clock, VirtualClock
 from tactile_rig.control.common import ControllerResult
+from tactile_rig.core.clock import Clock, VirtualClock
 from tactile_rig.core.errors import RigError
+from tactile_rig.sim.fakes.sensors import ModelSensor, RenderedSensor
 from tactile_rig.sim.scenes import Scene, builtin_scenes, load_scene, resolve_scene_path
 
 
@@ -89,7 +90,6 @@ class EpisodeContext:
                     process: Callable[[Any, float], Any] | None = None) -> Any:
         """Build the scene's TactileSensor from ``[sensor]``: a model sensor over ``probe`` or,
         with ``kind = "rendered"``, ``render``/``process``."""
-        from tactile_rig.sim.fakes.sensors import ModelSensor, RenderedSensor
 
         s = dict(self.sensor)
         kind = s.pop("kind", "model")

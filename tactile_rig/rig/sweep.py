@@ -29,6 +29,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
 
+from tactile_rig.core.jsonable import to_jsonable
+from tactile_rig.rig.scene_runner import run_episode
+
 RESULT_FILE = "result.json"
 KEY_LENGTH = 16  # hex digits of the SHA-256 of the canonical parameters
 
@@ -150,7 +153,6 @@ class _ScenePoint:
 def _scene_episode(scene: str, params: dict[str, Any], *, seed: int, out_dir: Path) -> dict[str, Any]:
     """One scene-runner episode: ``params`` keys ``<model>.<param>``, ``controller.<p>``, ``sensor.<p>``
     override the scene (and its per-episode draws); ``speed_mps`` is the runner's speed argument."""
-    from tactile_rig.rig.scene_runner import run_episode
 
     overrides: dict[str, dict[str, Any]] = {}
     speed = params.get("speed_mps")
@@ -196,7 +198,6 @@ def run_point(target: str, params: dict[str, Any], out_root: str) -> dict[str, A
         row.update(status="failed", error=f"{type(exc).__name__}: {exc}",
                    traceback=traceback.format_exc(limit=5))
     row["wall_s"] = time.monotonic() - t0
-    from tactile_rig.cli.common import to_jsonable
 
     text = json.dumps(to_jsonable(row), indent=1, allow_nan=False)
     if row["status"] == "ok":

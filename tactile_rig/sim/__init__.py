@@ -12,6 +12,10 @@ state from these models. Nothing here imports a driver, a mock or the rig.
 """
 
 from tactile_rig.sim.base import World, WorldModel, model_kinds, register_model
+from tactile_rig.sim.fakes import arm as _arm  # noqa: E402,F401
+from tactile_rig.sim.fakes import gripper as _gripper  # noqa: E402,F401
+from tactile_rig.sim.render import fingervision as _fingervision_render  # noqa: E402,F401
+from tactile_rig.sim.render import gelsight as _gelsight_render  # noqa: E402,F401
 
 # Every built-in model kind registers on import; a new model module adds its line here.
 from tactile_rig.sim.world import (  # noqa: E402,F401  (registration side effect)
@@ -26,9 +30,5 @@ from tactile_rig.sim.world import (  # noqa: E402,F401  (registration side effec
     table,
     torsion,
 )
-from tactile_rig.sim.render import fingervision as _fingervision_render  # noqa: E402,F401
-from tactile_rig.sim.render import gelsight as _gelsight_render  # noqa: E402,F401
-from tactile_rig.sim.fakes import arm as _arm  # noqa: E402,F401
-from tactile_rig.sim.fakes import gripper as _gripper  # noqa: E402,F401
 
 __all__ = ["World", "WorldModel", "model_kinds", "register_model"]

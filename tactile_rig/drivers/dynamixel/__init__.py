@@ -5,8 +5,16 @@ driver reads are device facts in :mod:`tactile_rig.devices.dynamixel`.
 """
 
 from tactile_rig.devices.dynamixel.control_table import MX64_P1, MX64_P2
-from tactile_rig.drivers.dynamixel.bus import DynamixelBus, UrlPortHandler, check_latency_timer
-from tactile_rig.drivers.dynamixel.gripper import DynamixelGripper, GripperCalibration, Lifecycle
+from tactile_rig.drivers.dynamixel.bus import (
+    DynamixelBus,
+    UrlPortHandler,
+    check_latency_timer,
+)
+from tactile_rig.drivers.dynamixel.gripper import (
+    DynamixelGripper,
+    GripperCalibration,
+    Lifecycle,
+)
 
 __all__ = [
     "DynamixelBus", "DynamixelGripper", "GripperCalibration", "Lifecycle", "MX64_P1", "MX64_P2",

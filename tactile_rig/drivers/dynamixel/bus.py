@@ -24,8 +24,6 @@ import dynamixel_sdk as sdk
 
 import tactile_rig.drivers.transport as transport
 from tactile_rig.core.clock import Clock
-from tactile_rig.devices.dynamixel import control_table as ct
-from tactile_rig.devices.dynamixel import error_codes as de
 from tactile_rig.core.errors import (
     CommandRejected,
     DeviceFault,
@@ -35,6 +33,8 @@ from tactile_rig.core.errors import (
     NotConnected,
     RigError,
 )
+from tactile_rig.devices.dynamixel import control_table as ct
+from tactile_rig.devices.dynamixel import error_codes as de
 
 log = logging.getLogger("tactile_rig.dynamixel")
 

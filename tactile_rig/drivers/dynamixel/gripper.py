@@ -21,10 +21,16 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from tactile_rig.core.clock import Deadline
+from tactile_rig.core.errors import (
+    CalibrationError,
+    DeviceFault,
+    LimitError,
+    NotConnected,
+    check_range,
+)
+from tactile_rig.core.types import GripperOutcome, GripperState
 from tactile_rig.devices.dynamixel import control_table as ct
 from tactile_rig.drivers.dynamixel.bus import DynamixelBus
-from tactile_rig.core.errors import CalibrationError, DeviceFault, LimitError, NotConnected, check_range
-from tactile_rig.core.types import GripperOutcome, GripperState
 
 log = logging.getLogger("tactile_rig.dynamixel.gripper")
 

@@ -11,7 +11,14 @@ from typing import Any
 
 from tactile_rig.devices.dynamixel import error_codes as de
 from tactile_rig.mocks.dynamixel.codec import (
-    BROADCAST_ID, ChecksumFailure, Packet, StreamParser, crc16, encode_p1, encode_p2_status)
+    BROADCAST_ID,
+    ChecksumFailure,
+    Packet,
+    StreamParser,
+    crc16,
+    encode_p1,
+    encode_p2_status,
+)
 from tactile_rig.mocks.dynamixel.firmware import Servo
 from tactile_rig.mocks.serial_device import SerialDevice
 

@@ -4,7 +4,11 @@ Pure numpy/OpenCV over BGR uint8 frames; pixel units unless a scale is given. En
 :class:`FingerVision` (``process(frame_bgr, t_s=None) -> FingerVisionResult``).
 """
 
-from tactile_rig.perception.fingervision.force import ForceParams, ForceTorque, estimate_force_torque
+from tactile_rig.perception.fingervision.force import (
+    ForceParams,
+    ForceTorque,
+    estimate_force_torque,
+)
 from tactile_rig.perception.fingervision.markers import (
     Detections,
     MarkerBaseline,
@@ -16,7 +20,11 @@ from tactile_rig.perception.fingervision.markers import (
     detect_markers_reference,
     refine_centroids,
 )
-from tactile_rig.perception.fingervision.processor import FingerVision, FingerVisionParams, FingerVisionResult
+from tactile_rig.perception.fingervision.processor import (
+    FingerVision,
+    FingerVisionParams,
+    FingerVisionResult,
+)
 from tactile_rig.perception.fingervision.proximity import (
     ObjectMoments,
     ProximityParams,
@@ -25,7 +33,12 @@ from tactile_rig.perception.fingervision.proximity import (
     estimate_shift,
     object_moments,
 )
-from tactile_rig.perception.fingervision.tracking import KalmanBank, MarkerTracker, TrackerParams, TrackState
+from tactile_rig.perception.fingervision.tracking import (
+    KalmanBank,
+    MarkerTracker,
+    TrackerParams,
+    TrackState,
+)
 
 __all__ = [
     "Detections",

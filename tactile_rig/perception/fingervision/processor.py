@@ -26,7 +26,10 @@ from tactile_rig.perception.fingervision.markers import (
     contrast_map,
     detect_in_contrast,
 )
-from tactile_rig.perception.fingervision.proximity import ProximityParams, ProximityVision
+from tactile_rig.perception.fingervision.proximity import (
+    ProximityParams,
+    ProximityVision,
+)
 from tactile_rig.perception.fingervision.tracking import MarkerTracker, TrackerParams
 
 __all__ = ["FingerVisionParams", "FingerVisionResult", "FingerVision"]

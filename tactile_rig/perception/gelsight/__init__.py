@@ -11,16 +11,42 @@ Typical use::
 """
 
 from tactile_rig.perception.gelsight.calibration import (
-    FitOptions, GelSightCalibration, PressSet, calibrate_from_presses, clamp_radius_px, load_presses, marker_mask,
-    sphere_cap)
-from tactile_rig.perception.gelsight.integration import HeightMapper, IntegrationParams, height_map_mm
+    FitOptions,
+    GelSightCalibration,
+    PressSet,
+    calibrate_from_presses,
+    clamp_radius_px,
+    load_presses,
+    marker_mask,
+    sphere_cap,
+)
+from tactile_rig.perception.gelsight.integration import (
+    HeightMapper,
+    IntegrationParams,
+    height_map_mm,
+)
 from tactile_rig.perception.gelsight.models import LutModel, MlpModel, PolyModel
 from tactile_rig.perception.gelsight.pipeline import ContactParams, Reconstructor
 from tactile_rig.perception.gelsight.registration import (
-    INSUFFICIENT_TEXTURE, RegistrationParams, RegistrationResult, extract_features, homography_confidence,
-    ransac_rigid, register, render_u8)
-from tactile_rig.perception.gelsight.report import CalibrationReport, cross_validate, press_error
-from tactile_rig.perception.gelsight.tactile_map import ACCEPT_CONFIDENCE, TactileMap, TouchRecord
+    INSUFFICIENT_TEXTURE,
+    RegistrationParams,
+    RegistrationResult,
+    extract_features,
+    homography_confidence,
+    ransac_rigid,
+    register,
+    render_u8,
+)
+from tactile_rig.perception.gelsight.report import (
+    CalibrationReport,
+    cross_validate,
+    press_error,
+)
+from tactile_rig.perception.gelsight.tactile_map import (
+    ACCEPT_CONFIDENCE,
+    TactileMap,
+    TouchRecord,
+)
 
 __all__ = [
     "ACCEPT_CONFIDENCE", "CalibrationReport", "ContactParams", "FitOptions", "GelSightCalibration", "HeightMapper",

@@ -7,7 +7,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tactile_rig.perception.gelsight.calibration import (
-    FitOptions, PressSet, calibrate_from_presses, clamp_radius_px, sphere_cap)
+    FitOptions,
+    PressSet,
+    calibrate_from_presses,
+    clamp_radius_px,
+    sphere_cap,
+)
 from tactile_rig.perception.gelsight.integration import IntegrationParams
 from tactile_rig.perception.gelsight.models import LutModel
 from tactile_rig.perception.gelsight.pipeline import ContactParams, Reconstructor

@@ -16,9 +16,16 @@ import numpy as np
 
 from tactile_rig.core.geometry import invert_rigid
 from tactile_rig.perception.gelsight.registration import (
-    Features, RegistrationParams, RegistrationResult, _check_height, _result, dense_refine, detect_scale,
+    Features,
+    RegistrationParams,
+    RegistrationResult,
+    _check_height,
+    _result,
+    dense_refine,
+    detect_scale,
     extract_features,
-    register)
+    register,
+)
 
 MAP_FORMAT_VERSION = 1
 ACCEPT_CONFIDENCE = 0.98  # Li 2014: a touch joins the map only above this confidence

@@ -13,9 +13,18 @@ from __future__ import annotations
 import itertools
 from typing import Any, Callable
 
-from tactile_rig.mocks.registry import Params, create_device, register_instance, unregister_instance
-from tactile_rig.sim.world.timeline import Timeline
+from tactile_rig.drivers.dynamixel.gripper import DynamixelGripper
+from tactile_rig.drivers.jig import Jig
+from tactile_rig.drivers.scale import Scale
+from tactile_rig.mocks.pty_server import PtyServer
+from tactile_rig.mocks.registry import (
+    Params,
+    create_device,
+    register_instance,
+    unregister_instance,
+)
 from tactile_rig.rig.scene_runner import EpisodeContext
+from tactile_rig.sim.world.timeline import Timeline
 
 _names = itertools.count()
 
@@ -34,7 +43,6 @@ class Devices:
         device = create_device(kind, Params(params, source=f"scene {self.ctx.scene.name}: {kind}"),
                                clock=self.ctx.clock, world=self.ctx.world)
         if self.transport == "pty":
-            from tactile_rig.mocks.pty_server import PtyServer
 
             server = PtyServer(device, clock=self.ctx.clock).start()
             self._closers.append(server.stop)
@@ -46,7 +54,6 @@ class Devices:
 
     def gripper(self, *, effort: float = 0.5) -> Any:
         """The MX-64 driver on the mock driving the scene's ``fingers`` (activated)."""
-        from tactile_rig.drivers.dynamixel.gripper import DynamixelGripper
 
         g = DynamixelGripper(self._port("dynamixel", {"fingers": "fingers", "ids": "1"}), dxl_id=1, protocol=2)
         self._closers.insert(0, g.close)
@@ -56,7 +63,6 @@ class Devices:
 
     def jig(self) -> tuple[Any, Timeline]:
         """The GRBL jig driver on the mock of the scene's ``stage``, and the stage's pose history."""
-        from tactile_rig.drivers.jig import Jig
 
         stage = self.ctx.model("stage")
         history: Timeline = Timeline(keep_s=60.0)
@@ -77,7 +83,6 @@ class Devices:
 
     def scale(self) -> Any:
         """The HX711 scale driver on the mock of the scene's ``load_cell``, tared, as a ForceGauge."""
-        from tactile_rig.drivers.scale import Scale
 
         scale = Scale(self._port("scale", {"load_cell": "load_cell"}))
         self._closers.insert(0, scale.close)

@@ -15,11 +15,11 @@ import numpy as np
 from tactile_rig.control.collision_stop import CollisionStop, CollisionStopParams
 from tactile_rig.control.protocols import Pose
 from tactile_rig.core.errors import RigError
-from tactile_rig.sim.fakes.sensors import touch
-from tactile_rig.sim.world.table import Table
 from tactile_rig.rig.episodes import outcome_matches, params_for
 from tactile_rig.rig.episodes._devices import Devices, with_devices
 from tactile_rig.rig.scene_runner import EpisodeContext, EpisodeReport
+from tactile_rig.sim.fakes.sensors import touch
+from tactile_rig.sim.world.table import Table
 
 
 def _motion(ctx: EpisodeContext, devices: Devices) -> tuple[Any, Callable[[float], np.ndarray], list, dict]:

@@ -13,9 +13,14 @@ import numpy as np
 
 from tactile_rig.control.following import Following, FollowingParams, rotate_xy
 from tactile_rig.control.protocols import TouchReading
+from tactile_rig.perception.fingervision.processor import (
+    FingerVision,
+    FingerVisionParams,
+)
 from tactile_rig.rig.episodes import outcome_matches, params_for
 from tactile_rig.rig.episodes._devices import Devices, with_devices
 from tactile_rig.rig.scene_runner import EpisodeContext, EpisodeReport
+from tactile_rig.sim.render.fingervision import FingerVisionRenderer, FvObject
 
 
 def _run(ctx: EpisodeContext, devices: Devices) -> EpisodeReport:
@@ -66,8 +71,6 @@ def _run(ctx: EpisodeContext, devices: Devices) -> EpisodeReport:
 def _rendered_proximity(ctx: EpisodeContext, params: FollowingParams, offset):  # noqa: ANN001, ANN202
     """The FingerVision renderer drawing the object where it is, and the real FingerVision
     processor (calibrated on empty frames, object colours taught from one frame) reading it."""
-    from tactile_rig.sim.render.fingervision import FingerVisionRenderer, FvObject
-    from tactile_rig.perception.fingervision.processor import FingerVision, FingerVisionParams
 
     renderer = FingerVisionRenderer(seed=ctx.seed)
     fv = FingerVision(FingerVisionParams())

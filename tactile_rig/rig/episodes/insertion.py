@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from tactile_rig.control.insertion import InsertionParams, Insertion
+from tactile_rig.control.insertion import Insertion, InsertionParams
 from tactile_rig.control.protocols import Localization, Pose
 from tactile_rig.core.geometry import invert_rigid, matrix_from_pose, pose_from_matrix
 from tactile_rig.rig.episodes import params_for

@@ -8,6 +8,7 @@ object's weight at all and 10 % above the least effort that lifts it at the arm'
 from __future__ import annotations
 
 from tactile_rig.control.lift_effort import LiftEffortParams, MinimalLiftEffort
+from tactile_rig.devices.dynamixel import control_table as ct
 from tactile_rig.rig.episodes import outcome_matches, params_for
 from tactile_rig.rig.episodes._devices import Devices, with_devices
 from tactile_rig.rig.episodes._grasp_probe import frame_period_s, grasp_probe
@@ -30,7 +31,6 @@ def _run(ctx: EpisodeContext, devices: Devices) -> EpisodeReport:
     effort = res.figures.get("effort", float("nan"))
     if hasattr(gripper, "current_limit_a") and effort == effort:
         # the MX-64 applies a whole number of 3.36 mA current units: judge the effort it applied
-        from tactile_rig.devices.dynamixel import control_table as ct
 
         unit = ct.P2_CURRENT_A_PER_UNIT
         effort = round(effort * gripper.current_limit_a / unit) * unit / gripper.current_limit_a

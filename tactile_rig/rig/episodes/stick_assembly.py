@@ -12,10 +12,10 @@ import numpy as np
 from tactile_rig.control.collision_stop import CollisionStopParams
 from tactile_rig.control.protocols import TouchReading
 from tactile_rig.control.stick_assembly import StickAssembly, StickAssemblyParams
-from tactile_rig.sim.fakes.sensors import ModelGauge
 from tactile_rig.rig.episodes import outcome_matches, params_for
 from tactile_rig.rig.episodes._devices import Devices
 from tactile_rig.rig.scene_runner import EpisodeContext, EpisodeReport
+from tactile_rig.sim.fakes.sensors import ModelGauge
 
 
 def run_episode(ctx: EpisodeContext) -> EpisodeReport:

@@ -41,7 +41,11 @@ from tactile_rig.rig.jig_accuracy.devices import (
     prepare_jig,
     sim_camera_connector,
 )
-from tactile_rig.rig.jig_accuracy.localizer import JigRig, TouchLocalization, TouchLocalizer
+from tactile_rig.rig.jig_accuracy.localizer import (
+    JigRig,
+    TouchLocalization,
+    TouchLocalizer,
+)
 from tactile_rig.rig.jig_accuracy.plan import (
     DEFAULT_REGISTRATION,
     PAPER_FIGURES,
@@ -54,7 +58,12 @@ from tactile_rig.rig.jig_accuracy.plan import (
 )
 from tactile_rig.rig.jig_accuracy.report import format_table, write_report
 from tactile_rig.rig.jig_accuracy.results import PointResult, summarize
-from tactile_rig.rig.jig_accuracy.run import RunOutcome, build_map, measure_point, run_jig_accuracy
+from tactile_rig.rig.jig_accuracy.run import (
+    RunOutcome,
+    build_map,
+    measure_point,
+    run_jig_accuracy,
+)
 from tactile_rig.rig.jig_accuracy.session import (
     RunRecorder,
     calibration_digest,

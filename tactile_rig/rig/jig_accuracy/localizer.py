@@ -14,7 +14,11 @@ from tactile_rig.core.geometry import Pose
 from tactile_rig.perception.gelsight.pipeline import Reconstructor
 from tactile_rig.perception.gelsight.registration import RegistrationParams
 from tactile_rig.perception.gelsight.tactile_map import TactileMap
-from tactile_rig.rig.jig_accuracy.plan import pose_from_touch_matrix, touch_matrix_from_pose
+from tactile_rig.rig.jig_accuracy.plan import (
+    pose_from_touch_matrix,
+    touch_matrix_from_pose,
+)
+
 
 class JigRig(Protocol):
     """What a jig accuracy run needs of the bench: move, touch, and (mocks) the truth."""

@@ -13,7 +13,13 @@ from typing import Any
 import numpy as np
 
 from tactile_rig.core.errors import check_range
-from tactile_rig.core.geometry import Pose, invert_rigid, matrix_from_pose, rotation_2d, wrap_deg
+from tactile_rig.core.geometry import (
+    Pose,
+    invert_rigid,
+    matrix_from_pose,
+    rotation_2d,
+    wrap_deg,
+)
 
 SWEEPS = ("rotation", "translation", "both")
 # Li, Platt, Adelson 2014, Fig. 7 (real bench): the figures the table is compared with.

@@ -15,6 +15,7 @@ from tactile_rig.rig.jig_accuracy.plan import PAPER_FIGURES
 from tactile_rig.rig.jig_accuracy.results import PointResult
 from tactile_rig.rig.jig_accuracy.run import RunOutcome
 
+
 def _f(v: float | None, fmt: str) -> str:
     return "—" if v is None or not math.isfinite(float(v)) else format(float(v), fmt)
 

@@ -11,6 +11,7 @@ import numpy as np
 from tactile_rig.core.geometry import Pose, wrap_deg
 from tactile_rig.rig.jig_accuracy.plan import PAPER_FIGURES, JigPoint
 
+
 @dataclass
 class PointResult:
     """The outcome of one jig point (one line of ``points.jsonl``)."""

@@ -13,10 +13,15 @@ import numpy as np
 
 from tactile_rig.core.errors import CalibrationError
 from tactile_rig.core.geometry import Pose
-from tactile_rig.rig.jig_accuracy.localizer import JigRig, TouchLocalization, TouchLocalizer
+from tactile_rig.rig.jig_accuracy.localizer import (
+    JigRig,
+    TouchLocalization,
+    TouchLocalizer,
+)
 from tactile_rig.rig.jig_accuracy.plan import JigAccuracyConfig, JigPoint, plan_points
 from tactile_rig.rig.jig_accuracy.results import PointResult, _finite, summarize
 from tactile_rig.rig.jig_accuracy.store import RunStore
+
 
 @dataclass
 class RunOutcome:

@@ -90,7 +90,6 @@ class SimGripper:
             self.clock.sleep(0.005)
 
     def state(self) -> Any:
-
         self.advance_to(self.clock.now_s())
         self._check_fault()
         squeeze = self._squeeze

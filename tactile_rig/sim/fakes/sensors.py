@@ -22,8 +22,8 @@ from typing import Any, Callable
 import numpy as np
 
 from tactile_rig.core.clock import Clock
-from tactile_rig.core.types import Localization, TouchReading
 from tactile_rig.core.errors import DeviceTimeout, check_range
+from tactile_rig.core.types import Localization, TouchReading
 
 
 class _FramedSensor:

@@ -35,7 +35,12 @@ import numpy as np
 
 from tactile_rig.core.errors import check_range
 from tactile_rig.sim.base import register_model
-from tactile_rig.sim.world.objects import HeightField, ObjectModel, ball, pressed_indentation_mm, view_in_sensor
+from tactile_rig.sim.world.objects import (
+    HeightField,
+    ObjectModel,
+    pressed_indentation_mm,
+    view_in_sensor,
+)
 
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
 BACKGROUNDS: dict[str, tuple[str, float]] = {

@@ -17,10 +17,11 @@ this folder; :func:`load_scene` accepts a path or a built-in name.
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import tomllib
 
 from tactile_rig.core.clock import Clock
 from tactile_rig.sim import World

@@ -13,7 +13,12 @@ from typing import Any
 
 import numpy as np
 
-from tactile_rig.core.geometry import Pose, invert_rigid, matrix_from_pose, pose_from_matrix
+from tactile_rig.core.geometry import (
+    Pose,
+    invert_rigid,
+    matrix_from_pose,
+    pose_from_matrix,
+)
 from tactile_rig.sim.base import register_model
 
 
