@@ -1,9 +1,12 @@
-"""Layering rules of the package, checked from the source with ``ast`` (nothing is imported).
+"""Layering rules of the package (DESIGN.md), checked from the source with ``ast`` (nothing is imported).
 
-* ``tactile_rig.control`` and ``tactile_rig.perception`` never import ``tactile_rig.drivers`` or
-  ``tactile_rig.mocks`` (not even inside a function): they work against protocols only.
-* No import cycle among modules executed at import time (module-level imports).
-* No new cycle through deferred (function-level) imports either, beyond the known list below.
+* Each layer imports only the layers below it (:data:`ALLOWED`): ``core`` nothing; ``devices`` only
+  ``core``; ``control`` and ``perception`` only ``core``; ``drivers`` only ``core`` and ``devices``;
+  ``sim`` only ``core`` and ``devices``; ``mocks`` only ``core``, ``devices`` and ``sim``; only
+  ``cli`` imports ``rig``.
+* No function-level import of a ``tactile_rig`` module anywhere (they exist only to dodge a cycle or
+  a layer rule); optional third-party extras may still be imported inside the function that needs them.
+* No import cycle among modules executed at import time, nor through deferred imports.
 """
 
 from __future__ import annotations
@@ -19,10 +22,22 @@ PKG_DIR = PKG_ROOT / "tactile_rig"
 FORBIDDEN = ("tactile_rig.drivers", "tactile_rig.mocks")
 RESTRICTED = ("tactile_rig.control", "tactile_rig.perception")
 
-# Deferred-import cycles that are tolerated; each would be a dependency loop that only works because
-# one side imports inside a function. Keep it empty.
-KNOWN_DEFERRED_CYCLES: set[frozenset[str]] = set()
-
+# Which layers each layer may import (besides itself). ``root`` is the package's own __init__ and
+# _compat; ``testing`` is the public test helpers (drivers, mocks, sim: never the rig or the CLI).
+LAYERS = ("root", "core", "devices", "control", "perception", "drivers", "sim", "mocks", "rig", "testing", "cli")
+ALLOWED: dict[str, set[str]] = {
+    "root": {"core"},
+    "core": set(),
+    "devices": {"core"},
+    "control": {"core"},
+    "perception": {"core"},
+    "drivers": {"core", "devices"},
+    "sim": {"core", "devices"},
+    "mocks": {"core", "devices", "sim"},
+    "rig": {"root", "core", "devices", "control", "perception", "drivers", "sim", "mocks"},
+    "testing": {"root", "core", "devices", "drivers", "sim", "mocks"},
+    "cli": {"root", "core", "devices", "control", "perception", "drivers", "sim", "mocks", "rig"},
+}
 
 def _module_name(path: Path, root: Path = PKG_ROOT) -> str:
     parts = list(path.relative_to(root).with_suffix("").parts)
@@ -156,6 +171,45 @@ def _cycles(graph: dict[str, set[str]]) -> list[frozenset[str]]:
     return result
 
 
+def _layer(module: str) -> str:
+    parts = module.split(".")
+    if len(parts) < 2 or parts[1] in ("_compat",):
+        return "root"
+    return parts[1]
+
+
+def test_every_module_belongs_to_a_known_layer():
+    assert {_layer(m) for m in MODULES} <= set(LAYERS)
+
+
+def test_each_layer_imports_only_the_layers_below_it():
+    offences = []
+    for module, path in MODULES.items():
+        layer = _layer(module)
+        for name, line in _imports(module, path, top_level_only=False):
+            if not _in_package(name, ("tactile_rig",)):
+                continue
+            target = _resolve(name)
+            if target is None:
+                continue
+            dep = _layer(target)
+            if dep != layer and dep not in ALLOWED[layer]:
+                offences.append(f"{path.relative_to(PKG_ROOT)}:{line} ({layer}) imports {name} ({dep})")
+    assert offences == []
+
+
+def test_no_function_level_import_of_the_package():
+    """A deferred import of our own module hides a cycle or a layer breach; third-party optional
+    extras (mcap, matplotlib, scikit-learn, dask) may still be imported where they are needed."""
+    offences = []
+    for module, path in MODULES.items():
+        top = set(_imports(module, path, top_level_only=True))
+        for name, line in _imports(module, path, top_level_only=False):
+            if _in_package(name, ("tactile_rig",)) and (name, line) not in top:
+                offences.append(f"{path.relative_to(PKG_ROOT)}:{line} imports {name} inside a function")
+    assert offences == []
+
+
 def test_package_is_found():
     assert "tactile_rig.core.errors" in MODULES
     assert any(_in_package(m, ("tactile_rig.control",)) for m in MODULES)
@@ -206,10 +260,8 @@ def test_no_import_cycle_at_import_time():
     assert _cycles(_graph(top_level_only=True)) == []
 
 
-def test_no_new_cycle_through_deferred_imports():
-    cycles = set(_cycles(_graph(top_level_only=False)))
-    assert cycles - KNOWN_DEFERRED_CYCLES == set()
-    assert KNOWN_DEFERRED_CYCLES <= cycles or not KNOWN_DEFERRED_CYCLES  # stale entries must go
+def test_no_cycle_through_deferred_imports_either():
+    assert _cycles(_graph(top_level_only=False)) == []
 
 
 def test_checker_detects_a_forbidden_import_and_a_cycle(tmp_path, monkeypatch):
@@ -234,4 +286,5 @@ def test_checker_detects_a_forbidden_import_and_a_cycle(tmp_path, monkeypatch):
     assert _cycles(_graph(top_level_only=True)) == [
         frozenset({"tactile_rig.drivers.scale", "tactile_rig.drivers.loop"})
     ]
+    assert _layer("tactile_rig.control.bad") == "control" and "drivers" not in ALLOWED["control"]
 

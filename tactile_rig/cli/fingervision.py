@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.perception.fingervision import FingerVision, FingerVisionParams
 
 _IMAGE_EXT = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
 
@@ -38,7 +39,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def load_params(path: str | None, calib_frames: int | None = None):
     """FingerVisionParams from a TOML/JSON file (or the defaults)."""
-    from tactile_rig.perception.fingervision import FingerVisionParams
 
     data: dict[str, Any] = {}
     if path:
@@ -129,7 +129,6 @@ def _record(i: int, name: str, r) -> dict[str, Any]:
 
 
 def _track(args: argparse.Namespace) -> int:
-    from tactile_rig.perception.fingervision import FingerVision
 
     if args.fps is not None and not args.fps > 0:
         raise ValueError(f"--fps: expected > 0 frames/s, got {args.fps}")

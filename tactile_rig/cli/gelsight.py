@@ -8,6 +8,17 @@ from pathlib import Path
 import numpy as np
 
 from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.perception.gelsight import (
+    GelSightCalibration,
+    IntegrationParams,
+    Reconstructor,
+    RegistrationParams,
+    TactileMap,
+    calibrate_from_presses,
+    cross_validate,
+    load_presses,
+)
+from tactile_rig.perception.gelsight import register as register_heights
 
 
 def _load_height(path: str) -> np.ndarray:
@@ -32,7 +43,6 @@ def _read_image(path: str) -> np.ndarray:
 
 
 def _reconstructor(calib: str, background: str | None, solver: str | None = None):
-    from tactile_rig.perception.gelsight import GelSightCalibration, IntegrationParams, Reconstructor
 
     cal = GelSightCalibration.load(calib)
     if background:
@@ -51,7 +61,6 @@ def _height_or_image(path: str, calib: str | None, background: str | None) -> np
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from tactile_rig.perception.gelsight import calibrate_from_presses, cross_validate, load_presses
 
     presses = load_presses(args.press_dir)
     hyper = {"bins": args.bins} if args.method == "lut" else {}
@@ -107,20 +116,17 @@ def _print_result(res, as_json: bool) -> int:
 
 
 def _params(args: argparse.Namespace):
-    from tactile_rig.perception.gelsight import RegistrationParams
 
     return RegistrationParams(detector=args.detector, ransac_iters=args.ransac_iters)
 
 
 def _cmd_register(args: argparse.Namespace) -> int:
-    from tactile_rig.perception.gelsight import register
 
-    res = register(_load_height(args.a), _load_height(args.b), args.mm_per_px, _params(args))
+    res = register_heights(_load_height(args.a), _load_height(args.b), args.mm_per_px, _params(args))
     return _print_result(res, args.json)
 
 
 def _cmd_map(args: argparse.Namespace) -> int:
-    from tactile_rig.perception.gelsight import TactileMap
 
     tmap = TactileMap(args.mm_per_px, canvas_factor=args.canvas_factor, params=_params(args))
     rows = []
@@ -140,7 +146,6 @@ def _cmd_map(args: argparse.Namespace) -> int:
 
 
 def _cmd_localize(args: argparse.Namespace) -> int:
-    from tactile_rig.perception.gelsight import TactileMap
 
     tmap = TactileMap.load(args.map, params=_params(args))
     res = tmap.localize(_height_or_image(args.touch, args.calib, args.background))
