@@ -41,6 +41,7 @@ from tactile_rig.core.errors import (
     RigError,
 )
 from tactile_rig.core.types import RawFrame
+from tactile_rig.drivers.base import Driver, Lifecycle
 from tactile_rig.devices.camera import (
     AUTO_SWITCHES,
     PHOTOMETRIC_CONTROLS,
@@ -153,7 +154,7 @@ class CameraStats:
     frozen: bool = False
 
 
-class FingertipCamera:
+class FingertipCamera(Driver):
     """A fingertip camera on any :class:`FrameSource`; see the module doc for the behaviour."""
 
     def __init__(self, source: FrameSource | str | int, config: CameraConfig | None = None, *,
@@ -174,6 +175,8 @@ class FingertipCamera:
         self.clock: Clock = clock or RealClock()
         self.threaded = (not self.clock.is_virtual) if threaded is None else bool(threaded)
         self.name = name or f"camera@{getattr(source, 'name', source)}"
+        super().__init__(self.name)
+        self.lifecycle = Lifecycle.CLOSED  # until open()
         self.format: tuple[str, int, int, float] | None = None
         self.stats = CameraStats()
         self._cond = threading.Condition()
@@ -193,6 +196,7 @@ class FingertipCamera:
     def open(self) -> FingertipCamera:
         """Open the source, set the format, lock and verify the controls, start capture."""
         self._open_and_configure()
+        self.lifecycle = Lifecycle.CONNECTED
         if self.threaded:
             self._running = True
             self._thread = threading.Thread(target=self._capture_loop, name=f"{self.name}-capture", daemon=True)
@@ -200,6 +204,7 @@ class FingertipCamera:
         return self
 
     def close(self) -> None:
+        """Stop capture and close the source (safe to call twice, and before open())."""
         self._running = False
         with self._cond:
             self._cond.notify_all()
@@ -209,12 +214,10 @@ class FingertipCamera:
             if self._thread is not None:
                 self._thread.join(timeout=2.0)
                 self._thread = None
+            self.lifecycle = Lifecycle.CLOSED
 
     def __enter__(self) -> FingertipCamera:
         return self.open()
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
 
     def _open_and_configure(self) -> None:
         self.source.open()

@@ -28,6 +28,7 @@ from tactile_rig.core.errors import (
 )
 from tactile_rig.core.geometry import Pose
 from tactile_rig.devices import grbl as gp
+from tactile_rig.drivers.base import Driver, Lifecycle
 from tactile_rig.drivers.transport import SerialTransport
 
 log = logging.getLogger("tactile_rig.jig")
@@ -168,12 +169,17 @@ def clean_gcode_line(line: str) -> str:
     return "".join(out).strip()
 
 
-class Jig:
+class Jig(Driver):
     """The jig's GRBL controller on ``port`` (path or URL), opened here.
 
     ``theta_axis`` is the GRBL channel θ rides on (``"Z"`` on stock GRBL 1.1, ``"A"`` on grblHAL; its
     steps/mm setting holds steps per degree). ``x_range_mm`` / ``y_range_mm`` / ``theta_range_deg``
     (optional) are checked before a move is sent; the firmware's own soft limits apply as well.
+
+    Lifecycle (:mod:`tactile_rig.drivers.base`): ``active`` once GRBL is unlocked (after a clean boot,
+    :meth:`home`, :meth:`unlock` or :meth:`activate`); ``connected`` while it is locked in its boot
+    alarm; an ``ALARM:N`` or an unasked reset puts it in ``fault``, where moves are refused until
+    :meth:`activate` (soft reset if needed, then home or unlock) starts again from the measured pose.
     """
 
     def __init__(
@@ -192,9 +198,9 @@ class Jig:
         theta_axis = theta_axis.upper()
         if theta_axis not in ("Z", "A"):
             raise ValueError(f"theta_axis={theta_axis!r}: expected 'Z' (stock GRBL 1.1) or 'A' (grblHAL)")
+        super().__init__(device or f"jig@{port}")
         self.port = port
         self.theta_axis = theta_axis
-        self.device = device or f"jig@{port}"
         self.ranges = {"x_mm": x_range_mm, "y_mm": y_range_mm, "theta_deg": theta_range_deg}
         self.transport = SerialTransport(port, baudrate=baudrate, device=self.device, clock=clock)
         self.clock: Clock = self.transport.clock
@@ -217,7 +223,12 @@ class Jig:
         self.last_alarm: int | None = None
         self.last_status: GrblStatus | None = None
         self._wco: tuple[float, ...] | None = None
-        self._await_banner(boot_timeout_s)
+        try:
+            self._await_banner(boot_timeout_s)
+        except BaseException:
+            self.transport.close()
+            raise
+        self.lifecycle = Lifecycle.CONNECTED if self.alarm_on_boot else Lifecycle.ACTIVE
 
     # -- plumbing ---------------------------------------------------------------------------------------
     def _await_banner(self, timeout_s: float) -> None:
@@ -304,10 +315,10 @@ class Jig:
     def _check_events(self) -> None:
         if self._unexpected_reset:
             self._unexpected_reset = False
-            raise GrblReset("GRBL reset unexpectedly (banner mid-session): buffered motion was lost",
-                            device=self.device)
+            raise self.fault(GrblReset("GRBL reset unexpectedly (banner mid-session): buffered motion was lost",
+                                       device=self.device))
         if self._alarms:
-            raise gp.alarm(self._alarms.popleft(), device=self.device)
+            raise self.fault(gp.alarm(self._alarms.popleft(), device=self.device))
 
     def _send_line(self, line: str, deadline: Deadline) -> int:
         """Send one line when GRBL's receive buffer has room for it (character counting)."""
@@ -330,7 +341,7 @@ class Jig:
         while ident not in self._results:
             self._check_events()
             if not any(o.ident == ident for o in self._outstanding):
-                raise GrblReset(f"{what} was lost: GRBL reset before answering", device=self.device)
+                raise self.fault(GrblReset(f"{what} was lost: GRBL reset before answering", device=self.device))
             if deadline.expired():
                 raise DeviceTimeout(f"no 'ok' or 'error' for {what} within {deadline.timeout_s:.3g} s",
                                     device=self.device)
@@ -341,8 +352,8 @@ class Jig:
         """Send one line, wait for its ``ok``; return the info lines it printed. ``error:N`` → GrblError."""
         self._check_events()
         if self.needs_reset:
-            raise gp.alarm(self.last_alarm or 0, device=self.device, hint=f"{line!r} not sent: only a soft "
-                            "reset (soft_reset()) clears this alarm")
+            raise self.fault(gp.alarm(self.last_alarm or 0, device=self.device, hint=f"{line!r} not sent: only "
+                                      "a soft reset (soft_reset() or activate()) clears this alarm"))
         dl = Deadline(self.clock, timeout_s)
         self._info.clear()
         ident = self._send_line(line, dl)
@@ -377,7 +388,7 @@ class Jig:
             if st.state == "Idle" and not self._outstanding:
                 return st
             if st.state == "Alarm":
-                raise gp.alarm(self._alarms.popleft() if self._alarms else 0, device=self.device)
+                raise self.fault(gp.alarm(self._alarms.popleft() if self._alarms else 0, device=self.device))
             if dl.expired():
                 raise DeviceTimeout(f"not Idle within {timeout_s:.3g} s (state {st.state}, "
                                     f"{len(self._outstanding)} line(s) unanswered)", device=self.device)
@@ -389,11 +400,34 @@ class Jig:
         """Run the homing cycle (``$H``); returns when GRBL answers ``ok`` (the cycle is done)."""
         self.command("$H", timeout_s)
         self.alarm_on_boot = False
+        self._unlocked()
 
     def unlock(self) -> None:
         """Clear an alarm lock without homing (``$X``): only if you know where the stage is."""
         self.command("$X")
         self.alarm_on_boot = False
+        self._unlocked()
+
+    def _unlocked(self) -> None:
+        self.lifecycle = Lifecycle.ACTIVE
+        self.last_fault = None
+
+    def activate(self, *, home: bool = True, timeout_s: float = 60.0) -> None:  # type: ignore[override]
+        """Make the jig ready to move from wherever it is: a soft reset if a critical alarm needs one,
+        then, if GRBL is locked (Alarm), ``$H`` (``home=True``) or ``$X`` (only if you know where the
+        stage is). Clears a fault; the next move starts from the measured pose."""
+        self.require_open()
+        if self.needs_reset:
+            self.soft_reset()
+        self._alarms.clear()
+        self._unexpected_reset = False
+        st = self.status()
+        if st.state.startswith("Alarm"):
+            if home:
+                self.home(timeout_s)
+            else:
+                self.unlock()
+        self._unlocked()
 
     def feed_hold(self) -> None:
         """Decelerate to a stop, keeping the rest of the program (``!``); ``resume`` continues."""
@@ -443,6 +477,7 @@ class Jig:
                 feed_mm_per_min: float | None = None, *, wait: bool = False, timeout_s: float = 60.0) -> None:
         """Go to a work-coordinate pose (None: that axis stays). ``feed_mm_per_min`` None: a rapid (G0),
         each axis at its own maximum rate. With ``wait`` returns when Idle there."""
+        self.require_not_faulted("move_to")
         self._check_ranges(x_mm=x_mm, y_mm=y_mm, theta_deg=theta_deg)
         words = self._axis_words(x_mm, y_mm, theta_deg)
         if not words:
@@ -460,6 +495,7 @@ class Jig:
             feed_mm_per_min: float, relative: bool = True) -> None:
         """Jog (``$J=``): relative by default; absolute work coordinates with ``relative=False``.
         A jog past the soft limits is refused by GRBL (error:15 → GrblError)."""
+        self.require_not_faulted("jog")
         check_range("feed_mm_per_min", feed_mm_per_min, 1e-3, 1e6, "mm/min")
         if not relative:
             self._check_ranges(x_mm=dx_mm, y_mm=dy_mm, theta_deg=dtheta_deg)
@@ -518,6 +554,7 @@ class Jig:
         On ``error:N`` with ``stop_on_error`` nothing more is sent and :class:`GrblError` is raised
         (naming the line) once the lines already in GRBL's buffer are answered.
         """
+        self.require_not_faulted("stream")
         self._check_events()
         dl = Deadline(self.clock, timeout_s)
         res = StreamResult()
@@ -563,9 +600,10 @@ class Jig:
         return res
 
     # -- Motion protocol -------------------------------------------------------------------------------------------------
-    def move_toward(self, target, speed_mps: float) -> None:  # target: control.protocols.Pose
+    def move_toward(self, target: Pose, speed_mps: float) -> None:
         """Start moving toward ``target`` (a Pose: x_mm, y_mm, theta_deg) at ``speed_mps`` (mm/s × 1000
         along the combined path, θ counted in degrees as GRBL does). A newer call replaces an older one."""
+        self.require_not_faulted("move_toward")
         check_range("speed_mps", speed_mps, 1e-6, 10.0, "m/s")
         self._check_ranges(x_mm=target.x_mm, y_mm=target.y_mm, theta_deg=target.theta_deg)
         st = self.last_status
@@ -604,14 +642,8 @@ class Jig:
                 st = self.status()
             self.soft_reset()
 
-    def close(self) -> None:
+    def _close(self) -> None:
         self.transport.close()
-
-    def __enter__(self) -> "Jig":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def _error_code(line: str) -> int:

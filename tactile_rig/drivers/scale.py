@@ -30,6 +30,7 @@ from tactile_rig.core.errors import (
     check_range,
 )
 from tactile_rig.devices import scale as sp
+from tactile_rig.drivers.base import Driver, Lifecycle
 from tactile_rig.drivers.transport import SerialTransport
 
 log = logging.getLogger("tactile_rig.scale")
@@ -248,7 +249,7 @@ def stable_port_path(port: str, by_id_dir: str | os.PathLike[str] = "/dev/serial
     return port
 
 
-class Scale:
+class Scale(Driver):
     """The HX711 scale on ``port`` (a path, a ``/dev/serial/by-id`` link, or a URL); opened here.
 
     ``boot_timeout_s`` bounds the wait for the banner (or a first reading) after the reset on
@@ -273,7 +274,7 @@ class Scale:
         self.port = port
         self.reconnect_port = stable_port_path(port)
         self.baudrate = int(baudrate)
-        self.device = device or f"scale@{port}"
+        super().__init__(device or f"scale@{port}")
         self.boot_timeout_s = float(boot_timeout_s)
         self._stale_after_s = stale_after_s
         self.toggle_dtr = toggle_dtr
@@ -313,6 +314,7 @@ class Scale:
     def _open(self, port: str) -> None:
         self.transport = SerialTransport(port, baudrate=self.baudrate, device=self.device,
                                          clock=self._clock_override)
+        self.lifecycle = Lifecycle.CONNECTED
         self._parser = ScaleLineParser(sync=True)
         self._last_seq = None
         self._started = False
@@ -366,16 +368,10 @@ class Scale:
                                    device=self.device)
             dl.clock.sleep(0.2)
 
-    def close(self) -> None:
+    def _close(self) -> None:
         if self.transport is not None:
             self.transport.close()
             self.transport = None
-
-    def __enter__(self) -> "Scale":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     # -- reading --------------------------------------------------------------------------------
     def _pump(self, wait_s: float) -> int:
@@ -528,7 +524,7 @@ class Scale:
                                    "firmware/arduino_scale", device=self.device)
         timeout = timeout_s if timeout_s is not None else 2 * self._window_s() + 1.0
         self._replies.clear()
-        self.transport.write(b"c,%.3f\n" % known_mass_g)  # type: ignore[union-attr]
+        self.transport.write(sp.CMD_CALIBRATE_PREFIX + b"%.3f\n" % known_mass_g)  # type: ignore[union-attr]
         rep = self._await_reply(("cal", "error"), timeout, f"calibrate({known_mass_g} g)")
         if rep.kind == "error":
             raise CalibrationError(f"calibration with {known_mass_g} g refused: "

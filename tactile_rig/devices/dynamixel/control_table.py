@@ -77,6 +77,23 @@ class ControlTable:
     def __iter__(self):
         return iter(self.items)
 
+    def block(self, first: str, last: str) -> tuple[int, int]:
+        """(address, length) of one contiguous read from item ``first`` through item ``last``."""
+        a, b = self[first], self[last]
+        if b.end <= a.address:
+            raise ValueError(f"{self.name}: {last!r} (address {b.address}) does not follow {first!r} "
+                             f"(address {a.address})")
+        return a.address, b.end - a.address
+
+    def value_in(self, raw: bytes, base: int, name: str) -> int:
+        """Item ``name``'s value from ``raw``, a block read that started at address ``base``."""
+        it = self[name]
+        lo = it.address - base
+        if lo < 0 or lo + it.size > len(raw):
+            raise ValueError(f"{self.name}: {name!r} (address {it.address}, {it.size} B) is not inside the "
+                             f"{len(raw)} B read from address {base}")
+        return it.from_raw(int.from_bytes(raw[lo:lo + it.size], "little"))
+
     def at(self, address: int) -> Item | None:
         """The item starting at ``address`` (None if no item starts there)."""
         return self._by_address.get(address)
@@ -223,6 +240,9 @@ RAD_PER_TICK = 2 * math.pi / TICKS_PER_REV
 P2_CURRENT_A_PER_UNIT = 0.00336
 P1_CURRENT_A_PER_UNIT = 0.0045
 P1_CURRENT_OFFSET = 2048
+#: MX-64 at 12 V (e-manual): stall current (the current cannot exceed it, whatever the cap) and no-load speed
+STALL_CURRENT_A = 4.1
+NO_LOAD_RPM = 63.0
 P2_RPM_PER_VELOCITY_UNIT = 0.229
 P1_RPM_PER_SPEED_UNIT = 0.114
 #: P2 Baud Rate register → bits per second

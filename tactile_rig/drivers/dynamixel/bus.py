@@ -23,6 +23,7 @@ from typing import Iterable
 import dynamixel_sdk as sdk
 
 import tactile_rig.drivers.transport as transport
+from tactile_rig.drivers.base import Driver
 from tactile_rig.core.clock import Clock
 from tactile_rig.core.errors import (
     CommandRejected,
@@ -83,7 +84,7 @@ class UrlPortHandler(sdk.PortHandler):
         return True
 
 
-class DynamixelBus:
+class DynamixelBus(Driver):
     """One Dynamixel bus: a port at a baud rate speaking one protocol.
 
     ``port`` is a device path or a URL. Every method takes the bus lock, so drivers for several
@@ -94,6 +95,7 @@ class DynamixelBus:
         if protocol not in (1, 2):
             raise ValueError(f"protocol={protocol!r} must be 1 or 2")
         self.port_name = port
+        super().__init__(f"dynamixel@{port}")
         self.protocol = protocol
         self.baudrate = baudrate
         self.table = ct.TABLES[protocol]
@@ -112,16 +114,10 @@ class DynamixelBus:
     def name(self, dxl_id: int) -> str:
         return f"dynamixel[{dxl_id}]@{self.port_name}"
 
-    def close(self) -> None:
+    def _close(self) -> None:
         with self.lock:
             if self.port.is_open:
                 self.port.closePort()
-
-    def __enter__(self) -> "DynamixelBus":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     # -- result handling -------------------------------------------------------------------------
     def _check_comm(self, dxl_id: int, result: int, what: str) -> None:

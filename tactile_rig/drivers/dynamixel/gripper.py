@@ -14,7 +14,6 @@ it first sets the goal to the measured position so re-activation never jumps.
 
 from __future__ import annotations
 
-import enum
 import logging
 from collections import deque
 from dataclasses import asdict, dataclass
@@ -30,20 +29,13 @@ from tactile_rig.core.errors import (
 )
 from tactile_rig.core.types import GripperOutcome, GripperState
 from tactile_rig.devices.dynamixel import control_table as ct
+from tactile_rig.drivers.base import Driver, Lifecycle
 from tactile_rig.drivers.dynamixel.bus import DynamixelBus
 
 log = logging.getLogger("tactile_rig.dynamixel.gripper")
 
-#: MX-64 stall current at 12 V (e-manual): the current cannot exceed it whatever the cap
-STALL_CURRENT_A = 4.1
+STALL_CURRENT_A = ct.STALL_CURRENT_A
 _REBOOT_WAIT_S = 0.1
-
-
-class Lifecycle(str, enum.Enum):
-    CONNECTED = "connected"
-    ACTIVE = "active"
-    FAULT = "fault"
-    CLOSED = "closed"
 
 
 @dataclass
@@ -81,7 +73,7 @@ class GripperCalibration:
             raise CalibrationError(f"gripper calibration {d!r} is invalid: {exc}") from None
 
 
-class DynamixelGripper:
+class DynamixelGripper(Driver):
     """A gripper on one MX-64 (Protocol 2.0 model 311 or Protocol 1.0 model 310).
 
     ``port`` is a device path or URL, or an open :class:`DynamixelBus` shared with other servos.
@@ -111,7 +103,7 @@ class DynamixelGripper:
             self._owns_bus = True
         self.protocol = self.bus.protocol
         self.id = dxl_id
-        self.device = self.bus.name(dxl_id)
+        super().__init__(self.bus.name(dxl_id))
         self.clock = self.bus.clock
         self.calibration = calibration or GripperCalibration()
         self.normalized = normalized
@@ -119,7 +111,6 @@ class DynamixelGripper:
         self.poll_period_s = poll_period_s
         self.default_timeout_s = default_timeout_s
         self.stall_window = max(2, stall_window)
-        self.lifecycle = Lifecycle.CONNECTED
         self.effort = 0.3
         self._connect()
 
@@ -145,7 +136,7 @@ class DynamixelGripper:
 
     def activate(self, effort: float | None = None) -> None:
         """Enable torque holding the measured position (current-based position mode on P2)."""
-        self._require_open()
+        self.require_open()
         if self.lifecycle == Lifecycle.FAULT or self.bus.hardware_errors.get(self.id):
             self.lifecycle = Lifecycle.FAULT
             raise self.bus.fault_error(self.id, "activate")
@@ -166,35 +157,21 @@ class DynamixelGripper:
         b.write(i, "Torque Enable", 1)
         self.lifecycle = Lifecycle.ACTIVE
 
-    def deactivate(self) -> None:
+    def _deactivate(self) -> None:
         """Torque off (allowed while faulted)."""
-        self._require_open()
         self.bus.write(self.id, "Torque Enable", 0, fault_ok=True)
-        if self.lifecycle == Lifecycle.ACTIVE:
-            self.lifecycle = Lifecycle.CONNECTED
 
     def reboot(self) -> None:
         """Reboot the servo: clears a latched fault; torque is off and the state is ``connected``."""
-        self._require_open()
+        self.require_open()
         self.bus.reboot(self.id)
         self.clock.sleep(_REBOOT_WAIT_S)
         self.bus.ping(self.id)
         self.lifecycle = Lifecycle.CONNECTED
 
-    def close(self) -> None:
-        if self.lifecycle != Lifecycle.CLOSED and self._owns_bus:
+    def _close(self) -> None:
+        if self._owns_bus:
             self.bus.close()
-        self.lifecycle = Lifecycle.CLOSED
-
-    def __enter__(self) -> "DynamixelGripper":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def _require_open(self) -> None:
-        if self.lifecycle == Lifecycle.CLOSED:
-            raise NotConnected("the gripper was closed", device=self.device)
 
     # -- units ------------------------------------------------------------------------------------
     def _goal_current_units(self, effort: float) -> int:
@@ -224,7 +201,7 @@ class DynamixelGripper:
     def gripper_go(self, position: float, effort: float, *, blocking: bool = True,
                    timeout_s: float | None = None) -> GripperOutcome:
         """Move to ``position`` with at most ``effort`` × the current limit; see the module doc."""
-        self._require_open()
+        self.require_open()
         check_range("effort", effort, 0.0, 1.0)
         goal = self.goal_ticks(position)
         if self.lifecycle == Lifecycle.FAULT:
@@ -269,47 +246,50 @@ class DynamixelGripper:
 
     def _poll(self) -> tuple[int, float, int]:
         """(present ticks, current A, hardware error bits) in one read."""
+        t = self.bus.table
         if self.protocol == 2:
-            raw = self.bus.read_bytes(self.id, 126, 10, what="read present current/velocity/position")
-            current = int.from_bytes(raw[0:2], "little", signed=True) * ct.P2_CURRENT_A_PER_UNIT
-            ticks = int.from_bytes(raw[6:10], "little", signed=True)
+            base, n = t.block("Present Current", "Present Position")
+            raw = self.bus.read_bytes(self.id, base, n, what="read present current/velocity/position")
+            current = t.value_in(raw, base, "Present Current") * ct.P2_CURRENT_A_PER_UNIT
+            ticks = t.value_in(raw, base, "Present Position")
         else:
-            raw = self.bus.read_bytes(self.id, 36, 6, what="read present position/speed/load")
-            ticks = int.from_bytes(raw[0:2], "little")
-            load = int.from_bytes(raw[4:6], "little")
+            base, n = t.block("Present Position", "Present Load")
+            raw = self.bus.read_bytes(self.id, base, n, what="read present position/speed/load")
+            ticks = t.value_in(raw, base, "Present Position")
+            load = t.value_in(raw, base, "Present Load")
             current = (-1 if load & 0x400 else 1) * (load & 0x3FF) / 1023 * STALL_CURRENT_A
         return ticks, current, self.bus.hardware_errors.get(self.id, 0)
 
-    # -- state --------------------------------------------------------------------------------------
     def state(self) -> GripperState:
         """Position, velocity, current, effort, temperature and error bits, in one transaction."""
-        self._require_open()
+        self.require_open()
         cal = self.calibration
         m_per_tick = cal.max_opening_m / cal.span_ticks
+        t = self.bus.table
         if self.protocol == 2:
-            base = 64
-            raw = self.bus.read_bytes(self.id, base, 147 - base, what="read state")
+            base, n = t.block("Torque Enable", "Present Temperature")
+            raw = self.bus.read_bytes(self.id, base, n, what="read state")
 
-            def f(addr: int, size: int, signed: bool = False) -> int:
-                return int.from_bytes(raw[addr - base:addr - base + size], "little", signed=signed)
+            def f(name: str) -> int:
+                return t.value_in(raw, base, name)
 
-            torque, moving = f(64, 1), f(122, 1)
-            current_a = f(126, 2, True) * ct.P2_CURRENT_A_PER_UNIT
-            tps = f(128, 4, True) * ct.P2_RPM_PER_VELOCITY_UNIT * ct.TICKS_PER_REV / 60
-            ticks, temp = f(132, 4, True), f(146, 1)
-            hw = f(70, 1)
+            torque, moving = f("Torque Enable"), f("Moving")
+            current_a = f("Present Current") * ct.P2_CURRENT_A_PER_UNIT
+            tps = f("Present Velocity") * ct.P2_RPM_PER_VELOCITY_UNIT * ct.TICKS_PER_REV / 60
+            ticks, temp = f("Present Position"), f("Present Temperature")
+            hw = f("Hardware Error Status")
             self.bus.hardware_errors[self.id] = hw
         else:
-            base = 24
-            raw = self.bus.read_bytes(self.id, base, 70 - base, what="read state")
+            base, n = t.block("Torque Enable", "Current")
+            raw = self.bus.read_bytes(self.id, base, n, what="read state")
 
-            def f(addr: int, size: int) -> int:
-                return int.from_bytes(raw[addr - base:addr - base + size], "little")
+            def f(name: str) -> int:
+                return t.value_in(raw, base, name)
 
-            torque, moving, ticks, temp = f(24, 1), f(46, 1), f(36, 2), f(43, 1)
-            speed = f(38, 2)
+            torque, moving, ticks, temp = f("Torque Enable"), f("Moving"), f("Present Position"), f("Present Temperature")
+            speed = f("Present Speed")
             tps = (-1 if speed & 0x400 else 1) * (speed & 0x3FF) * ct.P1_RPM_PER_SPEED_UNIT * ct.TICKS_PER_REV / 60
-            current_a = (f(68, 2) - ct.P1_CURRENT_OFFSET) * ct.P1_CURRENT_A_PER_UNIT
+            current_a = (f("Current") - ct.P1_CURRENT_OFFSET) * ct.P1_CURRENT_A_PER_UNIT
             hw = self.bus.hardware_errors.get(self.id, 0)
         if hw and self.lifecycle == Lifecycle.ACTIVE:
             self.lifecycle = Lifecycle.FAULT

@@ -127,14 +127,6 @@ def connect_bench_jig_rig(bench: Any, camera: str | None = None, *, start_s: flo
                          clock=VirtualClock(start_s)), name
 
 def prepare_jig(jig: Any, timeout_s: float = 120.0) -> None:
-    """Bring a GRBL jig to Idle: home it when it is locked in Alarm (GRBL with homing enabled)."""
-    status = getattr(jig, "status", None)
-    state = ""
-    if callable(status):
-        st = status()
-        state = str(getattr(st, "state", st) or "")
-    if state.startswith("Alarm") and callable(getattr(jig, "home", None)):
-        try:
-            jig.home(timeout_s=timeout_s)
-        except TypeError:  # a driver whose home() takes no timeout
-            jig.home()
+    """Bring a GRBL jig to Idle and ``active``: home it when it is locked in Alarm (GRBL with homing
+    enabled), clear a latched fault (:meth:`tactile_rig.drivers.jig.Jig.activate`)."""
+    jig.activate(home=True, timeout_s=timeout_s)

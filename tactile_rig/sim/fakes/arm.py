@@ -18,6 +18,7 @@ Model kind ``"arm"``.
 from __future__ import annotations
 
 import math
+import threading
 from typing import Any
 
 import numpy as np
@@ -59,6 +60,8 @@ class SimArm:
         self.fault_at_s = None if fault_at_s is None else clock.now_s() + float(fault_at_s)
         self.fault_code = int(fault_code)
         self.faulted = False
+        # On a RealClock the controller's thread and the mocks' serving threads all advance the arm.
+        self._lock = threading.RLock()
         self._t = clock.now_s()
         self._p = np.array(start, dtype=float)
         self._v = np.zeros(4)
@@ -116,16 +119,17 @@ class SimArm:
                               code=self.fault_code, detail="protective stop")
 
     def advance_to(self, t_s: float) -> None:
-        while self._t < t_s - 1e-12:
-            jump = self._coast_s(t_s)
-            if jump > self.dt_s:
-                # at rest or cruising: the state is linear in time, so take one exact step
-                self._p = self._p + self._v * jump
-                self._t += jump
-                self.history.append(self._t, (self._p.copy(), self._v.copy()))
-                continue
-            dt = min(self.dt_s, t_s - self._t)
-            self._integrate(dt)
+        with self._lock:
+            while self._t < t_s - 1e-12:
+                jump = self._coast_s(t_s)
+                if jump > self.dt_s:
+                    # at rest or cruising: the state is linear in time, so take one exact step
+                    self._p = self._p + self._v * jump
+                    self._t += jump
+                    self.history.append(self._t, (self._p.copy(), self._v.copy()))
+                    continue
+                dt = min(self.dt_s, t_s - self._t)
+                self._integrate(dt)
 
     def _coast_s(self, t_s: float) -> float:
         """How long the motion stays exactly linear from now (0 when it is changing)."""

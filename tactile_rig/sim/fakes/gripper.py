@@ -21,6 +21,7 @@ import numpy as np
 from tactile_rig.core.clock import Clock
 from tactile_rig.core.errors import DeviceFault, check_range
 from tactile_rig.core.types import GripperOutcome, GripperState
+from tactile_rig.devices.dynamixel.control_table import STALL_CURRENT_A
 from tactile_rig.sim.base import register_model
 from tactile_rig.sim.world.timeline import Timeline
 
@@ -95,7 +96,7 @@ class SimGripper:
         squeeze = self._squeeze
         return GripperState(t_s=self._t, opening_m=self._opening,
                             opening_frac=self._opening / self.max_opening_m, velocity_mps=self._vel,
-                            current_a=-squeeze / self.stall_force_n * 4.1,
+                            current_a=-squeeze / self.stall_force_n * STALL_CURRENT_A,
                             effort_frac=min(1.0, squeeze / self.stall_force_n), temperature_c=35.0,
                             hardware_error=self.hardware_error, moving=abs(self._vel) > 1e-6,
                             active=self.torque_on)

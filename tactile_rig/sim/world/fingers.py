@@ -23,12 +23,10 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from tactile_rig.devices.dynamixel.control_table import NO_LOAD_RPM, STALL_CURRENT_A, TICKS_PER_REV
 from tactile_rig.sim.base import register_model
 
-TICKS_PER_REV = 4096
-NO_LOAD_RPM = 63.0  # at 12 V (e-manual)
-STALL_CURRENT_A = 4.1  # at 12 V (e-manual): V / R of the winding
-COIL_RESISTANCE_OHM = 12.0 / STALL_CURRENT_A
+COIL_RESISTANCE_OHM = 12.0 / STALL_CURRENT_A  # the winding: stall current at 12 V is V / R
 
 
 class Fingers:
