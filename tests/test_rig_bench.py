@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.core.errors import ConnectErrors, NotConnected
 from tactile_rig.rig.bench import (
     BenchError,
@@ -17,8 +18,6 @@ from tactile_rig.rig.bench import (
     GripperConfig,
     JigConfig,
     ScaleConfig,
-    add_bench_arguments,
-    bench_from_args,
     connect_bench,
     line_index,
     load_bench,
@@ -286,3 +285,75 @@ def test_builtin_mock_bench_connects_every_driver_on_one_clock() -> None:
 
     with pytest.raises(ValueError, match="no mock instance"):
         device_from_url("rigsim://@mock.scale")  # closing the rig unregisters its mocks
+
+
+@pytest.mark.parametrize("bad, line, expected", [
+    ('x_limits_mm = [-inf, inf]', 7, "x_limits_mm must be [low, high], two finite numbers"),
+    ('max_speed_mmps = nan', 7, "max_speed_mmps must be a finite number"),
+    ('theta_limits_deg = [-400.0, 90.0]', 7, "must lie within [-360, 360] deg"),
+])
+def test_non_finite_and_absurd_jig_limits_are_refused_with_their_line(bad: str, line: int, expected: str) -> None:
+    text = f'[bench]\nname = "lab"\n\n[jig]\nport = "rigsim://jig"\nbaud = 115200\n{bad}\n'
+    err = _problems(text)
+    assert f"line {line}:" in str(err) and expected in str(err)
+
+
+def test_non_finite_force_duplicate_ids_empty_port_and_absurd_frames_are_refused() -> None:
+    text = textwrap.dedent("""\
+        [gripper]
+        port = "rigsim://dynamixel"
+        ids = [1, 1]
+
+        [scale]
+        port = ""
+        max_force_n = inf
+
+        [camera]
+        port = "rigsim://camera"
+        width = 100000000000
+        fourcc = "MJPEG"
+    """)
+    err = _problems(text)
+    msgs = dict((ln, m) for ln, m in err.problems)
+    assert "names ID 1 twice" in msgs[3]
+    assert "[scale] port is empty" in msgs[6]
+    assert "max_force_n must be a finite number" in msgs[7]
+    assert "width = 100000000000 must be a frame size in 1..8192 px" in msgs[11]
+    assert "fourcc = 'MJPEG' must be four ASCII characters" in msgs[12]
+
+
+def test_an_environment_override_problem_names_the_variable() -> None:
+    err = _problems(GOOD, env={"TACTILE_RIG_SCALE__BAUDRATE": "9600", "TACTILE_RIG_SCALE__MAX_FORCE_N": "inf"})
+    text = str(err)
+    assert "unknown key 'baudrate' in [scale]; did you mean 'baud'? (from $TACTILE_RIG_SCALE__BAUDRATE)" in text
+    assert "[scale] max_force_n (from $TACTILE_RIG_SCALE__MAX_FORCE_N) must be a finite number" in text
+    err = _problems(GOOD, env={"TACTILE_RIG_SCALE__": "1"})
+    assert "environment variable TACTILE_RIG_SCALE__: no key after '__'" in str(err)
+
+
+def test_a_new_device_kind_is_one_config_class() -> None:
+    """Adding a device to the bench is one DeviceConfig subclass: the loader finds it by kind, types its
+    fields from their annotations and runs its own check."""
+    from dataclasses import dataclass
+    from typing import ClassVar
+
+    from tactile_rig.rig.bench.devices import DEVICE_CLASSES, DeviceConfig
+
+    @dataclass
+    class _ThermometerConfig(DeviceConfig):
+        baud: int = 9600
+        max_temperature_c: float = 100.0
+        kind: ClassVar[str] = "thermometer_test"
+
+        def check(self, problem) -> None:
+            super().check(problem)
+            if self.max_temperature_c > 500:
+                problem("max_temperature_c", f"= {self.max_temperature_c} is above the sensor's 500 °C")
+
+    try:
+        b = load_bench(text='[thermometer_test]\nport = "rigsim://x"\nmax_temperature_c = 80.0\n', env={})
+        assert isinstance(b.devices["thermometer_test"], _ThermometerConfig)
+        err = _problems('[thermometer_test]\nport = "rigsim://x"\nmax_temperature_c = 900.0\n')
+        assert "line 3: [thermometer_test] max_temperature_c = 900.0 is above the sensor's 500 °C" in str(err)
+    finally:
+        DEVICE_CLASSES.pop("thermometer_test")

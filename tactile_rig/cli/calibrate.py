@@ -11,10 +11,10 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.calibrate_sessions import register_sessions
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.cli.replay import extras_as_errors
-from tactile_rig.rig.bench import add_bench_arguments, bench_from_args
 from tactile_rig.rig.learning import DEFAULT_GAMMA, force_map_session, substance_session
 
 

@@ -16,16 +16,12 @@ from __future__ import annotations
 import argparse
 from typing import Any, Callable
 
+from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.drivers.dynamixel import DynamixelGripper
 from tactile_rig.mocks.registry import device_from_url
-from tactile_rig.rig.bench import (
-    Bench,
-    add_bench_arguments,
-    bench_from_args,
-    connect_bench,
-)
+from tactile_rig.rig.bench import Bench, connect_bench
 from tactile_rig.rig.calibration_sessions import (
     BallPressPlan,
     Guide,

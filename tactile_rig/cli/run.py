@@ -15,8 +15,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.common import add_json_flag, print_json
-from tactile_rig.rig.bench import add_bench_arguments, bench_from_args
 from tactile_rig.rig.jig_accuracy import (
     JigAccuracyConfig,
     execute_jig_accuracy,
