@@ -150,3 +150,15 @@ def test_expected_protocol_passes_exact_exchanges_and_fails_on_deviation() -> No
     with pytest.raises(AssertionError, match="not used"):
         with expected_protocol([(b"t\n", b""), (b"?\n", b"")]) as url:
             SerialTransport(url, device="scale").write(b"t\n")
+
+
+def test_expected_protocol_fails_on_a_reply_left_unread() -> None:
+    with pytest.raises(AssertionError, match="left 6 of the 6 answered byte"):
+        with expected_protocol([(b"t\n", b"T,ok\r\n")]) as url:
+            SerialTransport(url, device="scale").write(b"t\n")  # never reads the answer
+    with pytest.raises(AssertionError, match="left 4 of the 12 answered byte"):
+        with expected_protocol([(None, b"BOOT\r\n"), (b"t\n", b"T,ok\r\n")]) as url:
+            tr = SerialTransport(url, device="scale")
+            assert tr.read_until(b"\n", 0.1) == b"BOOT\r\n"
+            tr.write(b"t\n")
+            assert tr.read_exact(2, 0.1) == b"T,"  # half of it

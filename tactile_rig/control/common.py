@@ -202,11 +202,6 @@ def pose_distance_mm(a: Pose, b: Pose) -> float:
     return vec_norm([x - y for x, y in zip(pose_vec(a), pose_vec(b))])
 
 
-def offset_pose(p: Pose, dx_mm: float = 0.0, dy_mm: float = 0.0, dz_mm: float = 0.0,
-                dtheta_deg: float = 0.0) -> Pose:
-    return Pose(p.x_mm + dx_mm, p.y_mm + dy_mm, p.z_mm + dz_mm, p.theta_deg + dtheta_deg)
-
-
 def move_and_wait(motion: Motion, clock: Clock, target: Pose, speed_mps: float, *,
                   tol_mm: float = 0.05, poll_s: float = 0.01, timeout_s: float = 30.0,
                   trace: Trace | None = None) -> Pose:

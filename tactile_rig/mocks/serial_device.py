@@ -167,6 +167,10 @@ class SerialDevice(ABC):
                 return t_out
             return ev if t_out is None else min(t_out, ev)
 
+    def host_read(self, n_bytes: int) -> None:
+        """The in-process host read ``n_bytes`` of this device's output (a hook for test devices that
+        check every reply is consumed; devices ignore it)."""
+
     def pending_output(self) -> int:
         """Number of bytes scheduled but not yet delivered."""
         with self._lock:

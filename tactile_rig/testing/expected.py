@@ -1,4 +1,9 @@
-"""``expected_protocol``: assert the exact bytes a driver exchanges with its device."""
+"""``expected_protocol``: assert the exact bytes a driver exchanges with its device.
+
+Every expected exchange must be used, every byte the host sends must be the expected one, and every
+byte the device answers must be read by the driver: a reply left unread (or flushed away) is as much
+a driver bug as a wrong request.
+"""
 
 from __future__ import annotations
 
@@ -20,6 +25,7 @@ class ExpectedProtocolDevice(SerialDevice):
     ``device_bytes`` (``None`` or ``b""``: no answer). ``host_bytes=None`` means the device sends
     ``device_bytes`` unprompted when the port opens (a boot banner). Any byte that differs raises
     ``AssertionError`` in the driver's ``write`` call, naming the exchange and both byte strings.
+    :meth:`assert_all_used` also fails when the driver left answered bytes unread.
     """
 
     kind = "expected"
@@ -29,6 +35,15 @@ class ExpectedProtocolDevice(SerialDevice):
         self.exchanges = [(None if h is None else bytes(h), bytes(d or b"")) for h, d in exchanges]
         self.index = 0
         self._partial = bytearray()
+        self.bytes_sent = 0  # answered to the host
+        self.bytes_read = 0  # read by the host
+
+    def emit(self, data: bytes, t_s: float, *, delay_s: float = 0.0, reply: bool = True) -> float:
+        self.bytes_sent += len(data)
+        return super().emit(data, t_s, delay_s=delay_s, reply=reply)
+
+    def host_read(self, n_bytes: int) -> None:
+        self.bytes_read += n_bytes
 
     def on_open(self, t_s: float) -> None:
         while self.index < len(self.exchanges) and self.exchanges[self.index][0] is None:
@@ -58,12 +73,18 @@ class ExpectedProtocolDevice(SerialDevice):
                 self.on_open(t_s)  # unprompted output scheduled right after this exchange
 
     def assert_all_used(self) -> None:
+        """Every exchange used and every answered byte read by the host, else ``AssertionError``."""
         if self.index < len(self.exchanges) or self._partial:
             left = self.exchanges[self.index:]
             raise AssertionError(
                 f"{len(left)} expected exchange(s) were not used; next expected host bytes: "
-                f"{left[0][0].hex(' ') if left and left[0][0] else '(none)'}; "
-                f"partial: {bytes(self._partial).hex(' ')}"
+                f"{left[0][0].hex(' ') if left and left[0][0] else '(none)'}"
+                + (f"; received part of it: {bytes(self._partial).hex(' ')}" if self._partial else "")
+            )
+        if self.bytes_read < self.bytes_sent:
+            raise AssertionError(
+                f"the driver left {self.bytes_sent - self.bytes_read} of the {self.bytes_sent} answered "
+                f"byte(s) unread (read or flushed unseen): a reply it never looked at"
             )
 
 
@@ -73,12 +94,25 @@ def expected_protocol(
 ) -> Iterator[str]:
     """Yield a ``rigsim://@...`` URL whose device accepts exactly ``exchanges``, in order.
 
-    Example::
+    A Protocol 2.0 ping of servo 1 through the real dynamixel-sdk, with the e-manual's packet; the
+    MX-64(2.0) answers model 311 (0x0137), firmware 45:
 
-        with expected_protocol([(b"t\\n", b"T,ok\\r\\n")]) as port:
-            Scale(port).tare()
+    >>> from tactile_rig.drivers.dynamixel import DynamixelBus
+    >>> ping = bytes.fromhex("ff ff fd 00 01 03 00 01 19 4e")
+    >>> status = bytes.fromhex("ff ff fd 00 01 07 00 55 00 37 01 2d 8b 40")
+    >>> with expected_protocol([(ping, status)], baud=1_000_000) as port:
+    ...     with DynamixelBus(port, baudrate=1_000_000) as bus:
+    ...         bus.ping(1)
+    311
 
-    On exit every exchange must have been used, else ``AssertionError``.
+    A request the script does not expect fails in the driver's write; on exit every exchange must
+    have been used and every answered byte read, else ``AssertionError``:
+
+    >>> with expected_protocol([(ping, status)], baud=1_000_000) as port:
+    ...     with DynamixelBus(port, baudrate=1_000_000) as bus:
+    ...         pass
+    Traceback (most recent call last):
+    AssertionError: 1 expected exchange(s) were not used; next expected host bytes: ff ff fd 00 01 03 00 01 19 4e
     """
     device = ExpectedProtocolDevice(exchanges, baud=baud)
     name = f"expected-{next(_counter)}"

@@ -6,7 +6,7 @@ in ``strategies_<device>.py`` modules.
 
 from __future__ import annotations
 
-from hypothesis import strategies as st
+from tactile_rig.testing._hypothesis import st
 
 
 @st.composite

@@ -6,7 +6,7 @@ position: at the start and end of the params, straddling the instruction byte, a
 
 from __future__ import annotations
 
-from hypothesis import strategies as st
+from tactile_rig.testing._hypothesis import st
 
 from tactile_rig.mocks.dynamixel.codec import Packet
 

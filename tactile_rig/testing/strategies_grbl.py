@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from hypothesis import strategies as st
+from tactile_rig.testing._hypothesis import st
 
 from tactile_rig.devices import grbl as gp
 

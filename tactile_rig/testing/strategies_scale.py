@@ -7,7 +7,7 @@ the code under test.
 
 from __future__ import annotations
 
-from hypothesis import strategies as st
+from tactile_rig.testing._hypothesis import st
 
 from tactile_rig.devices import scale as sp
 

@@ -104,6 +104,8 @@ class Serial(SerialBase):
                 self.clock.sleep(max(0.0, min(target - now, 0.01)))
         data = bytes(self._rx[:size])
         del self._rx[:size]
+        if data:
+            self.device.host_read(len(data))
         return data
 
     def write(self, data: bytes) -> int:
