@@ -114,6 +114,11 @@ class DynamixelBus(Driver):
     def name(self, dxl_id: int) -> str:
         return f"dynamixel[{dxl_id}]@{self.port_name}"
 
+    def _live_port(self) -> "UrlPortHandler":
+        """The SDK's port, or ``NotConnected`` once the bus is closed (never the SDK's own exception)."""
+        self.require_open()
+        return self.port
+
     def _close(self) -> None:
         with self.lock:
             if self.port.is_open:
@@ -150,7 +155,7 @@ class DynamixelBus(Driver):
             hw = self.hardware_errors.get(dxl_id) or 0
             if not hw:
                 # The Alert bit says "read Hardware Error Status"; reads are allowed while faulted.
-                val, res, err = self.packet.read1ByteTxRx(self.port, dxl_id, self.table["Hardware Error Status"].address)
+                val, res, err = self.packet.read1ByteTxRx(self._live_port(), dxl_id, self.table["Hardware Error Status"].address)
                 hw = val if res == sdk.COMM_SUCCESS else 0
             self.hardware_errors[dxl_id] = hw
         else:
@@ -177,7 +182,7 @@ class DynamixelBus(Driver):
     def ping(self, dxl_id: int) -> int:
         """The model number of ``dxl_id``."""
         with self.lock:
-            model, result, error = self.packet.ping(self.port, dxl_id)
+            model, result, error = self.packet.ping(self._live_port(), dxl_id)
             self._check_comm(dxl_id, result, "ping")
             self._check_status(dxl_id, error, "ping", fault_ok=True)
         return model
@@ -186,7 +191,7 @@ class DynamixelBus(Driver):
         """``length`` raw bytes from ``address`` (allowed while a fault is latched)."""
         what = what or f"read {length} byte(s) at {address}"
         with self.lock:
-            data, result, error = self.packet.readTxRx(self.port, dxl_id, address, length)
+            data, result, error = self.packet.readTxRx(self._live_port(), dxl_id, address, length)
             self._check_comm(dxl_id, result, what)
             self._check_status(dxl_id, error, what, fault_ok=True)
         return bytes(data)
@@ -196,7 +201,7 @@ class DynamixelBus(Driver):
         """Write raw bytes; a latched fault raises DeviceFault unless ``fault_ok``."""
         what = what or f"write {len(data)} byte(s) at {address}"
         with self.lock:
-            result, error = self.packet.writeTxRx(self.port, dxl_id, address, len(data), list(data))
+            result, error = self.packet.writeTxRx(self._live_port(), dxl_id, address, len(data), list(data))
             self._check_comm(dxl_id, result, what)
             self._check_status(dxl_id, error, what, fault_ok=fault_ok)
 
@@ -222,10 +227,10 @@ class DynamixelBus(Driver):
         """Send Reboot (clears a latched hardware error; RAM back to defaults, torque off)."""
         with self.lock:
             if self.protocol == 2:
-                result, error = self.packet.reboot(self.port, dxl_id)
+                result, error = self.packet.reboot(self._live_port(), dxl_id)
             else:
                 # The SDK's Protocol 1.0 handler has no reboot(); MX firmware accepts instruction 0x08.
-                _, result, error = self.packet.txRxPacket(self.port, [0xFF, 0xFF, dxl_id, 2, 0x08, 0])
+                _, result, error = self.packet.txRxPacket(self._live_port(), [0xFF, 0xFF, dxl_id, 2, 0x08, 0])
             self._check_comm(dxl_id, result, "reboot")
             self.hardware_errors[dxl_id] = 0
             self._check_status(dxl_id, error & ~de.ALERT_BIT if self.protocol == 2 else error & de.P1_COMMAND_MASK,
@@ -235,9 +240,9 @@ class DynamixelBus(Driver):
         """Factory Reset (P2 option 0xFF all, 0x01 all but ID, 0x02 all but ID and baud)."""
         with self.lock:
             if self.protocol == 2:
-                result, error = self.packet.factoryReset(self.port, dxl_id, option)
+                result, error = self.packet.factoryReset(self._live_port(), dxl_id, option)
             else:
-                result, error = self.packet.factoryReset(self.port, dxl_id)
+                result, error = self.packet.factoryReset(self._live_port(), dxl_id)
             self._check_comm(dxl_id, result, "factory reset")
             self._check_status(dxl_id, error, "factory reset", fault_ok=True)
 
@@ -248,7 +253,7 @@ class DynamixelBus(Driver):
         it = self.table[name]
         ids = list(ids)
         with self.lock:
-            group = sdk.GroupSyncRead(self.port, self.packet, it.address, it.size)
+            group = sdk.GroupSyncRead(self._live_port(), self.packet, it.address, it.size)
             for i in ids:
                 group.addParam(i)
             result = group.fastSyncRead() if fast else group.txRxPacket()
@@ -266,7 +271,7 @@ class DynamixelBus(Driver):
         if self.protocol == 1:
             return self._bulk_read_p1(reqs)
         with self.lock:
-            group = sdk.GroupBulkRead(self.port, self.packet)
+            group = sdk.GroupBulkRead(self._live_port(), self.packet)
             for i, it in reqs:
                 if not group.addParam(i, it.address, it.size):
                     raise ValueError(f"bulk read: ID {i} is listed twice")
@@ -284,10 +289,10 @@ class DynamixelBus(Driver):
         param = [v for i, it in reqs for v in (it.size, i, it.address)]
         out = {}
         with self.lock:
-            result = self.packet.bulkReadTx(self.port, param, len(param))
+            result = self.packet.bulkReadTx(self._live_port(), param, len(param))
             self._check_comm(reqs[0][0] if reqs else 0xFE, result, "bulk read")
             for i, it in reqs:
-                data, result, error = self.packet.readRx(self.port, i, it.size)
+                data, result, error = self.packet.readRx(self._live_port(), i, it.size)
                 self._check_comm(i, result, f"bulk read {it.name}")
                 self._check_status(i, error, f"bulk read {it.name}", fault_ok=True)
                 out[i] = it.from_raw(int.from_bytes(bytes(data), "little"))
@@ -297,7 +302,7 @@ class DynamixelBus(Driver):
         """Write item ``name`` of several IDs in one Sync Write (no status packets)."""
         it = self.table[name]
         with self.lock:
-            group = sdk.GroupSyncWrite(self.port, self.packet, it.address, it.size)
+            group = sdk.GroupSyncWrite(self._live_port(), self.packet, it.address, it.size)
             for i, v in values.items():
                 if not it.low <= int(v) <= it.high:
                     raise LimitError(f"{name}={v} is outside [{it.low}, {it.high}]", device=self.name(i))
