@@ -19,9 +19,10 @@ What the host can tell, as the firmware does it (each piece cites its source in 
 
 Physical geometry: the stage's travel ranges are where its limit switches close; homing runs onto
 the upper ones ($23 bits: the lower ones) and sets the machine position to −$27 there, so the
-machine space is negative as on every GRBL machine. ``work_origin="centre"`` (the default with
-homing) stores G54 = the middle of the travel in the EEPROM, as a lab sets up its jig once with
-``G10 L2 P1``; work coordinates are then the stage pose.
+machine space is negative as on every GRBL machine. ``work_origin="stage"`` (the default with
+homing) stores in the EEPROM's G54 the machine position of the stage's zero, as a lab sets up its
+jig once (jog there, ``G10 L20 P1 X0 Y0 Z0``): work coordinates are then the stage pose. The switch
+positions sit on whole motor steps from the stage's zero, so that zero is a reachable position.
 """
 
 from __future__ import annotations
@@ -82,9 +83,9 @@ class GrblMock(SerialDevice):
             raise ValueError(f"jig theta_axis={theta_axis!r} must be Z{' or A' if axes == 4 else ''} with {axes} axes")
         if firmware not in ("grbl", "grblhal"):
             raise ValueError(f"jig firmware={firmware!r}: expected 'grbl' or 'grblhal'")
-        work_origin = work_origin or ("centre" if homing else "zero")
-        if work_origin not in ("centre", "zero"):
-            raise ValueError(f"jig work_origin={work_origin!r}: expected 'centre' or 'zero'")
+        work_origin = work_origin or ("stage" if homing else "zero")
+        if work_origin not in ("stage", "zero"):
+            raise ValueError(f"jig work_origin={work_origin!r}: expected 'stage' or 'zero'")
         self.clock = clock
         self.n_axes = axes
         self.letters = gp.AXIS_LETTERS[:axes]
@@ -104,11 +105,13 @@ class GrblMock(SerialDevice):
         self.startup_lines = ["", ""]
         self.build_info = ""
         self.coords = [np.zeros(axes) for _ in range(8)]  # G54..G59, G28, G30 (machine mm)
-        if work_origin == "centre":
-            self.coords[0] = -self._travel() / 2.0
         # -- the physical machine --------------------------------------------------------------------
         self._stage_axes = {0: 0, 1: 1, self.theta_index: 2}  # GRBL axis -> stage pose index
         self.phys_lo, self.phys_hi = self._switch_positions()
+        if work_origin == "stage":  # where homing puts the stage's zero in machine coordinates
+            negative = [bool(int(self.settings[23]) >> i & 1) for i in range(axes)]
+            self.coords[0] = np.array([-self.phys_lo[i] - self._travel()[i] if negative[i] else -self.phys_hi[i]
+                                       for i in range(axes)])
         self.origin = self._phys_from_stage()  # physical position of machine zero
         self.pos = np.zeros(axes)  # machine position, mm (deg on the θ channel)
         self.faults: list[tuple[float, str]] = []
@@ -137,7 +140,8 @@ class GrblMock(SerialDevice):
         ranges = (self.stage.x_range_mm, self.stage.y_range_mm, self.stage.theta_range_deg)
         for axis, k in self._stage_axes.items():
             lo[axis], hi[axis] = ranges[k]
-        return lo, hi
+        steps = self._steps()
+        return np.round(lo * steps) / steps, np.round(hi * steps) / steps
 
     def _phys_from_stage(self) -> np.ndarray:
         p = np.zeros(self.n_axes)
@@ -164,7 +168,7 @@ class GrblMock(SerialDevice):
     def _probe_closed(self, pos: np.ndarray | None = None, *, away: bool = False) -> bool:
         ph = self.phys(pos)
         touching = self.stage.probe_touching(float(ph[0]), float(ph[1]), float(ph[self.theta_index]))
-        return touching != bool(self.settings[6]) != away
+        return (touching != bool(self.settings[6])) != away
 
     def _write_stage(self, t_s: float) -> None:
         ph = self.phys()
