@@ -164,8 +164,9 @@ def test_homing_ends_pulled_off_in_negative_machine_space() -> None:
     assert h.line("$H", 40.0) == ["ok"]
     st = h.status()
     assert re.match(r"<Idle\|MPos:-1\.000,-1\.000,-1\.01\d\|", st)
+    switch_deg = 6400 / 35.556  # the θ switch closes at 180°, on the motor's step grid
     pulloff_deg = 36 / 35.556  # lround($27 x $102) whole steps
-    assert h.stage.pose() == pytest.approx((19.0, 19.0, 180.0 - pulloff_deg), abs=1e-9)
+    assert h.stage.pose() == pytest.approx((19.0, 19.0, switch_deg - pulloff_deg), abs=1e-9)
     assert h.line("G0 X5", 0.1) == ["ALARM:2"]
 
 
