@@ -71,6 +71,8 @@ class GrblMock(SerialDevice):
     """GRBL 1.1h on a serial line; see the module docstring. The stage pose is physical truth."""
 
     kind = "jig"
+    #: a pty server holds the output this long after an open: the Uno's bootloader time, shortened
+    open_hold_s = 0.05
 
     def __init__(self, *, clock: Clock | None = None, stage: Stage | None = None, axes: int = 3,
                  theta_axis: str = "Z", firmware: str = "grbl", baud: int = gp.BAUD, timing: bool = True,
