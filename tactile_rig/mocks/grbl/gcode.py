@@ -179,7 +179,6 @@ def parse_block(line: str, state: ParserState, coords: Sequence[np.ndarray], *, 
     axis_words = 0
     ijk = np.zeros(max(3, n_axes))
     ijk_words = 0
-    tlo_set = False
 
     # -- step 2: import every word ------------------------------------------------------------------
     pos = 0
@@ -253,7 +252,6 @@ def parse_block(line: str, state: ParserState, coords: Sequence[np.ndarray], *, 
                     new["tlo_dynamic"] = True
                 else:
                     return 20
-                tlo_set = True
                 mantissa = 0
             elif 54 <= int_value <= 59:
                 group = G12

@@ -14,7 +14,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from tactile_rig.drivers import grbl_protocol as gp
-from tactile_rig.mocks.grbl import gcode
+import tactile_rig.mocks.grbl.gcode as gcode
 
 MM_PER_INCH = 25.4
 SETTING_DECIMALS = 3

@@ -9,14 +9,13 @@ while running, ``$#``/``$H``/``$I``/``$N``/``$RST``/``$SLP``/settings only when 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 
-from tactile_rig.mocks.grbl import gcode, report
-
-if TYPE_CHECKING:
-    from tactile_rig.mocks.grbl.firmware import GrblMock, Job
+import tactile_rig.mocks.grbl.gcode as gcode
+import tactile_rig.mocks.grbl.report as report
+from tactile_rig.mocks.grbl.motion_control import Job
 
 OK = 0
 N_STARTUP_LINES = 2
@@ -25,8 +24,8 @@ _UINT8 = frozenset({0, 1, 2, 3, 10, 23, 26})
 _FLOAT = frozenset({11, 12, 24, 25, 27, 30, 31})
 
 
-def system_line(fw: "GrblMock", line: str) -> "Job":
-    """Execute one ``$`` line on ``fw``; returns GRBL's status code (0 is ``ok``)."""
+def system_line(fw: Any, line: str) -> Job:
+    """Execute one ``$`` line on ``fw`` (a ``GrblMock``); returns GRBL's status code (0 is ``ok``)."""
     say = _printer(fw)
     state = fw.state
     if len(line) == 1:
@@ -145,7 +144,7 @@ def system_line(fw: "GrblMock", line: str) -> "Job":
     return store_setting(fw, int(math.trunc(parameter)) & 0xFF, value)
 
 
-def store_setting(fw: "GrblMock", n: int, value: float) -> int:
+def store_setting(fw: Any, n: int, value: float) -> int:
     """settings_store_global_setting: ``$n=value`` or GRBL's error code (no 30 kHz check: compiled out)."""
     if value < 0.0:
         return 4
@@ -181,7 +180,7 @@ def store_setting(fw: "GrblMock", n: int, value: float) -> int:
     return OK
 
 
-def _printer(fw: "GrblMock"):
+def _printer(fw: Any) -> Any:
     def say(text: str) -> None:
         fw._say(text, fw._t_now)
     return say
