@@ -227,3 +227,21 @@ def test_homing_takes_seek_locate_and_pull_off_time() -> None:
 
     expected = cycle(180.0 - 0.0, s[122], s[102]) + cycle(20.0, s[120], s[100])
     assert took == pytest.approx(expected, rel=0.01, abs=0.06)
+
+
+def test_status_during_a_move_follows_the_trapezoid() -> None:
+    """stepper.c traces the planner's trapezoid: from rest at $120 up to the feed, then cruise; report.c
+    prints sys_position (whole steps) and the current rate (FS)."""
+    h = Host(homing=False)
+    h.send("G1 X-10 F600\n", 0.0)
+    start = h.t + len("G1 X-10 F600\n") * 10 / 115200  # the line's last byte reaches GRBL
+    for t_after in (0.05, 0.5, 0.9):
+        h.read(start + t_after - h.t - 10 / 115200)  # the '?' arrives t_after into the move
+        st = h.status(0.01)
+        x = -_mpos(st)[0]
+        v, a = 10.0, 100.0  # mm/s, mm/s²
+        ramp = v / a
+        expect = 0.5 * a * t_after ** 2 if t_after < ramp else 0.5 * a * ramp ** 2 + v * (t_after - ramp)
+        assert x == pytest.approx(expect, abs=0.02)
+        feed = float(st.split("FS:")[1].split(",")[0])
+        assert feed == pytest.approx(min(a * t_after, v) * 60.0, abs=15.0)
