@@ -219,7 +219,6 @@ class GrblMock(MotionControl, Stepper, SerialDevice):
         self._asleep = False
         self._busy_until = t_s
         self._status_pending = False
-        self._startup_done = True
         if self.state not in ("Alarm", "Sleep"):
             self.state = "Idle"
         elif self.state == "Sleep":

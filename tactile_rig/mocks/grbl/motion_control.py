@@ -44,8 +44,9 @@ class MotionControl:
         before = self.gc
         self.gc = gcode.commit(self.gc, block)
         checking = self.state == "Check"
-        if (block.spindle_changed or block.coolant_changed) and not checking:
-            yield ("idle",)  # spindle_sync / coolant_sync
+        speed_changed = block.spindle_rpm != before.spindle_rpm and before.modal.spindle != 5
+        if (block.spindle_changed or block.coolant_changed or speed_changed) and not checking:
+            yield ("idle",)  # spindle_sync / coolant_sync wait for the buffer to empty
         if block.non_modal == gcode.NM_DWELL and not checking:
             yield ("idle",)
             yield ("time", self._t_now + block.dwell_s)
