@@ -73,7 +73,7 @@ def test_radius_arcs_and_the_arc_errors() -> None:
 
 
 def test_g18_arcs_run_in_the_zx_plane() -> None:
-    """gcode.c step 11: G18 takes Z and X as the arc axes (axis_0 = Z, axis_1 = X)."""
+    """gcode.c gc_execute_line step 3 [11]: G18 takes Z and X as the arc axes (axis_0 = Z, axis_1 = X)."""
     h = Host(homing=False)
     h.line("G18 G2 X-2 Z0 I-1 K0 F600")
     assert "ok" in h.until_idle()
@@ -230,8 +230,8 @@ def test_homing_takes_seek_locate_and_pull_off_time() -> None:
 
 
 def test_status_during_a_move_follows_the_trapezoid() -> None:
-    """stepper.c traces the planner's trapezoid: from rest at $120 up to the feed, then cruise; report.c
-    prints sys_position (whole steps) and the current rate (FS)."""
+    """stepper.c st_prep_buffer traces the planner's trapezoid: from rest at $120 up to the feed, then
+    cruise; report.c report_realtime_status prints sys_position (whole steps) and st_get_realtime_rate."""
     h = Host(homing=False)
     h.send("G1 X-10 F600\n", 0.0)
     start = h.t + len("G1 X-10 F600\n") * 10 / 115200  # the line's last byte reaches GRBL

@@ -45,6 +45,8 @@ def test_any_line_parses_to_a_block_or_a_known_error(line: str) -> None:
 
 @given(st.text(alphabet=st.characters(min_codepoint=32, max_codepoint=126), max_size=60))
 def test_arbitrary_text_never_breaks_the_parser(text: str) -> None:
+    """gcode.c gc_execute_line on any printable text: a status code (nuts_bolts.c read_float refuses
+    what is not a number) or a block, never an exception."""
     state = gcode.ParserState.fresh(3, np.zeros(3), np.zeros(3))
     got = gcode.parse_block(_clean(text), state, [np.zeros(3)] * 8)
     assert isinstance(got, int) and got in gp.ERRORS or isinstance(got, gcode.Block)
@@ -53,7 +55,8 @@ def test_arbitrary_text_never_breaks_the_parser(text: str) -> None:
 @settings(max_examples=25)
 @given(st.lists(gcode_lines(max_words=4), min_size=1, max_size=6), st.data())
 def test_a_program_gets_the_same_replies_however_the_bytes_are_split(lines: list[str], data: st.DataObject) -> None:
-    """serial.c + protocol.c: bytes are read one at a time, so how they arrive never changes a reply."""
+    """serial.c serial_read + protocol.c protocol_main_loop: bytes are read one at a time, so how they
+    arrive never changes a reply."""
     program = ("$C\n" + "".join(line + "\n" for line in lines)).encode()  # check mode: replies only
     whole = Host(homing=False)
     expect = whole.send(program, 0.5)
@@ -70,7 +73,8 @@ def test_a_program_gets_the_same_replies_however_the_bytes_are_split(lines: list
 @settings(max_examples=30)
 @given(st.binary(max_size=300))
 def test_garbage_bytes_get_grbls_own_replies_only(junk: bytes) -> None:
-    """Whatever arrives, the firmware answers in its own line forms and stays responsive to '?'."""
+    """report.c: whatever arrives, the firmware answers in its own line forms (report_status_message,
+    report_feedback_message...) and a reset (mc_reset) brings back status reports."""
     h = Host(homing=False)
     out = h.send(junk + b"\n", 0.3)
     assert all(REPLY.match(r) for r in out), out
