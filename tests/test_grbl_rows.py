@@ -219,3 +219,14 @@ def test_build_info_startup_lines_and_a_full_restore() -> None:
     assert h.line("$RST=*") == ["[MSG:Restoring defaults]", "ok", BANNER]  # no $N1 left to run
     assert h.line("$I")[0] == "[VER:1.1h.20190825:]" and h.line("$N")[:2] == ["$N0=", "$N1="]
     assert "$110=1200.000" in h.line("$$")
+
+
+def test_homing_runs_the_startup_blocks_and_needs_homing_enabled() -> None:
+    """system.c '$H': STATUS_SETTING_DISABLED (5) with $22=0; after a successful cycle
+    system_execute_startup runs the $N blocks (their '>line:ok' before $H's own ok)."""
+    assert Host(homing=False).line("$H") == ["error:5"]
+    h = Host()
+    h.line("$X")
+    assert h.line("$N0=G20") == ["ok"]
+    assert h.line("$H", 40.0) == [">G20:ok", "ok"]
+    assert h.line("$SLP") == ["ok", "[MSG:Sleeping]"]
