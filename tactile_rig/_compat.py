@@ -34,6 +34,7 @@ MOVED: dict[str, str] = {
     "tactile_rig.mocks.sensors": "tactile_rig.sim.fakes.sensors",
     "tactile_rig.rig.stirring": "tactile_rig.sim.world.stirring",
     "tactile_rig.rig.stick_press": "tactile_rig.sim.world.stick_press",
+    "tactile_rig.mocks.grbl_motion": "tactile_rig.mocks.grbl.planner",
 }
 
 

@@ -18,7 +18,10 @@ def test_jig_status_json_shows_the_alarm_on_boot(capsys) -> None:
 def test_jig_home_then_move_and_unlock(capsys) -> None:
     assert main(["jig", "home", "--port", "rigsim://jig", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["state"] == "Idle"
-    assert main(["jig", "move", "--port", "rigsim://jig", "--x", "3", "--theta", "-45", "--unlock", "--json"]) == 0
+    # Each command opens a fresh mock; unlocked without homing, GRBL's machine space starts where the
+    # stage stands, so a centred work origin would be wrong: move on a jig without homing instead.
+    assert main(["jig", "move", "--port", "rigsim://jig?homing=0", "--x", "3", "--theta", "-45", "--unlock",
+                 "--json"]) == 0
     st = json.loads(capsys.readouterr().out)
     assert st["state"] == "Idle" and st["x_mm"] == pytest.approx(3.0) and st["theta_deg"] == pytest.approx(-45, abs=0.03)
     assert main(["jig", "unlock", "--port", "rigsim://jig"]) == 0

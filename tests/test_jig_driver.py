@@ -32,7 +32,7 @@ def _assert_at(jig: Jig, stage, x: float, y: float, th: float) -> None:
     assert (p.x_mm, p.y_mm) == pytest.approx((x, y), abs=STEP_MM)
     assert p.theta_deg == pytest.approx(th, abs=STEP_DEG)
     stage.advance_to(jig.clock.now_s())
-    assert stage.pose() == pytest.approx((p.x_mm, p.y_mm, p.theta_deg), abs=1e-3)  # MPos IS the stage pose
+    assert stage.pose() == pytest.approx((p.x_mm, p.y_mm, p.theta_deg), abs=1e-3)  # G54 work position IS the stage pose
 
 
 def test_boots_locked_then_homes_and_moves() -> None:
@@ -89,6 +89,7 @@ def test_moves_past_the_travel_are_refused_by_the_host_and_alarmed_by_grbl() -> 
     with serve_in_process(mock, clock) as url:
         jig = Jig(url, x_range_mm=(-20, 20))
         jig.home()
+        jig.move_to(0.0, 0.0, 0.0, wait=True)  # homing ends at the switches (-$27): back to the centre
         with pytest.raises(LimitError, match="x_mm=25"):
             jig.move_to(25.0, 0.0, 0.0)
         jig.ranges["x_mm"] = None
@@ -97,12 +98,14 @@ def test_moves_past_the_travel_are_refused_by_the_host_and_alarmed_by_grbl() -> 
         with pytest.raises(GrblAlarm) as info:
             jig.move_to(25.0, 0.0, 0.0, wait=True)
         assert info.value.code == 2
+        with pytest.raises(GrblAlarm, match="no status until a soft reset"):
+            jig.status()  # GRBL answers no '?' in a critical alarm
+        jig.soft_reset()  # the position survives a reset
         st = jig.status()
-        assert st.state == "Alarm" and -10.0 < st.mpos[0] < 0.0  # a controlled stop part-way
+        assert st.state == "Alarm" and -10.0 < st.wpos[0] < 0.0  # a controlled stop part-way
         clock.advance(1.0)
         assert jig.status().mpos == st.mpos  # and it stays stopped
-        _assert_at(jig, stage, st.mpos[0], 0.0, 0.0)
-        jig.soft_reset()
+        _assert_at(jig, stage, st.wpos[0], 0.0, 0.0)
         jig.unlock()
         jig.move_to(0.0, 0.0, 0.0, wait=True)
         _assert_at(jig, stage, 0.0, 0.0, 0.0)
@@ -116,11 +119,13 @@ def test_a_hard_limit_during_a_move_halts_at_the_switch() -> None:
         with pytest.raises(GrblAlarm) as info:
             jig.wait_idle(10.0)
         assert info.value.code == 1 and "Hard limit" in str(info.value)
-        st = jig.status()
-        assert st.state == "Alarm" and st.mpos[0] == pytest.approx(21.0, abs=1e-6) and "X" in st.pins
         with pytest.raises(GrblAlarm, match="only a soft reset"):
             jig.unlock()  # GRBL reads no line in a critical alarm: the driver does not send it
-        _assert_at(jig, stage, 21.0, 0.0, 0.0)
+        jig.soft_reset()  # GRBL answers no '?' until then
+        st = jig.status()
+        assert st.state == "Alarm" and st.mpos[0] == pytest.approx(20.0, abs=0.002) and "X" in st.pins
+        assert "[MSG:Check Limits]" in jig.messages  # the switch is still closed after the reset
+        _assert_at(jig, stage, st.mpos[0], 0.0, 0.0)
 
 
 def test_an_injected_limit_trip_and_an_unplug_mid_move_are_caught_by_their_deadlines() -> None:
@@ -132,6 +137,7 @@ def test_an_injected_limit_trip_and_an_unplug_mid_move_are_caught_by_their_deadl
         mock.inject("hard_limit", axis="Y")
         with pytest.raises(GrblAlarm, match="ALARM:1"):
             jig.wait_idle(5.0)
+        jig.soft_reset()  # a critical alarm: no status report before a reset
         x = jig.status().mpos[0]
         clock.advance(1.0)
         assert 0.0 < x < 10.0 and jig.status().mpos[0] == x
@@ -183,14 +189,14 @@ def test_jog_cancel_stops_early_and_a_jog_past_travel_is_refused() -> None:
     mock.settings[20] = 1  # soft limits on (the jig is known to be at its centre)
     with serve_in_process(mock, clock) as url:
         jig = Jig(url)
-        jig.jog(dx_mm=10.0, feed_mm_per_min=300.0)
+        jig.jog(dx_mm=-10.0, feed_mm_per_min=300.0)  # machine space is [-$130, 0]
         clock.advance(0.5)
         assert jig.status().state == "Jog"
         jig.jog_cancel()
         st = jig.wait_idle(2.0)
-        assert 1.0 < st.mpos[0] < 4.0
+        assert -4.0 < st.mpos[0] < -1.0
         with pytest.raises(GrblError) as info:
-            jig.jog(dx_mm=50.0, feed_mm_per_min=300.0)
+            jig.jog(dx_mm=-50.0, feed_mm_per_min=300.0)
         assert info.value.code == 15
 
 

@@ -3,14 +3,22 @@
 from __future__ import annotations
 
 import json
+import os
+import select
 import subprocess
 import sys
+import termios
 import threading
 import time
+import tty
 
 import pytest
 
 import grbl_streamer  # noqa: E402  (the independent real client is a test dependency: never skip it)
+
+from tactile_rig.core.clock import RealClock
+from tactile_rig.mocks.grbl import GrblMock
+from tactile_rig.mocks.pty_server import PtyServer
 
 GCODE = """(a zig-zag with theta on Z; more than 128 bytes, so character counting matters)
 G21 G90
@@ -100,3 +108,35 @@ def test_grbl_streamer_streams_a_file_and_sees_every_ok_and_the_final_position(t
         proc.terminate()
         proc.wait(5)
         proc.stdout.close()
+
+
+def read_banner(port: str, lag_s: float, timeout_s: float = 2.0) -> bytes:
+    """Open ``port`` as a slow client does: at the pty's default rate, setting 115200 ``lag_s`` later."""
+    fd = os.open(port, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    try:
+        time.sleep(lag_s)
+        tty.setraw(fd)
+        attrs = termios.tcgetattr(fd)
+        attrs[4] = attrs[5] = termios.B115200
+        termios.tcsetattr(fd, termios.TCSANOW, attrs)
+        got = b""
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end and not got.endswith(b"help]\r\n"):
+            if select.select([fd], [], [], 0.05)[0]:
+                got += os.read(fd, 256)
+    finally:
+        os.close(fd)
+    time.sleep(0.02)  # let the server see the close, so the next open is a new DTR reset
+    return got
+
+
+@pytest.mark.pty
+def test_every_connect_over_a_pty_gets_a_clean_banner() -> None:
+    """report.c report_init_message after every reset; the server holds the output until the client has
+    set its line rate (a real Uno's bootloader covers that), so no connect sees a garbled banner, even
+    from a client that sets its rate up to 30 ms after opening."""
+    mock = GrblMock(clock=RealClock(), homing=False)
+    with PtyServer(mock) as server:
+        banners = [read_banner(server.port, lag_s=0.03 * (i % 3) / 2) for i in range(12)]
+    assert server.error is None and server.opens == 12
+    assert banners == [b"\r\nGrbl 1.1h ['$' for help]\r\n"] * 12

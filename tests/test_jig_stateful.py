@@ -1,4 +1,9 @@
-"""A stateful test: random jig command sequences against a model never lose position or state."""
+"""A stateful test: random jig command sequences against a model never lose position or state.
+
+Positions are G54 work coordinates: the mock's EEPROM holds G54 at the middle of the travel (as a
+commissioned jig's would), so after homing (which ends −$27 from the switches, machine space
+negative as in limits.c) the work position is the stage pose.
+"""
 
 from __future__ import annotations
 
@@ -29,6 +34,7 @@ class JigMachine(RuleBasedStateMachine):
         self.url = register_instance("jig-stateful", self.mock, self.clock)
         self.jig = Jig(self.url)
         self.jig.home()
+        self.jig.move_to(0.0, 0.0, 0.0, wait=True, timeout_s=60.0)
         self.model = [0.0, 0.0, 0.0]
 
     def teardown(self) -> None:
@@ -46,21 +52,24 @@ class JigMachine(RuleBasedStateMachine):
         with pytest.raises(GrblAlarm) as info:
             self.jig.move_to(x, 0.0, 0.0, wait=True)
         assert info.value.code == 2
-        before = self.jig.status().mpos
+        with pytest.raises(GrblAlarm):
+            self.jig.status()  # protocol.c: a critical alarm answers no '?' until a reset
         self.jig.soft_reset()
+        before = self.jig.status()
+        assert before.state == "Alarm"
         self.jig.unlock()  # the machine never moved: the position is still known
-        assert self.jig.status().mpos == before
+        assert self.jig.status().wpos == before.wpos
         self._sync_to_steps()
 
     def _sync_to_steps(self) -> None:
         # The machine must not have moved beyond a step from what the model knows before syncing.
-        mpos = self.jig.status().mpos
-        assert mpos[0] == pytest.approx(self.model[0], abs=STEP_MM)
-        assert mpos[1] == pytest.approx(self.model[1], abs=STEP_MM)
-        assert mpos[2] == pytest.approx(self.model[2], abs=STEP_DEG)
+        wpos = self.jig.status().wpos
+        assert wpos[0] == pytest.approx(self.model[0], abs=STEP_MM)
+        assert wpos[1] == pytest.approx(self.model[1], abs=STEP_MM)
+        assert wpos[2] == pytest.approx(self.model[2], abs=STEP_DEG)
         # A reset makes GRBL's parser start from the step counters (gc_sync_position), so later
         # relative moves build on the whole-step position, exactly as the firmware does.
-        self.model = list(self.jig.status().mpos)
+        self.model = list(self.jig.status().wpos)
 
     @rule(dx=st.integers(-30, 30).map(lambda v: v / 10.0), dth=st.integers(-20, 20).map(float))
     def jog(self, dx: float, dth: float) -> None:
@@ -106,11 +115,11 @@ class JigMachine(RuleBasedStateMachine):
             return
         st_ = self.jig.status()
         assert st_.state == "Idle"
-        assert st_.mpos[0] == pytest.approx(self.model[0], abs=STEP_MM)
-        assert st_.mpos[1] == pytest.approx(self.model[1], abs=STEP_MM)
-        assert st_.mpos[2] == pytest.approx(self.model[2], abs=STEP_DEG)
+        assert st_.wpos[0] == pytest.approx(self.model[0], abs=STEP_MM)
+        assert st_.wpos[1] == pytest.approx(self.model[1], abs=STEP_MM)
+        assert st_.wpos[2] == pytest.approx(self.model[2], abs=STEP_DEG)
         self.stage.advance_to(self.clock.now_s())
-        assert self.stage.pose() == pytest.approx(st_.mpos, abs=1e-3)
+        assert self.stage.pose() == pytest.approx(st_.wpos, abs=2e-3)
 
 
 JigMachine.TestCase.settings = settings(max_examples=15, stateful_step_count=10, deadline=None)

@@ -291,6 +291,8 @@ class Jig(Driver):
             try:
                 self._alarms.append(int(line[6:]))
                 self.last_alarm = self._alarms[-1]
+                if self.last_alarm in (1, 2):
+                    self.needs_reset = True  # hard and soft limits are critical: GRBL waits for a reset
             except ValueError:
                 log.warning("%s: bad alarm line %r", self.device, line)
         elif line.startswith("Grbl"):
@@ -366,12 +368,19 @@ class Jig(Driver):
 
     # -- status and waiting ---------------------------------------------------------------------------------
     def status(self, timeout_s: float = 0.5) -> GrblStatus:
-        """Ask for a status report (``?``) and return it parsed."""
+        """Ask for a status report (``?``) and return it parsed. GRBL answers none in a critical
+        alarm (hard or soft limit) until a soft reset: that, or a report that an alarm held back
+        past ``timeout_s``, raises :class:`GrblAlarm` instead of a timeout."""
+        if self.needs_reset:
+            raise self.fault(gp.alarm(self.last_alarm or 0, device=self.device,
+                                      hint="GRBL sends no status until a soft reset (soft_reset() or activate())"))
         self._statuses.clear()
         self.transport.write(gp.RT_STATUS)
         dl = Deadline(self.clock, timeout_s)
         while not self._statuses:
             if dl.expired():
+                if self._alarms:
+                    raise self.fault(gp.alarm(self._alarms.popleft(), device=self.device))
                 raise DeviceTimeout(f"no status report within {timeout_s:.3g} s of '?'", device=self.device)
             self._pump(dl.remaining_s() or 0.0)
         st = self._statuses.pop()

@@ -6,12 +6,22 @@ it notices the client opening and closing the port (the master reads EIO while n
 slave), reads the client's baud rate from the terminal settings (a mismatch garbles the bytes, as
 on a real line), feeds the device and writes its output when the device's wire timing says the last
 byte has arrived.
+
+The line rate is read when each chunk crosses the "wire", not once at open: a client opens the
+port at the pty's current rate (38400, or whatever the previous client left) and sets its own, then
+flushes its input, a moment later, as pyserial does. An Uno's bootloader covers that moment on real
+hardware (the sketch starts ~0.5 s after the DTR reset); here a device that resets on open (its
+``open_hold_s`` attribute, e.g. the GRBL mock's) has its output held that long, and every device's
+output until the client's rate matches (at most ``SETTLE_S``), so a client that configures the port
+right after opening never sees a garbled or flushed banner. A Dynamixel bus (an FTDI adapter, no
+reset) answers at once.
 """
 
 from __future__ import annotations
 
 import errno
 import logging
+import random
 import os
 import pty
 import select
@@ -38,6 +48,7 @@ _SPIN_S = 0.0001
 _PR_SET_TIMERSLACK = 29  # linux/prctl.h
 _IDLE_POLL_S = 0.005
 _CLOSED_POLL_S = 0.002
+SETTLE_S = 0.25  # longest wait after an open for the client to set its line rate
 
 
 class PtyServer:
@@ -64,6 +75,8 @@ class PtyServer:
         self.client_open = False
         self.opens = 0
         self.error: BaseException | None = None
+        self._opened_at = 0.0
+        self._rng = random.Random(0x5EED)
 
     # -- lifecycle ---------------------------------------------------------------------------
     def start(self) -> "PtyServer":
@@ -131,11 +144,12 @@ class PtyServer:
         now = self.clock.now_s()
         self.client_open = True
         self.opens += 1
-        self.device.set_client_baud(self._client_baud())
+        self._opened_at = now
+        self.device.set_client_baud(None)  # the rate is checked per chunk, here (see the module docstring)
         self.device.open(now)
         log.debug("%s: client opened %s", self.name, self.port)
         if data:
-            self.device.feed(data, now)
+            self._feed(data, now)
 
     def _serve_once(self) -> None:
         now = self.clock.now_s()
@@ -156,12 +170,34 @@ class PtyServer:
                 log.debug("%s: client closed %s", self.name, self.port)
                 return
             if data:
-                # Clients may change the baud rate at any time (the SDK's setBaudRate does).
-                self.device.set_client_baud(self._client_baud())
-                self.device.feed(data, self.clock.now_s())
+                self._feed(data, self.clock.now_s())
+        if not self._settled(self.clock.now_s()):
+            self.device.advance_to(self.clock.now_s())
+            return
         out = self.device.pop_ready(self.clock.now_s())
         if out:
-            self._write_all(out)
+            self._write_all(self._on_wire(out, self.device.baud, self._client_baud()))
+
+    def _settled(self, now: float) -> bool:
+        """After an open, hold the output the device's ``open_hold_s``, then until the client's rate
+        matches (or SETTLE_S)."""
+        since = now - self._opened_at
+        if since < float(getattr(self.device, "open_hold_s", 0.0)):
+            return False
+        return since >= SETTLE_S or self._client_baud() in (None, self.device.baud)
+
+    def _feed(self, data: bytes, now: float) -> None:
+        # Clients may change the baud rate at any time (the SDK's setBaudRate does): read it per chunk.
+        data = self._on_wire(data, self._client_baud(), self.device.baud)
+        if data:
+            self.device.feed(data, now)
+
+    def _on_wire(self, data: bytes, sender_baud: int | None, receiver_baud: int | None) -> bytes:
+        """What a receiver at another rate samples: framing garbage, more or fewer bytes."""
+        if sender_baud is None or receiver_baud is None or sender_baud == receiver_baud:
+            return data
+        n = int(round(len(data) * receiver_baud / sender_baud))
+        return bytes(self._rng.randrange(256) for _ in range(n))
 
     def _write_all(self, data: bytes) -> None:
         view = memoryview(data)

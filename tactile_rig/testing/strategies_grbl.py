@@ -62,3 +62,37 @@ def status_reports(draw: st.DrawFn, axes: int | None = None) -> tuple[str, dict]
     order = draw(st.permutations(fields))
     head = state if sub is None else f"{state}:{sub}"
     return "<" + "|".join([head, *order]) + ">", expect
+
+
+# -- G-code and byte streams ------------------------------------------------------------------------------
+_LETTERS = "GMXYZIJKFNPRSTLABCDEHOQUVW"
+
+
+@st.composite
+def gcode_numbers(draw: st.DrawFn) -> str:
+    """Number text as senders write it, and as they should not: signs, dots, many digits, nothing."""
+    return draw(st.one_of(
+        st.integers(-10**9, 10**9).map(str),
+        st.decimals(-100000, 100000, places=4, allow_nan=False, allow_infinity=False).map(str),
+        st.sampled_from(["", ".", "-", "+.5", "-.", "1.2.3", "00000000001", "123456789012", "38.2", "59.1"])))
+
+
+@st.composite
+def gcode_lines(draw: st.DrawFn, max_words: int = 6) -> str:
+    """A line of G-code words with spaces, comments and mixed case (valid or not)."""
+    words = [draw(st.sampled_from(_LETTERS)) + draw(gcode_numbers()) for _ in range(draw(st.integers(0, max_words)))]
+    parts = []
+    for w in words:
+        parts.append(w.lower() if draw(st.booleans()) else w)
+        parts.append(draw(st.sampled_from(["", " ", "  ", "\t", "(note)"])))
+    if draw(st.booleans()):
+        parts.append(draw(st.sampled_from([";", "; end", "(", "(open"])))
+    return "".join(parts)
+
+
+@st.composite
+def splits(draw: st.DrawFn, data: bytes) -> list[bytes]:
+    """``data`` cut into consecutive chunks at arbitrary points (what a USB adapter may deliver)."""
+    cuts = sorted(set(draw(st.lists(st.integers(0, len(data)), max_size=8))))
+    bounds = [0, *cuts, len(data)]
+    return [data[a:b] for a, b in zip(bounds, bounds[1:]) if b > a]

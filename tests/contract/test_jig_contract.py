@@ -33,12 +33,12 @@ def test_a_move_lands_where_it_was_sent(jig_endpoint) -> None:
     with _jig(jig_endpoint) as jig:
         jig.activate()
         assert jig.lifecycle is Lifecycle.ACTIVE
-        start = jig.pose()
-        jig.move_to(start.x_mm + 1.0, start.y_mm, start.theta_deg + 5.0, wait=True)
+        jig.move_to(0.0, 0.0, 0.0, wait=True)  # the work origin (a homed jig ends at its switches)
+        jig.move_to(1.0, 0.0, 5.0, wait=True)
         there = jig.pose()
-        assert there.x_mm == pytest.approx(start.x_mm + 1.0, abs=0.01)
-        assert there.theta_deg == pytest.approx(start.theta_deg + 5.0, abs=0.05)
-        jig.move_to(start.x_mm, start.y_mm, start.theta_deg, wait=True)
+        assert (there.x_mm, there.y_mm) == pytest.approx((1.0, 0.0), abs=0.01)
+        assert there.theta_deg == pytest.approx(5.0, abs=0.05)
+        jig.move_to(0.0, 0.0, 0.0, wait=True)
 
 
 def test_a_move_past_the_configured_travel_is_refused_before_motion(jig_endpoint) -> None:
