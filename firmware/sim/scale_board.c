@@ -43,6 +43,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/prctl.h>
+#include <sys/inotify.h>
 #include <sys/stat.h>
 #include <termios.h>
 #include <time.h>
@@ -367,14 +368,12 @@ static void hx_sck_changed(struct avr_irq_t *irq, uint32_t value, void *param) {
 
 /* ---- UART bridge ----------------------------------------------------------------------------- */
 
-static void out_push(uint8_t b, avr_cycle_count_t sent) {
-	/* On the wire after the byte before it, for one byte time at the AVR's baud. */
-	uint32_t baud = avr_baud();
+static void out_push_at(uint8_t b, avr_cycle_count_t sent, uint32_t baud, int junk) {
 	avr_cycle_count_t per_byte = baud ? (avr_cycle_count_t)(10ULL * F_CPU / baud) : 2800;
 	avr_cycle_count_t start = sent > B.out_free ? sent : B.out_free;
 	B.out_free = start + per_byte;
 	if (!B.host_open) return;               /* nobody listening: the USB chip drops it */
-	if (B.host_baud && baud_mismatch(B.host_baud, baud)) {
+	if (!junk && B.host_baud && baud_mismatch(B.host_baud, baud)) {
 		b = (uint8_t)rng_next();
 		B.garbled++;
 	}
@@ -387,6 +386,11 @@ static void out_push(uint8_t b, avr_cycle_count_t sent) {
 	B.outq[i].ready = B.out_free;
 	if (trace > 1) fprintf(proto, "T %.3f %.3f %02x\n", cycles_to_s(sent) * 1e6, cycles_to_s(B.out_free) * 1e6, b);
 	B.outq_len++;
+}
+
+/* A byte the AVR sends: on the wire after the byte before it, one frame at the AVR's baud. */
+static void out_push(uint8_t b, avr_cycle_count_t sent) {
+	out_push_at(b, sent, avr_baud(), 0);
 }
 
 /* Two fixes to libsimavr 1.6's USART, so the sketch sees the timing of silicon:
@@ -562,7 +566,7 @@ static void board_reset(void) {
 	hx_drive_dout(B.hx.dout);
 	for (int i = 0; i < B.opt.boot_junk; i++) {
 		/* The USB-serial chip often reads a glitch while the AVR's TX pin floats in reset. */
-		out_push((uint8_t)(0x80 | (rng_next() & 0x7F)), now_cycle());
+		out_push_at((uint8_t)(0x80 | (rng_next() & 0x7F)), now_cycle(), B.host_baud ? (uint32_t)B.host_baud : 57600, 1);
 	}
 	reschedule();
 }
@@ -701,6 +705,9 @@ static int baud_of_speed(speed_t s) {
 	return 0;
 }
 
+static int inotify_fd = -1;
+static int slave_opens = 0;       /* clients holding the slave open (inotify) */
+
 static void pty_open_master(void) {
 	int m = posix_openpt(O_RDWR | O_NOCTTY);
 	if (m < 0 || grantpt(m) || unlockpt(m)) die("cannot allocate a pty: %s", strerror(errno));
@@ -718,6 +725,13 @@ static void pty_open_master(void) {
 	close(s);
 	fcntl(m, F_SETFL, fcntl(m, F_GETFL) | O_NONBLOCK);
 	B.master = m;
+	/* inotify sees every open and close of the slave, even a close and reopen within microseconds
+	 * (which EIO on the master can miss); EIO stays the fallback where inotify is unavailable. */
+	inotify_fd = inotify_init1(IN_NONBLOCK | IN_CLOEXEC);
+	if (inotify_fd >= 0 && inotify_add_watch(inotify_fd, slave, IN_OPEN | IN_CLOSE) < 0) {
+		close(inotify_fd);
+		inotify_fd = -1;
+	}
 	if (B.opt.pty_link) {
 		unlink(B.opt.pty_link);
 		if (symlink(slave, B.opt.pty_link) != 0)
@@ -747,9 +761,29 @@ static void host_closed(void) {
 	B.feed_at = 0;
 }
 
+/* Opens and closes of the slave since the last call, in order: the first open resets the board. */
+static void pty_watch_opens(void) {
+	char buf[4096] __attribute__((aligned(__alignof__(struct inotify_event))));
+	ssize_t n;
+	while ((n = read(inotify_fd, buf, sizeof buf)) > 0) {
+		for (char *p = buf; p < buf + n;) {
+			const struct inotify_event *e = (const struct inotify_event *)p;
+			if (e->mask & IN_OPEN) {
+				if (slave_opens++ == 0) host_opened();
+			} else if (e->mask & (IN_CLOSE_WRITE | IN_CLOSE_NOWRITE)) {
+				if (slave_opens > 0 && --slave_opens == 0) host_closed();
+			}
+			p += sizeof(struct inotify_event) + e->len;
+		}
+	}
+}
+
 /* Exchange bytes with the pty; notice opens and closes. */
 static void pty_service(void) {
-	if (!B.host_open) {
+	if (inotify_fd >= 0) {
+		pty_watch_opens();
+		if (!B.host_open) return;
+	} else if (!B.host_open) {
 		uint8_t buf[IN_QUEUE_MAX];
 		ssize_t n = read(B.master, buf, sizeof buf);
 		if (n < 0 && errno == EIO) return;  /* still nobody on the slave */
@@ -764,7 +798,7 @@ static void pty_service(void) {
 	if (B.inq_len < IN_QUEUE_MAX) {
 		ssize_t n = read(B.master, B.inq + B.inq_len, (size_t)(IN_QUEUE_MAX - B.inq_len));
 		if (n < 0 && errno == EIO) {
-			host_closed();
+			if (inotify_fd < 0) host_closed();  /* with inotify, its close event says so */
 			return;
 		}
 		if (n > 0) {
@@ -789,7 +823,7 @@ static void pty_service(void) {
 			B.out_dropped += (uint64_t)(n - off);  /* the host does not read: its buffer is full */
 			break;
 		} else {
-			if (w < 0 && errno == EIO) host_closed();
+			if (w < 0 && errno == EIO && inotify_fd < 0) host_closed();
 			break;
 		}
 	}

@@ -193,10 +193,11 @@ def _parse_size(make_output: str) -> tuple[int, int]:
 class BoardConfig:
     """What is on the simulated bench: the HX711's rate and the load cell seen through it.
 
-    ``offset_counts`` and ``counts_per_g`` describe the bridge at gain 128 (the Python mock's
-    defaults); ``noise_counts`` is the HX711's output noise (rms counts; the mock's per-rate
-    default when None); ``bootloader_s`` the Uno's silence after a reset; ``boot_junk`` how many
-    glitch bytes the host reads at a reset (as the mock's ``boot_junk`` does).
+    ``offset_counts`` and ``counts_per_g`` describe the bridge at gain 128, ``drift_counts`` its
+    warm-up (reached with time constant ``drift_tau_s``), ``noise_counts`` the HX711's output noise
+    (rms counts; the mock's per-rate default when None), ``spike_prob`` the chance of a glitched
+    conversion: all as the Python mock has them. ``bootloader_s`` is the Uno's silence after a
+    reset, ``boot_junk`` how many glitch bytes the host reads at a reset.
     """
 
     rate_sps: int = 80
@@ -204,6 +205,9 @@ class BoardConfig:
     counts_per_g: float = sp.DEFAULT_CAL_FACTOR
     offset_counts: float = 84_000.0
     noise_counts: float | None = None
+    drift_counts: float = 1_500.0
+    drift_tau_s: float = 180.0
+    spike_prob: float = 0.002
     channel_b_counts: float = 0.0
     bootloader_s: float = BOOTLOADER_S
     boot_junk: int = 2
@@ -216,7 +220,11 @@ class BoardConfig:
             raise ValueError(f"scale firmware bootloader_s={self.bootloader_s!r} must be within [0, 10] s")
         if not (0 <= self.boot_junk <= 16):
             raise ValueError(f"scale firmware boot_junk={self.boot_junk!r} must be 0..16 bytes")
-        for name in ("force_n", "counts_per_g", "offset_counts", "channel_b_counts"):
+        if not (0.0 <= self.spike_prob <= 1.0):
+            raise ValueError(f"scale firmware spike_prob={self.spike_prob!r} must be a probability in [0, 1]")
+        if not (0.0 < self.drift_tau_s < 1e9):
+            raise ValueError(f"scale firmware drift_tau_s={self.drift_tau_s!r} must be a positive number of seconds")
+        for name in ("force_n", "counts_per_g", "offset_counts", "channel_b_counts", "drift_counts"):
             v = getattr(self, name)
             if not (abs(v) < 1e12):  # rejects NaN and inf too
                 raise ValueError(f"scale firmware {name}={v!r} must be a finite number")
@@ -234,6 +242,8 @@ class BoardConfig:
         return ["--rate", str(self.rate_sps), "--force-n", repr(float(self.force_n)),
                 "--counts-per-g", repr(float(self.counts_per_g)), "--offset-counts", repr(float(self.offset_counts)),
                 "--noise-counts", repr(self.noise), "--channel-b-counts", repr(float(self.channel_b_counts)),
+                "--drift-counts", repr(float(self.drift_counts)), "--drift-tau-s", repr(float(self.drift_tau_s)),
+                "--spike-prob", repr(float(self.spike_prob)),
                 "--bootloader-ms", repr(self.bootloader_s * 1000.0), "--boot-junk", str(self.boot_junk),
                 "--seed", str(int(self.seed) & 0xFFFFFFFFFFFFFFFF)]
 
@@ -451,6 +461,13 @@ class SimulatedScaleBoard:
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
+    def exit_reason(self) -> str:
+        """Why the board process ended (its exit code and last log lines), for an error message."""
+        code = self.proc.poll() if self.proc is not None else None
+        log = Path(self._tmp.name, "board.log")
+        tail = " ".join(log.read_text(errors="replace").strip().splitlines()[-3:]) if log.exists() else ""
+        return f"exit code {code}; {tail}".strip()
+
     def describe(self) -> dict[str, Any]:
         """What ``tactile-rig mock serve scale --firmware`` prints next to the port."""
         return {"rate_sps": self.config.rate_sps, "boot_s": self.config.bootloader_s,
@@ -467,7 +484,8 @@ def _mock_for(config: BoardConfig) -> Any:
     from tactile_rig.mocks.world.load_cell import LoadCell
 
     return ScaleMock(clock=None, load_cell=LoadCell(applied_force_n=config.force_n), rate_sps=config.rate_sps,
-                     boot_s=config.bootloader_s, noise_counts=config.noise, drift_counts=0.0, spike_prob=0.0,
+                     boot_s=config.bootloader_s, noise_counts=config.noise, drift_counts=config.drift_counts,
+                     drift_tau_s=config.drift_tau_s, spike_prob=config.spike_prob,
                      boot_junk=config.boot_junk > 0, counts_per_g=config.counts_per_g,
                      offset_counts=config.offset_counts, seed=config.seed)
 
@@ -524,3 +542,91 @@ def run_script_mock(script: Script, config: BoardConfig | None = None) -> Script
     collect(script.end_s)
     ee = {"cal_milli": mock.eeprom_cal_milli}
     return ScriptResult(lines, {"rx_dropped": mock.rx_dropped, "samples": mock.samples_sent, "eeprom": ee})
+
+
+# -- the differential comparison ------------------------------------------------------------------------
+
+#: How far apart (simulated seconds) the same line may start on the board and from the mock. The mock
+#: models the sketch's compute times to ~0.05 ms; E,4 comes from millis(), which ticks every 1.024 ms.
+LINE_TIME_TOLERANCE_S = 0.25e-3
+E4_TIME_TOLERANCE_S = 1.5e-3
+
+
+def _split_junk(data: bytes) -> tuple[bytes, bytes]:
+    # The glitch bytes of a reset (>= 0x80) precede the banner on its line; they are random on both sides.
+    i = 0
+    while i < len(data) and data[i] >= 0x80:
+        i += 1
+    return data[:i], data[i:]
+
+
+@dataclass
+class Comparison:
+    """The same script on the board and on the mock: ``firmware`` and ``mock`` results side by side."""
+
+    firmware: ScriptResult
+    mock: ScriptResult
+
+    def differences(self, *, limit: int = 20) -> list[str]:
+        """Every line that differs in bytes (glitch bytes aside) or in time beyond the tolerances."""
+        out: list[str] = []
+        a, b = self.firmware.lines, self.mock.lines
+        if len(a) != len(b):
+            out.append(f"{len(a)} lines from the firmware, {len(b)} from the mock")
+        for i, (x, y) in enumerate(zip(a, b)):
+            jx, dx = _split_junk(x.data)
+            jy, dy = _split_junk(y.data)
+            tol = E4_TIME_TOLERANCE_S if dx.startswith(b"E,4,") else LINE_TIME_TOLERANCE_S
+            if dx != dy or len(jx) != len(jy):
+                out.append(f"line {i}: firmware {x.data!r} at {x.t_first_s:.6f} s, mock {y.data!r} at {y.t_first_s:.6f} s")
+            elif abs(x.t_first_s - y.t_first_s) > tol:
+                out.append(f"line {i} {dx[:24]!r}: firmware at {x.t_first_s:.6f} s, mock at {y.t_first_s:.6f} s "
+                           f"({(y.t_first_s - x.t_first_s) * 1e3:+.3f} ms)")
+            if len(out) >= limit:
+                break
+        return out
+
+    def time_differences_s(self) -> dict[str, list[float]]:
+        """mock - firmware start time of each identical line, by tag (B, S, T, K, I, E)."""
+        out: dict[str, list[float]] = {}
+        for x, y in zip(self.firmware.lines, self.mock.lines):
+            dx, dy = _split_junk(x.data)[1], _split_junk(y.data)[1]
+            if dx == dy and dx:
+                out.setdefault(chr(dx[0]), []).append(y.t_first_s - x.t_first_s)
+        return out
+
+
+def compare(script: Script, config: BoardConfig | None = None) -> Comparison:
+    """Run ``script`` on the simulated board and on the Python mock (simulated and virtual time)."""
+    config = config or BoardConfig()
+    return Comparison(run_script(script, config), run_script_mock(script, config))
+
+
+def reference_session(config: BoardConfig | None = None) -> Script:
+    """The session the firmware and the mock are held to: boot, readings under a load profile (steps
+    and a ramp), tare, calibration with a known 200 g, a bad command and a bad mass, ``?``, a reboot
+    and a port reopen."""
+    config = config or BoardConfig()
+    g = sp.STANDARD_GRAVITY_MPS2 * 1e-3  # newtons per gram
+    period = 1.0 / config.rate_sps
+    window_s = (sp.SMOOTHING_SAMPLES + 2) * period
+    boot_s = config.bootloader_s + 24 * period + 0.05  # the banner and a first sample are in
+    s = Script().at(0.0, "open")
+    t = boot_s
+    s.at(t + 0.10, "force_n", 50 * g)
+    for i in range(10):  # a 0.3 s ramp from 50 g to 150 g
+        s.at(t + 0.30 + 0.03 * i, "force_n", (60 + 10 * i) * g)
+    t += 0.6 + window_s
+    s.at(t, "send", b"t\n")  # tare the 150 g of tray
+    t += window_s + 0.3
+    s.at(t, "force_n", 350 * g)  # + the known 200 g
+    t += window_s + 0.2
+    s.at(t, "send", b"c,200.000\n")
+    t += window_s + 0.2
+    s.at(t, "send", b"x\n").at(t + 0.05, "send", b"c,abc\n").at(t + 0.10, "send", b"?\n")
+    t += 0.3
+    s.at(t, "reset")  # a reboot with the load on: raw stays absolute, grams restart from the boot tare
+    t += boot_s + 0.2
+    s.at(t, "close").at(t + 0.1, "open")  # the host reopens the port: DTR resets the board
+    s.end_s = t + 0.1 + boot_s + 0.2
+    return s
