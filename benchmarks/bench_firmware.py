@@ -71,12 +71,12 @@ def measure(port: str, rate: int, seconds: float, repeats: int) -> dict:
         boot_s = _wait_for(ser, "banner") - t_open
         # Rate: whole S lines over `seconds`, and gaps in their sequence numbers.
         t0 = time.monotonic()
-        seqs = []
+        seqs, arrivals = [], []
         while time.monotonic() - t0 < seconds:
-            _, p = _next_line(ser)
+            t, p = _next_line(ser)
             if p is not None and p.kind == "sample":
                 seqs.append(p.reading.seq)
-        elapsed = time.monotonic() - t0
+                arrivals.append(t)
         lost = sum((b - a - 1) % 65536 for a, b in zip(seqs, seqs[1:]))
         # Answer latency: '?' sent right after a sample line, until the I line is whole.
         id_ms = []
@@ -92,7 +92,8 @@ def measure(port: str, rate: int, seconds: float, repeats: int) -> dict:
             t_send = time.monotonic()
             ser.write(b"t\n")
             tare_ms.append((_wait_for(ser, "tare") - t_send) * 1e3)
-    return {"boot_silence_s": boot_s, "samples_per_s": (len(seqs) - 1) / elapsed if len(seqs) > 1 else 0.0,
+    span = arrivals[-1] - arrivals[0] if len(arrivals) > 1 else 0.0
+    return {"boot_silence_s": boot_s, "samples_per_s": (len(seqs) - 1) / span if span > 0 else 0.0,
             "samples": len(seqs), "lost": lost, "id_answer_ms_median": statistics.median(id_ms),
             "id_answer_ms_max": max(id_ms), "tare_ms_median": statistics.median(tare_ms),
             "tare_ms_expected": (16 + 2) * 1000.0 / rate}

@@ -73,7 +73,7 @@
 #define BOOTLOADER_MS 1529.0
 #define IN_QUEUE_MAX 256          /* host bytes buffered here: beyond it the host's write blocks */
 #define OUT_QUEUE_MAX 8192        /* bytes towards a host that does not read: beyond it they are lost */
-#define SLICE_CYCLES 8000         /* 0.5 ms of simulated time between I/O checks */
+#define SLICE_CYCLES 4000         /* 0.25 ms of simulated time between I/O checks */
 #define MAX_LAG_NS 250000000LL    /* behind the wall clock by more than this: slip instead of rushing */
 
 /* ---- small helpers -------------------------------------------------------------------------- */
@@ -834,9 +834,11 @@ static void run_pty(void) {
 	int64_t wall0 = mono_ns();
 	avr_cycle_count_t cyc0 = now_cycle();
 	while (!stop_requested && B.avr->state != cpu_Done && B.avr->state != cpu_Crashed) {
-		step_to(now_cycle() + SLICE_CYCLES);
+		/* Host input first (it may have woken us), then a slice, then what the slice sent. */
 		pty_service();
 		poll_control();
+		step_to(now_cycle() + SLICE_CYCLES);
+		pty_service();
 		static avr_cycle_count_t last_ee = 0;
 		if (now_cycle() - last_ee > F_CPU / 10) {
 			eeprom_save_if_changed();

@@ -37,6 +37,8 @@ from typing import Any, Sequence
 
 from tactile_rig.drivers import scale_protocol as sp
 from tactile_rig.errors import NotConnected, RigError
+from tactile_rig.mocks.scale import ScaleMock
+from tactile_rig.mocks.world.load_cell import LoadCell
 
 #: Debian packages the firmware build and the simulated board need.
 APT_PACKAGES = ("gcc-avr", "avr-libc", "arduino-core-avr", "simavr", "libsimavr-dev", "libelf-dev")
@@ -478,11 +480,7 @@ class SimulatedScaleBoard:
 
 # -- the same script against the Python mock ------------------------------------------------------------
 
-def _mock_for(config: BoardConfig) -> Any:
-    # Imported here so that running the firmware never needs the mock's dependencies at import time.
-    from tactile_rig.mocks.scale import ScaleMock
-    from tactile_rig.mocks.world.load_cell import LoadCell
-
+def _mock_for(config: BoardConfig) -> ScaleMock:
     return ScaleMock(clock=None, load_cell=LoadCell(applied_force_n=config.force_n), rate_sps=config.rate_sps,
                      boot_s=config.bootloader_s, noise_counts=config.noise, drift_counts=config.drift_counts,
                      drift_tau_s=config.drift_tau_s, spike_prob=config.spike_prob,
