@@ -362,6 +362,13 @@ class SimulatedScaleBoard:
     def start(self) -> "SimulatedScaleBoard":
         if self.proc is not None:
             return self
+        try:
+            return self._start()
+        except BaseException:
+            self.stop()  # no process, FIFO or temporary folder left behind
+            raise
+
+    def _start(self) -> "SimulatedScaleBoard":
         self.build = build()
         os.mkfifo(self.control_path)
         cmd = [str(self.build.board), "--elf", str(self.build.elf), "--eeprom", str(self.eeprom_path),
@@ -403,7 +410,11 @@ class SimulatedScaleBoard:
     def _send(self, command: str) -> None:
         if self._control is None or self.proc is None or self.proc.poll() is not None:
             raise NotConnected("the simulated board is not running", device="scale firmware")
-        os.write(self._control, (command + "\n").encode("ascii"))
+        try:
+            os.write(self._control, (command + "\n").encode("ascii"))
+        except BlockingIOError:
+            raise NotConnected("the simulated board does not read its control FIFO (stalled?)",
+                               device="scale firmware") from None
 
     def set_force_n(self, force_n: float) -> None:
         """The downward force on the load cell from now on, in newtons."""
