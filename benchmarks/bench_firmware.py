@@ -1,4 +1,4 @@
-"""Benchmark: the scale's real sketch on the simulated board against the Python mock, timing side by side.
+"""Benchmark: the scale sketch on the simulated board and the Python mock, timing side by side.
 
 Wall clock, over ptys: each device in its own process (``tactile-rig mock serve scale [--firmware]``),
 read by the same plain pyserial loop: boot silence (port open -> banner), samples per second and
@@ -120,15 +120,16 @@ def simulated(rate: int) -> dict:
 
     def timeline(result: sf.ScriptResult) -> dict:
         # When each line is whole at the host (its glitch bytes aside), as the wall-clock figures are.
-        lines = [(l.t_last_s, parse_line(l.data.rstrip(b"\r\n"), l.t_last_s)) for l in result.lines]
+        lines = [(ln.t_last_s, parse_line(ln.data.rstrip(b"\r\n"), ln.t_last_s)) for ln in result.lines]
         banner = next(t for t, p in lines if p.kind == "banner")
         tare_sent = next(t for t, action, v in sorted(script.events) if action == "send" and v == b"t\n")
         tare = next(t for t, p in lines if p.kind == "tare")
         return {"boot_silence_s": banner, "tare_s": tare - tare_sent}
 
     return {"lines_firmware": len(fw.lines), "lines_mock": len(mk.lines), "differences": cmp.differences(),
-            "start_time_difference_ms": {k: {"max_abs": max(abs(x) for x in v) * 1e3, "mean": statistics.fmean(v) * 1e3}
-                                         for k, v in sorted(cmp.time_differences_s().items())},
+            "start_time_difference_ms": {
+                k: {"max_abs": max(abs(x) for x in v) * 1e3, "mean": statistics.fmean(v) * 1e3}
+                for k, v in sorted(cmp.time_differences_s().items())},
             "firmware": timeline(fw), "mock": timeline(mk), "simulated_s": script.end_s,
             "board_cpu_s": cpu_s, "board_cpu_per_simulated_s": cpu_s / script.end_s}
 
@@ -158,7 +159,8 @@ def main() -> int:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(text + "\n")
         print(f"wrote {out}", file=sys.stderr)
-    print(f"{'SPS':>4} {'who':>9} {'boot s':>7} {'samples/s':>10} {'lost':>5} {'? ms':>6} {'tare ms':>8}", file=sys.stderr)
+    header = f"{'SPS':>4} {'who':>9} {'boot s':>7} {'samples/s':>10} {'lost':>5} {'? ms':>6} {'tare ms':>8}"
+    print(header, file=sys.stderr)
     for rate, sides in results["wall_clock"].items():
         for who, m in sides.items():
             print(f"{rate:>4} {who:>9} {m['boot_silence_s']:>7.3f} {m['samples_per_s']:>10.2f} {m['lost']:>5} "

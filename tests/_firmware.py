@@ -22,7 +22,3 @@ def firmware_build() -> sf.FirmwareBuild:
         pytest.skip(problem)
     return sf.build()
 
-
-@pytest.fixture(scope="session")
-def firmware() -> sf.FirmwareBuild:
-    return firmware_build()

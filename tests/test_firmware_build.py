@@ -8,10 +8,16 @@ import shutil
 import pytest
 
 from tactile_rig.mocks import scale_firmware as sf
-from tests._firmware import firmware  # noqa: F401  (fixture)
+from tests._firmware import firmware_build
 
 UNO_FLASH_BYTES = 32_256  # 32 KiB less optiboot's 512 bytes
 UNO_RAM_BYTES = 2_048
+
+
+@pytest.fixture(scope="module")
+def firmware():
+    """The compiled sketch and board (skip, or fail under TACTILE_RIG_REQUIRE_FIRMWARE=1, without them)."""
+    return firmware_build()
 
 
 def _ihex_bytes(path) -> int:

@@ -16,7 +16,13 @@ from tactile_rig.cli import main
 from tactile_rig.drivers.scale import parse_line
 from tactile_rig.mocks import scale_firmware as sf
 from tactile_rig.testing.strategies_scale import crc8_reference
-from tests._firmware import firmware  # noqa: F401  (fixture)
+from tests._firmware import firmware_build
+
+
+@pytest.fixture(scope="module")
+def firmware():
+    """The compiled sketch and board (skip, or fail under TACTILE_RIG_REQUIRE_FIRMWARE=1, without them)."""
+    return firmware_build()
 
 
 @pytest.mark.pty
@@ -37,7 +43,7 @@ def test_serve_prints_the_port_and_the_control_fifo_moves_the_load(firmware) -> 
                 body, _, crc = line.rstrip(b"\r\n").rpartition(b"*")
                 assert line.endswith(b"\r\n") and int(crc, 16) == crc8_reference(body), line
             assert lines[0].startswith(b"B,hx711-scale,1.1.0,80,696.000*")
-            assert [l.split(b",")[:2] for l in lines[1:]] == [[b"S", b"%d" % i] for i in range(4)]
+            assert [line.split(b",")[:2] for line in lines[1:]] == [[b"S", b"%d" % i] for i in range(4)]
             with open(info["control"], "w") as control:
                 control.write(f"force_n {0.1 * 9.80665!r}\n")  # 100 g
             time.sleep(0.4)  # the smoothing window (18 conversions) refills

@@ -16,10 +16,16 @@ import pytest
 from tactile_rig.drivers import scale_protocol as sp
 from tactile_rig.drivers.scale import parse_line
 from tactile_rig.mocks.scale_firmware import BoardConfig, Script, compare, reference_session
-from tests._firmware import firmware  # noqa: F401  (fixture)
+from tests._firmware import firmware_build
 
 G = sp.STANDARD_GRAVITY_MPS2
 pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def firmware():
+    """The compiled sketch and board (skip, or fail under TACTILE_RIG_REQUIRE_FIRMWARE=1, without them)."""
+    return firmware_build()
 
 
 def _quiet(rate: int = 80, **kw) -> BoardConfig:
@@ -35,15 +41,16 @@ def test_the_reference_session_is_the_same_line_for_line(firmware, rate: int) ->
     cfg = _quiet(rate, boot_junk=2)
     c = compare(reference_session(cfg), cfg)
     assert c.differences() == []
-    kinds = _kinds(c.firmware)
+    parsed = [parse_line(line.data.rstrip(b"\r\n"), 0.0) for line in c.firmware.lines]
+    kinds = [p.kind for p in parsed]
     # What the session exercised, seen on the board's side.
     assert kinds.count("banner") == 3 and kinds.count("tare") == 1 and kinds.count("cal") == 1
-    assert kinds.count("id") == 1 and [p.code for p in map(lambda l: parse_line(l.data.rstrip(), 0.0),
-                                                            c.firmware.lines) if p.kind == "error"] == [1, 2]
-    cal = next(parse_line(l.data.rstrip(), 0.0) for l in c.firmware.lines if l.data.startswith(b"K,"))
+    assert kinds.count("id") == 1 and [p.code for p in parsed if p.kind == "error"] == [1, 2]
+    cal = next(p for p in parsed if p.kind == "cal")
     assert cal.value == pytest.approx(696.0, abs=0.01)  # the known 200 g gives the bridge's counts per gram
     # The glitch bytes of each reset, on both sides.
-    assert sum(l.data[0] >= 0x80 for l in c.firmware.lines) == sum(l.data[0] >= 0x80 for l in c.mock.lines) == 3
+    junk = [sum(line.data[0] >= 0x80 for line in r.lines) for r in (c.firmware, c.mock)]
+    assert junk == [3, 3]
     # The sketch read every conversion and kept the HX711's timing rules.
     hx = c.firmware.stats["hx711"]
     assert hx["missed"] == 0 and set(hx["violations"].values()) == {0}
@@ -66,10 +73,10 @@ def test_receive_ring_command_lines_and_calibration_refusals_agree(firmware) -> 
     s.end_s = t + 1.8
     c = compare(s, cfg)
     assert c.differences() == []
-    codes = [parse_line(l.data.rstrip(), 0.0).code for l in c.firmware.lines if l.data.startswith(b"E,")]
+    codes = [parse_line(line.data.rstrip(), 0.0).code for line in c.firmware.lines if line.data.startswith(b"E,")]
     # The 63rd byte ("?") waited in the line buffer and joined the 40 x's: an overlong line, E,1.
     assert codes == [1, 1, 2, 2, 2, 2, 2, 3, 5]
-    assert _kinds(c.firmware).count("id") == 31 and any(b",8388607*" in l.data for l in c.firmware.lines)
+    assert _kinds(c.firmware).count("id") == 31 and any(b",8388607*" in line.data for line in c.firmware.lines)
 
 
 def test_an_unplugged_hx711_agrees_at_start_up_and_mid_run(firmware) -> None:
@@ -90,8 +97,8 @@ def test_with_noise_drift_and_glitches_the_lines_agree_in_kind_number_and_framin
     s = Script().at(0.0, "open").at(2.5, "send", b"t\n").at(3.0, "force_n", 1.0)
     s.end_s = 4.0
     c = compare(s, cfg)
-    fw = [parse_line(l.data.rstrip(b"\r\n"), 0.0) for l in c.firmware.lines]
-    mk = [parse_line(l.data.rstrip(b"\r\n"), 0.0) for l in c.mock.lines]
+    fw = [parse_line(line.data.rstrip(b"\r\n"), 0.0) for line in c.firmware.lines]
+    mk = [parse_line(line.data.rstrip(b"\r\n"), 0.0) for line in c.mock.lines]
     assert [p.kind for p in fw] == [p.kind for p in mk] and "corrupt" not in {p.kind for p in fw}
     assert [p.reading.seq for p in fw if p.reading] == [p.reading.seq for p in mk if p.reading]
     last_fw = [p.reading.grams for p in fw if p.reading][-20:]
@@ -105,8 +112,8 @@ def test_a_command_flood_overflows_the_ring_alike(firmware) -> None:
     s = Script().at(0.0, "open").at(2.0, "send", b"?\n" * 100).at(2.5, "send", b"t\n")
     s.end_s = 3.0
     c = compare(s, cfg)
-    count = lambda r: collections.Counter(k for k in _kinds(r) if k != "sample")  # noqa: E731
-    assert count(c.firmware) == count(c.mock)
-    assert 31 < count(c.firmware)["id"] < 100
-    seqs = lambda r: [p.reading.seq for p in (parse_line(l.data.rstrip(), 0.0) for l in r.lines) if p.reading]  # noqa: E731
-    assert seqs(c.firmware) == seqs(c.mock)  # conversions the busy sketch skipped are skipped alike
+    answers = [collections.Counter(k for k in _kinds(r) if k != "sample") for r in (c.firmware, c.mock)]
+    assert answers[0] == answers[1] and 31 < answers[0]["id"] < 100
+    seqs = [[p.reading.seq for p in (parse_line(line.data.rstrip(), 0.0) for line in r.lines) if p.reading]
+            for r in (c.firmware, c.mock)]
+    assert seqs[0] == seqs[1]  # conversions the busy sketch skipped are skipped alike

@@ -16,12 +16,18 @@ import pytest
 from tactile_rig.drivers.scale import Scale
 from tactile_rig.errors import DeviceTimeout
 from tactile_rig.mocks.scale_firmware import BoardConfig, SimulatedScaleBoard
-from tests._firmware import firmware  # noqa: F401  (fixture)
+from tests._firmware import firmware_build
 
 pytestmark = [pytest.mark.pty, pytest.mark.slow]
 
 # The bridge: 696 counts per gram (the sketch's default factor is right for it), HX711 noise as the
 # mock's default for each rate, warm-up drift off so that grams stay put over a short test.
+
+
+@pytest.fixture(scope="module")
+def firmware():
+    """The compiled sketch and board (skip, or fail under TACTILE_RIG_REQUIRE_FIRMWARE=1, without them)."""
+    return firmware_build()
 
 
 def _board(rate: int, **kw) -> SimulatedScaleBoard:

@@ -587,7 +587,8 @@ class Comparison:
             jy, dy = _split_junk(y.data)
             tol = E4_TIME_TOLERANCE_S if dx.startswith(b"E,4,") else LINE_TIME_TOLERANCE_S
             if dx != dy or len(jx) != len(jy):
-                out.append(f"line {i}: firmware {x.data!r} at {x.t_first_s:.6f} s, mock {y.data!r} at {y.t_first_s:.6f} s")
+                out.append(f"line {i}: firmware {x.data!r} at {x.t_first_s:.6f} s, "
+                           f"mock {y.data!r} at {y.t_first_s:.6f} s")
             elif abs(x.t_first_s - y.t_first_s) > tol:
                 out.append(f"line {i} {dx[:24]!r}: firmware at {x.t_first_s:.6f} s, mock at {y.t_first_s:.6f} s "
                            f"({(y.t_first_s - x.t_first_s) * 1e3:+.3f} ms)")
