@@ -31,7 +31,7 @@ def test_mock_is_silent_for_the_bootloader_then_prints_its_banner() -> None:
         tr = SerialTransport(url, baudrate=sp.BAUD, device="scale")
         assert tr.read_some(100, 1.5) == b""  # nothing during the bootloader's 1.5 s
         line = tr.read_until(b"\n", 0.5)
-    assert line.startswith(b"B,hx711-scale,1.0.0,80,")
+    assert line.startswith(b"B,hx711-scale,1.1.0,80,")
     assert clock.now_s() >= 1.6
 
 
@@ -168,7 +168,7 @@ def test_the_stock_hx711_adc_example_is_read_too() -> None:
 
 
 def test_tare_exchanges_exactly_these_bytes() -> None:
-    banner = frame("B,hx711-scale,1.0.0,80,696.000")
+    banner = frame("B,hx711-scale,1.1.0,80,696.000")
     with expected_protocol([(None, banner), (b"t\n", frame("T,ok"))], baud=sp.BAUD) as url:
         scale = Scale(url)
         scale.tare(timeout_s=0.5)

@@ -7,11 +7,13 @@ import json
 import signal
 import sys
 import threading
+from typing import Any
 
 from tactile_rig.cli.common import print_json
 from tactile_rig.core.clock import RealClock
 from tactile_rig.mocks.pty_server import PtyServer
 from tactile_rig.mocks.registry import Params, create_device, kinds
+from tactile_rig.mocks.scale_firmware import BoardConfig, SimulatedScaleBoard, build
 from tactile_rig.sim.scenes import load_scene
 
 
@@ -35,6 +37,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     serve.add_argument("--seed", type=int, help="seed of the scene's noise")
     serve.add_argument("--rate", help="scale samples per second (10 or 80)")
     serve.add_argument("--no-timing", action="store_true", help="answer instantly instead of at wire speed")
+    serve.add_argument(
+        "--firmware",
+        action="store_true",
+        help="scale only: run the real sketch (firmware/arduino_scale) compiled for the ATmega328P on a "
+        "simulated Uno + HX711 instead of the Python mock; the JSON line names the control FIFO that "
+        "takes 'force_n <newtons>' lines (needs: " + "apt-get install gcc-avr avr-libc arduino-core-avr "
+        "simavr libsimavr-dev libelf-dev)",
+    )
     serve.add_argument(
         "--param", action="append", default=[], metavar="KEY=VALUE", help="any other device parameter"
     )
@@ -78,6 +88,8 @@ def serve_params(args: argparse.Namespace) -> dict[str, str]:
 
 
 def _serve(args: argparse.Namespace) -> int:
+    if args.firmware:
+        return _serve_firmware(args)
     clock = RealClock()
     world = None
     if args.scene:
@@ -101,4 +113,75 @@ def _serve(args: argparse.Namespace) -> int:
             if server.error is not None:
                 print(f"tactile-rig: mock {args.device} failed: {server.error}", file=sys.stderr)
                 return 1
+    return 0
+
+
+# Parameters of the simulated board, by the names the Python mock takes (``--param KEY=VALUE``).
+_FIRMWARE_PARAMS = {
+    "force_n": ("force_n", float), "counts_per_g": ("counts_per_g", float),
+    "offset_counts": ("offset_counts", float), "noise_counts": ("noise_counts", float),
+    "drift_counts": ("drift_counts", float), "drift_tau_s": ("drift_tau_s", float),
+    "spike_prob": ("spike_prob", float), "boot_s": ("bootloader_s", float), "boot_junk": ("boot_junk", int),
+}
+
+
+def firmware_config(args: argparse.Namespace) -> tuple[Any, str | None]:
+    """The board's :class:`~tactile_rig.mocks.scale_firmware.BoardConfig` and EEPROM file from the CLI."""
+
+    if args.device != "scale":
+        raise ValueError(f"--firmware runs the scale's sketch; {args.device!r} has no firmware here (use 'scale')")
+    if args.scene:
+        raise ValueError("--firmware: a scene cannot drive the simulated board; set the load through its "
+                         "control FIFO ('force_n <newtons>' lines) or --param force_n=...")
+    for flag, name in ((args.protocol, "--protocol"), (args.ids, "--id"), (args.no_timing, "--no-timing")):
+        if flag:
+            raise ValueError(f"--firmware: {name} does not apply to the simulated board")
+    if args.baud and args.baud != 57600:
+        raise ValueError(f"--firmware: --baud {args.baud}: the sketch talks at 57600 baud")
+    kw: dict[str, Any] = {}
+    eeprom = None
+    if args.rate:
+        try:
+            kw["rate_sps"] = int(args.rate)
+        except ValueError:
+            raise ValueError(f"--rate {args.rate!r}: expected 10 or 80 samples per second") from None
+    if args.seed is not None:
+        kw["seed"] = args.seed
+    for item in args.param:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--param {item!r} must look like KEY=VALUE")
+        if key == "eeprom":
+            eeprom = value
+            continue
+        if key not in _FIRMWARE_PARAMS:
+            known = ", ".join(sorted([*_FIRMWARE_PARAMS, "eeprom"]))
+            raise ValueError(f"--firmware: unknown parameter {key!r}; known: {known}")
+        field, cast = _FIRMWARE_PARAMS[key]
+        try:
+            kw[field] = cast(value)
+        except ValueError:
+            raise ValueError(f"--param {key}={value!r} is not a{'n integer' if cast is int else ' number'}") from None
+    return BoardConfig(**kw), eeprom
+
+
+def _serve_firmware(args: argparse.Namespace) -> int:
+
+    config, eeprom = firmware_config(args)
+    build()  # a missing toolchain or a build error is reported before anything is served
+    stop = threading.Event()
+
+    def _on_signal(signum: int, frame: object) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, _on_signal)
+    signal.signal(signal.SIGTERM, _on_signal)
+    with SimulatedScaleBoard(config, eeprom_path=eeprom) as board:
+        info = {"device": "scale", "port": board.port, "baud": 57600, "timing": True, **board.describe()}
+        sys.stdout.write(json.dumps(info) + "\n")
+        sys.stdout.flush()
+        while not stop.wait(0.2):
+            if board.proc is None or board.proc.poll() is not None:
+                print(f"tactile-rig: the simulated scale board stopped: {board.exit_reason()}", file=sys.stderr)
+                return 3
     return 0

@@ -5,10 +5,11 @@ each ``<body>*<CC>\\r\\n`` where ``CC`` is the CRC-8 (polynomial 0x07, init 0, t
 digits) of the ASCII body::
 
     B,hx711-scale,<fw>,<sps>,<cal_factor>*CC     boot banner (also the answer to ``?``, tagged I)
-    S,<seq>,<grams>,<raw>*CC                     one sample: seq mod 65536, grams (3 dp), smoothed raw counts
+    S,<seq>,<grams>,<raw>*CC                     one sample: seq mod 65536, grams (3 dp), smoothed raw
+                                                 counts, absolute (the sketch's tare not subtracted)
     T,ok*CC                                      tare done (answer to ``t``)
     K,<cal_factor>*CC                            calibration done and stored in EEPROM (``c,<grams>``)
-    E,<code>,<text>*CC                           a command failed
+    E,<code>,<text>*CC                           a command failed (or E,4: the HX711 is silent)
 
 The stock HX711_ADC example ``Read_1x_load_cell.ino`` prints ``Load_cell output val: 123.45``
 (Serial.println of a float: two decimals) after ``Starting...`` / ``Startup is complete``, and
@@ -20,7 +21,7 @@ from __future__ import annotations
 
 BAUD = 57600
 FIRMWARE_NAME = "hx711-scale"
-FIRMWARE_VERSION = "1.0.0"
+FIRMWARE_VERSION = "1.1.0"  # firmware/arduino_scale/arduino_scale.ino
 SEQ_MODULO = 65536
 CRC8_POLY = 0x07
 RAW_MIN = -(1 << 23)  # HX711 two's complement, 24 bits: saturates at 0x800000 / 0x7FFFFF
@@ -47,6 +48,7 @@ ERRORS = {
     2: "known mass must be a positive number of grams",
     3: "load too small to calibrate (check the mass is on the scale)",
     4: "HX711 not responding (check wiring)",
+    5: "calibration factor out of range (check the known mass)",
 }
 
 # Stock HX711_ADC Read_1x_load_cell example output.

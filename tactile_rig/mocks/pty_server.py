@@ -21,9 +21,9 @@ from __future__ import annotations
 
 import errno
 import logging
-import random
 import os
 import pty
+import random
 import select
 import termios
 import threading

@@ -1,19 +1,36 @@
 """The Arduino HX711 scale, emulated: ``firmware/arduino_scale`` (or the stock HX711_ADC example).
 
-What the host sees, and why:
+This is the compiled sketch's behaviour retold in Python, held against the real thing: the
+differential test (``tests/test_firmware_differential.py``) plays the same sessions against this
+mock and against the sketch compiled for the ATmega328P running on the simulated board
+(``firmware/sim``), and requires the same lines, byte for byte. What the host sees, and why:
 
-* Opening the port (or a DTR edge) resets the Arduino: it is silent for the bootloader time
-  (``boot_s``, ~1.6 s on an Uno), may glitch a byte or two, then prints its banner.
-* The HX711 converts at 10 or 80 samples/s (its RATE pin). Each conversion is the load on the
-  cell (from the world's ``load_cell`` model) times the bridge sensitivity, plus the zero offset,
-  white noise, a warm-up drift that settles over minutes (strain gauges and the HX711 warm up),
-  rare spikes (the glitches users report as sign flips), clamped to 24 bits.
-* The sketch smooths like HX711_ADC (16 samples plus one high and one low ignored), prints one
-  framed line per conversion (grams and the smoothed raw counts), answers ``t`` (tare, done after the smoothing window refills),
-  ``c,<grams>`` (calibration, factor kept in "EEPROM" across resets) and ``?`` (ID line).
+* Opening the port (or a DTR edge) resets the Arduino: the bootloader keeps it silent for
+  ``boot_s`` (1.53 s: the Uno's optiboot), a glitch byte or two may arrive (``boot_junk``), bytes
+  the host sends meanwhile are lost. Then the sketch resets the HX711, whose first conversion comes
+  4 periods later; it discards 2 conversions, fills its smoothing window with 18 for the start-up
+  tare and prints its banner: 0.29 s of start-up at 80 samples/s, 2.3 s at 10.
+* The HX711 (:mod:`tactile_rig.mocks.hx711`) converts at 10 or 80 samples/s what the world's
+  ``load_cell`` model presses on it: offset + counts per gram x grams + warm-up drift, through its
+  sinc4 filter, plus noise and rare glitches, clamped to 24 bits.
+* One framed line per conversion: smoothed like HX711_ADC (16 samples after dropping the highest
+  and the lowest), grams and the smoothed ABSOLUTE raw counts, in the sketch's integer arithmetic
+  (milligrams and milli-counts per gram, rounded half away from zero). ``t`` tares and ``c,<g>``
+  calibrates once the window has refilled (a repeat restarts the wait and is answered once); the
+  factor is kept in "EEPROM" across resets; ``?`` answers at once; anything else is ``E,1``.
+* Host bytes wait in the Arduino core's 64-byte receive ring (63 usable) while the sketch is busy
+  (its start-up, or a Serial.write that blocks on a full transmit ring); what does not fit is lost.
+  Lines longer than 32 bytes, or with a NUL, are answered ``E,1``. Bytes reach the sketch at the
+  host's baud; the sketch's UART runs at 58824 baud for "57600" (the Arduino core's exception for
+  57600 at 16 MHz: UBRR 16 without U2X, +2.1 %, within what a UART tolerates).
+* Each answer starts as long after its cause as the compiled sketch takes to compute and format it
+  (measured on the simulated board, cycle-exact): a sample 0.9-1.2 ms after its conversion (more
+  digits, more time), ``E,1`` 0.13 ms after the newline, ``I`` 0.41 ms after it, and so on.
+* An unplugged HX711 (``inject("hx711_disconnect")``) is reported as ``E,4`` once a second.
 
-``firmware=stock`` emulates the unmodified ``Read_1x_load_cell`` example instead.
-Faults: :meth:`ScaleMock.inject` ``hang`` (the sketch stops printing) and ``reset`` (reboot now).
+``firmware=stock`` emulates the unmodified ``Read_1x_load_cell`` example instead (not compiled here:
+it needs the HX711_ADC library). Faults: :meth:`ScaleMock.inject` ``hang`` (the sketch stops),
+``reset`` (reboot now), ``hx711_disconnect`` and ``hx711_connect``.
 """
 
 from __future__ import annotations
@@ -26,9 +43,47 @@ import numpy as np
 
 from tactile_rig.core.clock import Clock
 from tactile_rig.devices import scale as sp
+from tactile_rig.mocks.hx711 import Hx711
 from tactile_rig.mocks.registry import Params, register_kind
-from tactile_rig.mocks.serial_device import SerialDevice
+from tactile_rig.mocks.serial_device import BITS_PER_BYTE, SerialDevice
 from tactile_rig.sim.world.load_cell import LoadCell
+
+BOOTLOADER_S = 1.529  # the Uno's optiboot after an external reset (see firmware/sim/scale_board.c)
+WINDOW = sp.SMOOTHING_SAMPLES + 2  # the sketch's smoothing window: 16 averaged + highest + lowest
+SETTLE_CONVERSIONS = 2  # discarded after the sketch resets the HX711
+RX_RING_BYTES = 63  # HardwareSerial's 64-byte receive ring holds 63
+TX_IN_FLIGHT_BYTES = 65  # 63 in the transmit ring + UDR + the shift register; more and write() blocks
+LINE_MAX = 32  # longest command line the sketch accepts
+HX711_TIMEOUT_S = 1.0  # no conversion for this long: E,4
+UART_BAUD_ACTUAL = 16_000_000 / (16 * (16 + 1))  # 58824: the core's UBRR0 = 16 without U2X for 57600 (+2.1 %)
+DEFAULT_CAL_MILLI = round(sp.DEFAULT_CAL_FACTOR * 1000)
+CAL_MILLI_MIN = 100  # 0.1 counts per gram
+CAL_MILLI_MAX = 100_000_000  # 100000 counts per gram
+MIN_CAL_COUNTS = 100  # a calibration mass must move the reading at least this much
+MASS_G_MAX = 1_000_000
+
+# From an event to the first byte of the sketch's answer starting on the wire, measured on the
+# compiled sketch on the simulated board (cycle-exact at 16 MHz).
+T_HX_RESET_S = 366e-6  # sketch start -> the HX711 leaves reset (C runtime, Serial.begin, EEPROM, pins)
+T_BANNER_S = 913e-6  # last start-up conversion -> B line
+T_TARE_S = 574e-6  # conversion ready -> T,ok
+T_CAL_S = 989e-6  # conversion ready -> K
+T_CAL_ERROR_S = 899e-6  # conversion ready -> E,3 / E,5
+T_ID_S = 407e-6  # newline received -> I line
+T_ERROR_S = 133e-6  # newline received -> E,1
+T_MASS_ERROR_S = 294e-6  # newline received -> E,2
+T_E4_S = 0.0  # HX711 time-out -> E,4 (millis() granularity: +-1 ms on the board)
+T_RESET_HX_AGAIN_S = 240e-6  # E,4 at start-up -> the next HX711 reset
+# Conversion ready -> S line: shifting 25 bits, smoothing and 64-bit maths take 0.5 ms, each printed
+# digit some 30-50 us more (least squares over 718 lines, residual under 35 us).
+_T_SAMPLE_FIT_S = (497.7e-6, 30.2e-6, 50.2e-6, 27.1e-6, -42.5e-6, -37.1e-6)
+
+
+def sample_latency_s(seq: str, grams: str, raw: str) -> float:
+    """Conversion ready -> the S line's first byte on the wire, for the fields it prints."""
+    c = _T_SAMPLE_FIT_S
+    return (c[0] + c[1] * len(seq) + c[2] * len(grams) + c[3] * len(raw)
+            + c[4] * grams.startswith("-") + c[5] * raw.startswith("-"))
 
 
 def _crc8(body: bytes) -> int:
@@ -47,6 +102,38 @@ def frame(body: str) -> bytes:
     return raw + b"*%02X\r\n" % _crc8(raw)
 
 
+def div_round(n: int, d: int) -> int:
+    """``n / d`` rounded half away from zero, the sketch's integer rounding (``d != 0``)."""
+    if d < 0:
+        n, d = -n, -d
+    return (n + d // 2) // d if n >= 0 else -((-n + d // 2) // d)
+
+
+def milli_str(v: int) -> str:
+    """A value in thousandths with 3 decimals, as the sketch's ``putMilli`` prints it."""
+    sign = "-" if v < 0 else ""
+    a = abs(v)
+    return f"{sign}{a // 1000}.{a % 1000:03d}"
+
+
+def parse_mass_mg(text: str) -> int | None:
+    """The sketch's ``c,<g>`` grammar: ``<1-7 digits>[.<1-3 digits>]``, 0 < g <= 1e6; milligrams or None."""
+    whole, dot, frac = text.partition(".")
+    if not (1 <= len(whole) <= 7 and whole.isascii() and whole.isdigit()):
+        return None
+    if dot and not (1 <= len(frac) <= 3 and frac.isascii() and frac.isdigit()):
+        return None
+    if int(whole) > MASS_G_MAX:
+        return None
+    mg = int(whole) * 1000 + (int(frac.ljust(3, "0")) if dot else 0)
+    return mg if 0 < mg <= MASS_G_MAX * 1000 else None
+
+
+def smoothed_counts(window: list[int]) -> int:
+    """Mean of the window without its highest and lowest value, rounded like the sketch."""
+    return div_round(sum(window) - min(window) - max(window), len(window) - 2)
+
+
 class ScaleMock(SerialDevice):
     """The scale's Arduino on a serial line (see the module docstring)."""
 
@@ -58,7 +145,7 @@ class ScaleMock(SerialDevice):
         clock: Clock | None = None,
         load_cell: LoadCell | None = None,
         rate_sps: int = 80,
-        boot_s: float = 1.6,
+        boot_s: float = BOOTLOADER_S,
         baud: int = sp.BAUD,
         firmware: str = "tactile",
         timing: bool = True,
@@ -81,6 +168,12 @@ class ScaleMock(SerialDevice):
             raise ValueError(f"scale boot_s={boot_s!r} must be within [0, 30] s")
         if not (0.0 <= spike_prob <= 1.0):
             raise ValueError(f"scale spike_prob={spike_prob!r} must be a probability in [0, 1]")
+        if not (drift_tau_s > 0.0 and math.isfinite(drift_tau_s)):
+            raise ValueError(f"scale drift_tau_s={drift_tau_s!r} must be a positive number of seconds")
+        for name, v in (("counts_per_g", counts_per_g), ("offset_counts", offset_counts),
+                        ("drift_counts", drift_counts)):
+            if not math.isfinite(v):
+                raise ValueError(f"scale {name}={v!r} must be a finite number")
         self.clock = clock
         self.load_cell = load_cell if load_cell is not None else LoadCell()
         self.rate_sps = int(rate_sps)
@@ -98,31 +191,69 @@ class ScaleMock(SerialDevice):
         self.stock_settle_s = float(stock_settle_s)
         self.rng = np.random.default_rng(seed)
         self.power_on_s = clock.now_s() if clock is not None else 0.0
-        self.eeprom_cal_factor = sp.DEFAULT_CAL_FACTOR  # survives resets, like the AVR's EEPROM
+        self.hx711 = Hx711(self.rate_sps, self._input_counts, noise_counts=self.noise_counts,
+                           spike_prob=self.spike_prob, rng=self.rng)
+        self.hx711.reset(self.power_on_s)
+        self.eeprom_cal_milli = DEFAULT_CAL_MILLI  # survives resets, like the AVR's EEPROM
         self.faults: list[tuple[float, str]] = []
         self.samples_sent = 0
+        self.rx_dropped = 0  # host bytes lost: sent during the bootloader, or past the full ring
         self._dtr = True
-        self._running = False  # False while powered down / port closed
+        self._running = False  # False while the port is closed (the next open resets anyway)
+        self._inbox: deque[tuple[float, int]] = deque()  # host bytes in flight: (arrival time, byte)
         self._reset_state(None)
+
+    # -- the bridge -------------------------------------------------------------------------
+    def _input_counts(self, t_s: float) -> float:
+        self.load_cell.advance_to(t_s)
+        grams = self.load_cell.force_n / sp.STANDARD_GRAVITY_MPS2 * 1000.0 + self.load_cell.tare_mass_g
+        counts = self.offset_counts + self.counts_per_g * grams
+        if self.drift_counts:
+            counts += self.drift_counts * (1.0 - math.exp(-max(0.0, t_s - self.power_on_s) / self.drift_tau_s))
+        return counts
+
+    @property
+    def eeprom_cal_factor(self) -> float:
+        """The calibration factor in the emulated EEPROM, counts per gram."""
+        return self.eeprom_cal_milli / 1000.0
+
+    def byte_time_s(self) -> float:
+        # The AVR's UART at UBRR 16 without U2X: 58824 baud when 57600 is asked for.
+        scale = sp.BAUD / UART_BAUD_ACTUAL if self.baud == sp.BAUD else 1.0
+        return BITS_PER_BYTE / self.baud * scale
+
+    def _lat(self, seconds: float) -> float:
+        return seconds if self.timing else 0.0
 
     # -- firmware state ----------------------------------------------------------------------
     def _reset_state(self, t_s: float | None) -> None:
-        self._boot_at_s = None if t_s is None else t_s + self.boot_s
-        self._booted = False
+        self._boot_end_s = math.inf if t_s is None else t_s + self.boot_s
+        self._phase = "off" if t_s is None else "boot"  # boot, setup, run, hung
         self._hung = False
-        self._next_sample_s = math.inf
+        self._busy_until_s = -math.inf  # the sketch's loop is blocked (computing, or on a full TX ring)
+        self._ring: deque[tuple[float, int]] = deque()  # HardwareSerial's receive ring: (arrival, byte)
+        self._line = bytearray()
+        self._line_bad = False
         self._seq = 0
-        self._window: deque[float] = deque(maxlen=sp.SMOOTHING_SAMPLES + 2)
-        self._tare_counts = 0.0
-        self._cal_factor = self.eeprom_cal_factor
-        self._rx = bytearray()
-        self._pending: list[tuple[str, int, Any]] = []  # (command, samples left, argument)
+        self._window: list[int] = []
+        self._win_pos = 0
+        self._smoothed = 0
+        self._tare_counts = 0
+        self._cal_milli = self.eeprom_cal_milli
+        self._tare_left = 0
+        self._cal_left = 0
+        self._cal_mass_mg = 0
+        self._settle_left = SETTLE_CONVERSIONS
+        self._pending: tuple[float, int] | None = None  # a conversion ready but not yet read
+        self._last_conv_s = -math.inf  # the sketch's lastConversionMs (E,4 time-out)
+        self._wait_since_s = -math.inf  # start-up: waiting for the HX711 since
         self._stock_ready_s = math.inf
 
     def reset(self, t_s: float) -> None:
         """The MCU resets at ``t_s`` (DTR edge, port open, watchdog): RAM state is lost."""
         self._reset_state(t_s)
         self._running = True
+        self._inbox.clear()  # bytes on the wire at the reset are lost
         if self.boot_junk:
             # A byte or two of line noise while the USB-serial chip and bootloader start.
             self.emit(bytes(self.rng.integers(0x80, 0x100, size=2, dtype=np.uint8)), t_s, reply=False)
@@ -134,6 +265,7 @@ class ScaleMock(SerialDevice):
     def on_close(self, t_s: float) -> None:
         # The sketch keeps running with nobody listening; on the next open it resets anyway.
         self._running = False
+        self._inbox.clear()
 
     def on_dtr(self, state: bool, t_s: float) -> None:
         if state and not self._dtr:  # the auto-reset capacitor turns a DTR assertion into a pulse
@@ -141,141 +273,286 @@ class ScaleMock(SerialDevice):
         self._dtr = bool(state)
 
     def inject(self, fault: str, t_s: float | None = None) -> None:
-        """``hang``: the sketch stops printing; ``reset``: the MCU reboots now."""
+        """``hang``: the sketch stops; ``reset``: the MCU reboots now; ``hx711_disconnect`` /
+        ``hx711_connect``: the HX711 is unplugged / plugged in again."""
         t = self.clock.now_s() if t_s is None and self.clock is not None else (t_s or 0.0)
+        known = ("hang", "reset", "hx711_disconnect", "hx711_connect")
+        if fault not in known:
+            raise ValueError(f"scale mock: unknown fault {fault!r}; known: {', '.join(known)}")
         self.advance_to(t)
         self.faults.append((t, fault))
         if fault == "hang":
             self._hung = True
         elif fault == "reset":
             self.reset(t)
+        elif fault == "hx711_disconnect":
+            self.hx711.disconnect()
+            self._pending = None
         else:
-            raise ValueError(f"scale mock: unknown fault {fault!r}; known: hang, reset")
+            self.hx711.connect(t)
 
     # -- time --------------------------------------------------------------------------------
     def next_event_s(self) -> float | None:
         if not self._running or self._hung:
             return None
-        if not self._booted:
-            return self._boot_at_s
-        return self._next_sample_s
+        return self._next_sketch_event_s()
 
     def on_tick(self, t_s: float) -> None:
-        if not self._running or self._hung:
+        if self._running:
+            self._run_until(t_s)
+
+    def feed(self, data: bytes, t_s: float) -> None:
+        """The host wrote ``data`` at ``t_s``: each byte reaches the sketch after its own wire time."""
+        if not data:
             return
-        if not self._booted:
-            if self._boot_at_s is None or t_s < self._boot_at_s:
+        with self._lock:
+            rate = self.client_baud or self.baud
+            if self.client_baud is not None and self.client_baud != self.baud:
+                data = self._garble(data, self.client_baud, self.baud)
+            start = max(t_s, self._rx_free_s)
+            per = BITS_PER_BYTE / rate if self.timing else 0.0
+            # The AVR's receiver flags a byte one of its own frames after the start bit.
+            own = self.byte_time_s() if self.timing else 0.0
+            for i, b in enumerate(data):
+                self._inbox.append((start + i * per + own, b))
+            self._rx_free_s = start + len(data) * per
+            # Process up to the last byte's arrival now, so an immediate answer is already scheduled.
+            self.advance_to(self._inbox[-1][0])
+
+    def on_bytes(self, data: bytes, t_s: float) -> None:
+        """Bytes that have fully arrived at ``t_s`` (the per-byte path is :meth:`feed`)."""
+        for b in data:
+            self._inbox.append((t_s, b))
+        self._run_until(t_s)
+
+    # -- the sketch, event by event --------------------------------------------------------------
+    def _sketch_free(self, t_s: float) -> bool:
+        return t_s >= self._busy_until_s
+
+    def _next_sketch_event_s(self) -> float | None:
+        cands: list[float] = []
+        if self._inbox:
+            cands.append(self._inbox[0][0])
+        if self._phase == "boot":
+            cands.append(self._boot_end_s)
+            return min(cands)
+        if self._hung or self._phase == "off":
+            return min(cands) if cands else None
+        nd = self.hx711.next_data_s()
+        if nd is not None:
+            cands.append(nd)
+        if self._phase == "run" and self.firmware == "tactile":
+            if self._ring:
+                cands.append(max(self._busy_until_s, self._ring[0][0]))
+            if self._pending is not None:
+                cands.append(max(self._busy_until_s, self._pending[0]))
+            cands.append(max(self._last_conv_s + HX711_TIMEOUT_S, self._busy_until_s))
+        elif self._phase == "setup" and self.firmware == "tactile":
+            cands.append(self._wait_since_s + HX711_TIMEOUT_S)
+        elif self._phase == "run" and self._ring:
+            cands.append(max(self._busy_until_s, self._ring[0][0]))
+        return min(cands) if cands else None
+
+    def _run_until(self, t_s: float) -> None:
+        for _ in range(10_000_000):
+            nxt = self._next_sketch_event_s()
+            if nxt is None or nxt > t_s:
                 return
-            self._boot(self._boot_at_s)
-        while self._next_sample_s <= t_s and not self._hung:
-            ts = self._next_sample_s
-            self._next_sample_s = ts + self.period_s
-            self._sample(ts)
+            self._step(nxt)
+        raise RuntimeError("scale mock: event loop did not converge")  # a bug, never a device state
 
-    def _boot(self, t_s: float) -> None:
-        self._booted = True
-        # Fill the smoothing window and tare at start-up, as HX711_ADC's start(…, tare=true) does.
-        for _ in range(self._window.maxlen or 0):
-            self._window.append(self._convert(t_s, spikes=False))
-        self._tare_counts = self._smoothed()
-        if self.firmware == "tactile":
-            self.emit(frame(f"{sp.TAG_BANNER},{sp.FIRMWARE_NAME},{sp.FIRMWARE_VERSION},{self.rate_sps},"
-                            f"{self._cal_factor:.3f}"), t_s, reply=False)
-            self._next_sample_s = t_s + self.period_s
-        else:
-            self.emit(b"\r\n" + sp.STOCK_STARTING.encode() + b"\r\n", t_s, reply=False)
-            done = t_s + self.stock_settle_s
-            self.emit(sp.STOCK_STARTUP_DONE.encode() + b"\r\n", done, reply=False)
-            self._next_sample_s = done + self.period_s
+    def _step(self, t: float) -> None:
+        # Host bytes that have arrived by t (a hung sketch's ring fills up too).
+        if self._inbox and self._inbox[0][0] <= t:
+            tb, b = self._inbox.popleft()
+            if self._phase in ("off", "boot"):
+                self.rx_dropped += 1  # the bootloader's UART is not the sketch's: the byte is gone
+            elif len(self._ring) < RX_RING_BYTES:
+                self._ring.append((tb, b))
+            else:
+                self.rx_dropped += 1
+            return
+        if self._hung:
+            return
+        if self._phase == "boot":
+            if t >= self._boot_end_s:
+                self._start_sketch(self._boot_end_s)
+            return
+        # The HX711 presents what it converted by t.
+        for tc, value in self.hx711.convert_until(t):
+            self._pending = (tc, value)  # an unread older one is overwritten
+        if self.firmware == "stock":
+            self._step_stock(t)
+            return
+        if self._phase == "setup":
+            if self._pending is not None:
+                tc, value = self._pending
+                self._pending = None
+                self._setup_conversion(tc, value)
+            elif t >= self._wait_since_s + HX711_TIMEOUT_S:
+                self._emit(frame(f"{sp.TAG_ERROR},4,{sp.ERRORS[4]}"), t + self._lat(T_E4_S))
+                self._sketch_reset_hx711(t + self._lat(T_E4_S + T_RESET_HX_AGAIN_S))
+            return
+        # run: the loop reads commands first, then a waiting conversion, else checks the time-out.
+        if not self._sketch_free(t):
+            return
+        if self._ring:
+            self._read_byte(t, self._ring.popleft()[1])
+        elif self._pending is not None:
+            tc, value = self._pending
+            self._pending = None
+            self._conversion(max(tc, t), value)
+        elif t >= self._last_conv_s + HX711_TIMEOUT_S:
+            self._emit(frame(f"{sp.TAG_ERROR},4,{sp.ERRORS[4]}"), t + self._lat(T_E4_S))
+            self._last_conv_s = t
 
-    # -- the HX711 -----------------------------------------------------------------------------
-    def _convert(self, t_s: float, *, spikes: bool = True) -> float:
-        self.load_cell.advance_to(t_s)
-        grams = self.load_cell.force_n / sp.STANDARD_GRAVITY_MPS2 * 1000.0 + self.load_cell.tare_mass_g
-        warm = self.drift_counts * (1.0 - math.exp(-max(0.0, t_s - self.power_on_s) / self.drift_tau_s))
-        raw = self.offset_counts + self.counts_per_g * grams + warm + self.rng.normal(0.0, self.noise_counts)
-        if spikes and self.spike_prob and self.rng.random() < self.spike_prob:
-            # A glitched read: a flipped high bit, the "sign flip" users report.
-            raw = float(int(raw) ^ (1 << int(self.rng.integers(17, 23))))
-        return float(min(max(round(raw), sp.RAW_MIN), sp.RAW_MAX))
+    def _emit(self, data: bytes, t_write: float, *, reply: bool = False) -> None:
+        """Serial.write at ``t_write``: the sketch is blocked until the TX ring has room for it all."""
+        if self._hung:
+            return
+        ready = self.emit(data, t_write, reply=reply)
+        done = ready - TX_IN_FLIGHT_BYTES * self.byte_time_s() if self.timing else t_write
+        self._busy_until_s = max(self._busy_until_s, t_write, done)
 
-    def _smoothed(self) -> float:
-        data = sorted(self._window)
-        if len(data) > 2:
-            data = data[1:-1]  # IGN_HIGH_SAMPLE / IGN_LOW_SAMPLE
-        return float(sum(data) / len(data)) if data else 0.0
+    # -- start-up ---------------------------------------------------------------------------------
+    def _start_sketch(self, t: float) -> None:
+        self._phase = "setup"
+        if self.firmware == "stock":
+            self.emit(b"\r\n" + sp.STOCK_STARTING.encode() + b"\r\n", t, reply=False)
+            self._stock_ready_s = t + self.stock_settle_s
+        self._sketch_reset_hx711(t + T_HX_RESET_S)
 
-    def _sample(self, t_s: float) -> None:
-        raw = self._convert(t_s)
-        self._window.append(raw)
-        smoothed = self._smoothed()
-        self._run_pending(t_s, smoothed)
-        grams = (smoothed - self._tare_counts) / self._cal_factor
-        if self.firmware == "tactile":
-            # The sketch prints HX711_ADC's smoothed counts (tare offset included), as the library
-            # exposes no single conversion; lone spikes are mostly dropped by its high/low rejection.
-            self.emit(frame(f"{sp.TAG_SAMPLE},{self._seq},{grams:.3f},{int(round(smoothed))}"), t_s, reply=False)
-            self._seq = (self._seq + 1) % sp.SEQ_MODULO
-        else:
-            self.emit(f"{sp.STOCK_DATA_PREFIX}{grams:.2f}\r\n".encode(), t_s, reply=False)
+    def _sketch_reset_hx711(self, t: float) -> None:
+        # SCK high 100 us (> 60 us: power-down) then low: the HX711 restarts on channel A, gain 128.
+        self._pending = None
+        self._settle_left = SETTLE_CONVERSIONS
+        self._window = []
+        self._wait_since_s = t
+        if self.hx711.connected:
+            self.hx711.reset(t)
+
+    def _setup_conversion(self, tc: float, value: int) -> None:
+        self._wait_since_s = tc
+        if self._settle_left:
+            self._settle_left -= 1
+            return
+        self._window.append(value)
+        if len(self._window) < WINDOW:
+            return
+        self._win_pos = 0
+        self._smoothed = smoothed_counts(self._window)
+        self._tare_counts = self._smoothed
+        self._last_conv_s = tc
+        self._phase = "run"
+        self._seq = 0
+        self._busy_until_s = tc
+        self._emit(frame(self._id_body(sp.TAG_BANNER)), tc + self._lat(T_BANNER_S))
+
+    def _id_body(self, tag: str) -> str:
+        return f"{tag},{sp.FIRMWARE_NAME},{sp.FIRMWARE_VERSION},{self.rate_sps},{milli_str(self._cal_milli)}"
+
+    # -- one conversion ---------------------------------------------------------------------------
+    def _conversion(self, t: float, value: int) -> None:
+        self._last_conv_s = t
+        self._window[self._win_pos] = value
+        self._win_pos = (self._win_pos + 1) % WINDOW
+        self._smoothed = smoothed_counts(self._window)
+        if self._tare_left:
+            self._tare_left -= 1
+            if self._tare_left == 0:
+                self._tare_counts = self._smoothed
+                self._emit(frame(f"{sp.TAG_TARE},ok"), t + self._lat(T_TARE_S))
+        if self._cal_left:
+            self._cal_left -= 1
+            if self._cal_left == 0:
+                self._finish_calibration(t)
+        grams = milli_str(div_round((self._smoothed - self._tare_counts) * 1_000_000, self._cal_milli))
+        seq, raw = str(self._seq), str(self._smoothed)
+        self._emit(frame(f"{sp.TAG_SAMPLE},{seq},{grams},{raw}"), t + self._lat(sample_latency_s(seq, grams, raw)))
+        self._seq = (self._seq + 1) % sp.SEQ_MODULO
         self.samples_sent += 1
 
-    def _run_pending(self, t_s: float, smoothed: float) -> None:
-        still: list[tuple[str, int, Any]] = []
-        for cmd, left, arg in self._pending:
-            if left > 1:
-                still.append((cmd, left - 1, arg))
-                continue
-            if cmd == "tare":
-                self._tare_counts = smoothed
-                self.emit(frame(f"{sp.TAG_TARE},ok") if self.firmware == "tactile"
-                          else sp.STOCK_TARE_DONE.encode() + b"\r\n", t_s, reply=False)
-            elif cmd == "cal":
-                delta = smoothed - self._tare_counts
-                if abs(delta) < 100.0:
-                    self.emit(frame(f"{sp.TAG_ERROR},3,{sp.ERRORS[3]}"), t_s, reply=False)
-                else:
-                    self._cal_factor = delta / float(arg)
-                    self.eeprom_cal_factor = self._cal_factor
-                    self.emit(frame(f"{sp.TAG_CAL},{self._cal_factor:.3f}"), t_s, reply=False)
-        self._pending = still
+    def _finish_calibration(self, t: float) -> None:
+        delta = self._smoothed - self._tare_counts
+        refused = t + self._lat(T_CAL_ERROR_S)
+        if abs(delta) < MIN_CAL_COUNTS:
+            self._emit(frame(f"{sp.TAG_ERROR},3,{sp.ERRORS[3]}"), refused)
+            return
+        f = div_round(delta * 1_000_000, self._cal_mass_mg)
+        if not (CAL_MILLI_MIN <= abs(f) <= CAL_MILLI_MAX):
+            self._emit(frame(f"{sp.TAG_ERROR},5,{sp.ERRORS[5]}"), refused)
+            return
+        self._cal_milli = f
+        self.eeprom_cal_milli = f
+        self._emit(frame(f"{sp.TAG_CAL},{milli_str(f)}"), t + self._lat(T_CAL_S))
 
-    # -- commands ------------------------------------------------------------------------------
-    def on_bytes(self, data: bytes, t_s: float) -> None:
-        if not self._running or not self._booted or self._hung:
-            return  # the bootloader (or a hung sketch) eats what the host sends
-        self._rx += data
-        while True:
-            idx = self._rx.find(b"\n")
-            if idx < 0:
-                if len(self._rx) > 64:  # the sketch's line buffer
-                    self._rx.clear()
-                return
-            line = bytes(self._rx[:idx]).strip().decode("ascii", "replace")
-            del self._rx[: idx + 1]
-            if line:
-                self._command(line, t_s)
-
-    def _command(self, line: str, t_s: float) -> None:
-        window = self._window.maxlen or 1
-        if line == "t":
-            self._pending.append(("tare", window, None))
-        elif self.firmware == "stock":
-            return  # the stock example only knows 't'
-        elif line == "?":
-            self.emit(frame(f"{sp.TAG_ID},{sp.FIRMWARE_NAME},{sp.FIRMWARE_VERSION},{self.rate_sps},"
-                            f"{self._cal_factor:.3f}"), t_s, delay_s=0.0002)
-        elif line.startswith("c,"):
-            try:
-                mass = float(line[2:])
-            except ValueError:
-                mass = float("nan")
-            if not (mass > 0 and math.isfinite(mass)):
-                self.emit(frame(f"{sp.TAG_ERROR},2,{sp.ERRORS[2]}"), t_s, delay_s=0.0002)
-            else:
-                self._pending.append(("cal", window, mass))
+    # -- commands ---------------------------------------------------------------------------------
+    def _read_byte(self, t: float, b: int) -> None:
+        if b == 0x0D:
+            return
+        if b == 0x0A:
+            line, bad = bytes(self._line), self._line_bad
+            self._line.clear()
+            self._line_bad = False
+            if bad:
+                self._emit(frame(f"{sp.TAG_ERROR},1,{sp.ERRORS[1]}"), t + self._lat(T_ERROR_S), reply=True)
+            elif line:
+                self._command(line, t)
+        elif b == 0 or len(self._line) >= LINE_MAX:
+            self._line_bad = True
         else:
-            self.emit(frame(f"{sp.TAG_ERROR},1,{sp.ERRORS[1]}"), t_s, delay_s=0.0002)
+            self._line.append(b)
+
+    def _command(self, line: bytes, t: float) -> None:
+        if line == b"t":
+            self._tare_left = WINDOW  # let the window refill with what is on the scale now
+        elif line == b"?":
+            self._emit(frame(self._id_body(sp.TAG_ID)), t + self._lat(T_ID_S), reply=True)
+        elif line.startswith(b"c,"):
+            mg = parse_mass_mg(line[2:].decode("latin-1"))
+            if mg is None:
+                self._emit(frame(f"{sp.TAG_ERROR},2,{sp.ERRORS[2]}"), t + self._lat(T_MASS_ERROR_S), reply=True)
+            else:
+                self._cal_mass_mg = mg
+                self._cal_left = WINDOW
+        else:
+            self._emit(frame(f"{sp.TAG_ERROR},1,{sp.ERRORS[1]}"), t + self._lat(T_ERROR_S), reply=True)
+
+    # -- the stock HX711_ADC example ---------------------------------------------------------------
+    def _step_stock(self, t: float) -> None:
+        if self._phase == "setup":
+            if self._pending is not None:
+                tc, value = self._pending
+                self._pending = None
+                self._window.append(value)
+                del self._window[:-WINDOW]
+                if tc >= self._stock_ready_s and len(self._window) == WINDOW:
+                    # HX711_ADC's start(2000, true): stabilise, tare on the full window, then report.
+                    self._tare_counts = smoothed_counts(self._window)
+                    self._phase = "run"
+                    self._win_pos = 0
+                    self.emit(sp.STOCK_STARTUP_DONE.encode() + b"\r\n", tc, reply=False)
+            return
+        while self._ring:
+            self._read_stock_byte(t, self._ring.popleft()[1])
+        if self._pending is not None:
+            tc, value = self._pending
+            self._pending = None
+            self._window[self._win_pos] = value
+            self._win_pos = (self._win_pos + 1) % WINDOW
+            smoothed = smoothed_counts(self._window)
+            if self._tare_left:
+                self._tare_left -= 1
+                if self._tare_left == 0:
+                    self._tare_counts = smoothed
+                    self.emit(sp.STOCK_TARE_DONE.encode() + b"\r\n", tc, reply=False)
+            grams = (smoothed - self._tare_counts) / (self._cal_milli / 1000.0)
+            self.emit(f"{sp.STOCK_DATA_PREFIX}{grams:.2f}\r\n".encode(), tc, reply=False)
+            self.samples_sent += 1
+
+    def _read_stock_byte(self, t: float, b: int) -> None:
+        if b == ord("t"):  # the stock example reads single characters: only 't' means something
+            self._tare_left = WINDOW
 
     def describe(self) -> dict[str, Any]:
         return {"rate_sps": self.rate_sps, "boot_s": self.boot_s, "firmware": self.firmware,
@@ -294,12 +571,13 @@ def _factory(params: Params, *, clock: Clock, world: Any = None) -> ScaleMock:
         clock=clock,
         load_cell=cell,
         rate_sps=params.int("rate", 80),
-        boot_s=params.float("boot_s", 1.6),
+        boot_s=params.float("boot_s", BOOTLOADER_S),
         baud=params.int("baud", sp.BAUD),
         firmware=params.str("firmware", "tactile") or "tactile",
         timing=params.bool("timing", True),
         seed=params.int("seed", 0),
         counts_per_g=params.float("counts_per_g", sp.DEFAULT_CAL_FACTOR),
+        offset_counts=params.float("offset_counts", 84_000.0),
         noise_counts=params.float("noise_counts"),
         drift_counts=params.float("drift_counts", 1500.0),
         drift_tau_s=params.float("drift_tau_s", 180.0),

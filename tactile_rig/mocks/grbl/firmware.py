@@ -32,12 +32,12 @@ from typing import Any
 
 import numpy as np
 
-from tactile_rig.core.clock import Clock
-from tactile_rig.devices import grbl as gp
 import tactile_rig.mocks.grbl.gcode as gcode
 import tactile_rig.mocks.grbl.homing as homing
 import tactile_rig.mocks.grbl.report as report
 import tactile_rig.mocks.grbl.system as system
+from tactile_rig.core.clock import Clock
+from tactile_rig.devices import grbl as gp
 from tactile_rig.mocks.grbl.motion_control import OK, Job, MotionControl, Wait
 from tactile_rig.mocks.grbl.planner import Limits, Planner, Profile, round_half_away
 from tactile_rig.mocks.grbl.stepper import Stepper

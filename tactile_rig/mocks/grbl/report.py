@@ -13,8 +13,8 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from tactile_rig.devices import grbl as gp
 import tactile_rig.mocks.grbl.gcode as gcode
+from tactile_rig.devices import grbl as gp
 
 MM_PER_INCH = 25.4
 SETTING_DECIMALS = 3
