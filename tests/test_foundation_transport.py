@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import serial
 import pytest
 from hypothesis import given, strategies as st
@@ -162,3 +164,26 @@ def test_expected_protocol_fails_on_a_reply_left_unread() -> None:
             assert tr.read_until(b"\n", 0.1) == b"BOOT\r\n"
             tr.write(b"t\n")
             assert tr.read_exact(2, 0.1) == b"T,"  # half of it
+
+
+@pytest.mark.pty
+def test_a_quick_close_and_reopen_over_a_pty_resets_the_device_like_a_dtr_edge() -> None:
+    """No poll of the server sees the port closed (no EIO): inotify still tells it, and the device
+    is closed and opened again, as an Uno resets on every open."""
+    import serial
+
+    from tactile_rig.mocks.scale import ScaleMock
+
+    device = ScaleMock(rate_sps=80, boot_s=0.05)
+    with serve_on_pty(device) as server:
+        ser = serial.Serial(server.port, 57600, timeout=1.0)
+        assert ser.readline()  # served: the banner or a reading
+        opens = server.opens
+        for _ in range(3):
+            ser.close()
+            ser.open()  # microseconds later: the server's 2 ms EIO poll cannot see it
+        deadline = time.monotonic() + 2.0
+        while server.opens < opens + 3 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        ser.close()
+    assert server.opens == opens + 3

@@ -15,16 +15,22 @@ hardware (the sketch starts ~0.5 s after the DTR reset); here a device that rese
 output until the client's rate matches (at most ``SETTLE_S``), so a client that configures the port
 right after opening never sees a garbled or flushed banner. A Dynamixel bus (an FTDI adapter, no
 reset) answers at once.
+
+A close and reopen quicker than the server's poll leaves no EIO to see; on Linux the server also
+watches the slave path with inotify, so such a reopen still resets the device (a DTR edge resets an
+Uno however quickly the port is reopened).
 """
 
 from __future__ import annotations
 
+import ctypes
 import errno
 import logging
 import os
 import pty
 import random
 import select
+import struct
 import termios
 import threading
 import time
@@ -50,6 +56,55 @@ _IDLE_POLL_S = 0.005
 _CLOSED_POLL_S = 0.002
 SETTLE_S = 0.25  # longest wait after an open for the client to set its line rate
 
+# linux/inotify.h
+_IN_OPEN, _IN_CLOSE_WRITE, _IN_CLOSE_NOWRITE = 0x20, 0x08, 0x10
+_IN_NONBLOCK, _IN_CLOEXEC = 0o4000, 0o2000000
+_EVENT_HEADER = struct.Struct("iIII")
+
+
+class _OpenCloseWatch:
+    """Counts the opens and closes of a path (Linux inotify); inert where inotify is unavailable."""
+
+    def __init__(self, path: str) -> None:
+        self.fd: int | None = None
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            fd = libc.inotify_init1(_IN_NONBLOCK | _IN_CLOEXEC)
+            if fd < 0:
+                return
+            if libc.inotify_add_watch(fd, path.encode(), _IN_OPEN | _IN_CLOSE_WRITE | _IN_CLOSE_NOWRITE) < 0:
+                os.close(fd)
+                return
+            self.fd = fd
+        except (OSError, AttributeError):  # not Linux
+            self.fd = None
+
+    def drain(self) -> list[int]:
+        """The opens (+1) and closes (-1) of the path since the last call, in order."""
+        events: list[int] = []
+        if self.fd is None:
+            return events
+        while True:
+            try:
+                buf = os.read(self.fd, 4096)
+            except OSError:  # BlockingIOError: nothing more
+                return events
+            if not buf:
+                return events
+            i = 0
+            while i + _EVENT_HEADER.size <= len(buf):
+                _wd, mask, _cookie, length = _EVENT_HEADER.unpack_from(buf, i)
+                if mask & _IN_OPEN:
+                    events.append(+1)
+                if mask & (_IN_CLOSE_WRITE | _IN_CLOSE_NOWRITE):
+                    events.append(-1)
+                i += _EVENT_HEADER.size + length
+
+    def close(self) -> None:
+        if self.fd is not None:
+            os.close(self.fd)
+            self.fd = None
+
 
 class PtyServer:
     """Serve ``device`` on a new pty pair; ``port`` is the slave path clients open.
@@ -70,6 +125,8 @@ class PtyServer:
         # that is how the server sees a client open and close it (an Arduino resets on open).
         os.close(slave)
         os.set_blocking(self._master, False)
+        self._watch = _OpenCloseWatch(self.port)
+        self._handles = 0  # client handles open on the slave, as inotify counts them
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.client_open = False
@@ -94,6 +151,7 @@ class PtyServer:
             os.close(self._master)
         except OSError:
             pass
+        self._watch.close()
 
     def __enter__(self) -> "PtyServer":
         return self.start()
@@ -123,7 +181,13 @@ class PtyServer:
         self._tighten_timer_slack()
         try:
             while not self._stop.is_set():
-                if not self.client_open:
+                if self._watch.fd is not None:
+                    self._follow_handles()
+                    if self.client_open:
+                        self._serve_once()
+                    else:
+                        time.sleep(_CLOSED_POLL_S)
+                elif not self.client_open:
                     self._wait_for_open()
                 else:
                     self._serve_once()
@@ -131,7 +195,20 @@ class PtyServer:
             self.error = exc
             log.exception("pty server for %s stopped", self.name)
 
+    def _follow_handles(self) -> None:
+        """With inotify: the device opens when the first client handle opens and closes when the
+        last one closes, every time, however quickly a client closes and reopens (an Uno resets on
+        each new DTR edge). A second handle opened and closed meanwhile changes nothing."""
+        for step in self._watch.drain():
+            before = self._handles
+            self._handles = max(0, self._handles + step)
+            if before == 0 and self._handles > 0:
+                self._open_device()
+            elif before > 0 and self._handles == 0:
+                self._close_device()
+
     def _wait_for_open(self) -> None:
+        """Without inotify: the master reads EIO while no client holds the slave."""
         try:
             data = os.read(self._master, 4096)
         except BlockingIOError:
@@ -141,6 +218,11 @@ class PtyServer:
                 time.sleep(_CLOSED_POLL_S)
                 return
             raise
+        self._open_device()
+        if data:
+            self._feed(data, self.clock.now_s())
+
+    def _open_device(self) -> None:
         now = self.clock.now_s()
         self.client_open = True
         self.opens += 1
@@ -148,8 +230,11 @@ class PtyServer:
         self.device.set_client_baud(None)  # the rate is checked per chunk, here (see the module docstring)
         self.device.open(now)
         log.debug("%s: client opened %s", self.name, self.port)
-        if data:
-            self._feed(data, now)
+
+    def _close_device(self) -> None:
+        self.client_open = False
+        self.device.close(self.clock.now_s())
+        log.debug("%s: client closed %s", self.name, self.port)
 
     def _serve_once(self) -> None:
         now = self.clock.now_s()
@@ -165,9 +250,10 @@ class PtyServer:
             except OSError as exc:
                 if exc.errno != errno.EIO:
                     raise
-                self.client_open = False
-                self.device.close(self.clock.now_s())
-                log.debug("%s: client closed %s", self.name, self.port)
+                if self._watch.fd is None:
+                    self._close_device()
+                else:
+                    time.sleep(_CLOSED_POLL_S)  # closed for now: inotify says when, and the next open
                 return
             if data:
                 self._feed(data, self.clock.now_s())
