@@ -13,15 +13,33 @@ things that move (the gripper, the jig) are ``active`` when they may move; a lat
 camera) never need activation: they stay ``connected`` until closed.
 
 Subclasses implement ``_close()`` (release the port; called once) and, when they move,
-``_activate()`` / ``_deactivate()``.
+``_activate()`` / ``_deactivate()``. A driver used from several threads marks its public methods
+:func:`locked`: one call at a time holds the driver's re-entrant lock for its whole exchange, so two
+threads never interleave their bytes or steal each other's replies.
 """
 
 from __future__ import annotations
 
 import enum
-from typing import Any
+import functools
+import threading
+from typing import Any, Callable, TypeVar
 
 from tactile_rig.core.errors import DeviceFault, NotConnected
+
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def locked(method: F) -> F:
+    """Run ``method`` holding the driver's call lock (re-entrant: a locked method may call another)."""
+
+    @functools.wraps(method)
+    def wrapper(self: "Driver", *args: Any, **kwargs: Any) -> Any:
+        with self.call_lock:
+            return method(self, *args, **kwargs)
+
+    return wrapper  # type: ignore[return-value]
 
 
 class Lifecycle(str, enum.Enum):
@@ -43,6 +61,8 @@ class Driver:
         self.device = device
         self.lifecycle = Lifecycle.CONNECTED
         self.last_fault: DeviceFault | None = None
+        #: held for the whole of each :func:`locked` call (one exchange with the device at a time)
+        self.call_lock = threading.RLock()
 
     # -- lifecycle ---------------------------------------------------------------------------------
     @property
@@ -75,10 +95,13 @@ class Driver:
         """Release the device; safe to call twice and from ``__exit__`` after an error."""
         if self.lifecycle is Lifecycle.CLOSED:
             return
-        try:
-            self._close()
-        finally:
-            self.lifecycle = Lifecycle.CLOSED
+        with self.call_lock:  # after the call in progress, never under it
+            if self.lifecycle is Lifecycle.CLOSED:
+                return
+            try:
+                self._close()
+            finally:
+                self.lifecycle = Lifecycle.CLOSED
 
     def __enter__(self) -> Any:
         return self

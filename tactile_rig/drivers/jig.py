@@ -30,7 +30,7 @@ from tactile_rig.core.errors import (
 )
 from tactile_rig.core.geometry import Pose
 from tactile_rig.devices import grbl as gp
-from tactile_rig.drivers.base import Driver, Lifecycle
+from tactile_rig.drivers.base import Driver, Lifecycle, locked
 from tactile_rig.drivers.transport import SerialTransport
 
 log = logging.getLogger("tactile_rig.jig")
@@ -524,6 +524,7 @@ class Jig(Driver):
             self._wait_progress(deadline)
         return self._results.pop(ident)
 
+    @locked
     def command(self, line: str, timeout_s: float = 2.0) -> list[str]:
         """Send one line, wait for its ``ok``; return the info lines it printed. ``error:N`` → GrblError."""
         self._check_events()
@@ -545,6 +546,7 @@ class Jig(Driver):
         return info
 
     # -- status and waiting ---------------------------------------------------------------------------------
+    @locked
     def status(self, timeout_s: float = 0.5) -> GrblStatus:
         """Ask for a status report (``?``) and return it parsed. GRBL answers none in a critical
         alarm (hard or soft limit) until a soft reset: that, or a report that an alarm held back
@@ -572,6 +574,7 @@ class Jig(Driver):
         self._statuses.clear()
         return st
 
+    @locked
     def wait_idle(self, timeout_s: float = 30.0, poll_s: float = 0.05) -> GrblStatus:
         """Poll until every sent line is answered and the machine is Idle; alarms raise GrblAlarm."""
         dl = Deadline(self.clock, timeout_s)
@@ -590,12 +593,14 @@ class Jig(Driver):
             self._pump(0.0)
 
     # -- machine commands -------------------------------------------------------------------------------------
+    @locked
     def home(self, timeout_s: float = 60.0) -> None:
         """Run the homing cycle (``$H``); returns when GRBL answers ``ok`` (the cycle is done)."""
         self.command("$H", timeout_s)
         self.alarm_on_boot = False
         self._unlocked()
 
+    @locked
     def unlock(self) -> None:
         """Clear an alarm lock without homing (``$X``): only if you know where the stage is."""
         self.command("$X")
@@ -606,6 +611,7 @@ class Jig(Driver):
         self.lifecycle = Lifecycle.ACTIVE
         self.last_fault = None
 
+    @locked
     def activate(self, *, home: bool = True, timeout_s: float = 60.0) -> None:  # type: ignore[override]
         """Make the jig ready to move from wherever it is: a soft reset if a critical alarm needs one,
         then, if GRBL is locked (Alarm), ``$H`` (``home=True``) or ``$X`` (only if you know where the
@@ -624,7 +630,8 @@ class Jig(Driver):
         self._unlocked()
 
     def feed_hold(self) -> None:
-        """Decelerate to a stop, keeping the rest of the program (``!``); ``resume`` continues."""
+        """Decelerate to a stop, keeping the rest of the program (``!``); ``resume`` continues.
+        Takes no lock (like ``resume`` and ``jog_cancel``): another thread can stop a stream at once."""
         self.transport.write(gp.RT_FEED_HOLD)
 
     def resume(self) -> None:
@@ -635,6 +642,7 @@ class Jig(Driver):
         """Stop a jog and drop the queued jog motions (0x85)."""
         self.transport.write(gp.RT_JOG_CANCEL)
 
+    @locked
     def soft_reset(self, timeout_s: float = 2.0) -> None:
         """Ctrl-X: GRBL stops at once and reboots; waits for the banner. Unanswered lines are lost
         (counted in ``lines_lost``); a reset while moving leaves ALARM:3 (reported by ``status``)."""
@@ -667,6 +675,7 @@ class Jig(Driver):
                 raise LimitError(f"{name}={v!r} {unit} is outside the jig's travel [{rng[0]}, {rng[1]}] {unit}",
                                  device=self.device)
 
+    @locked
     def move_to(self, x_mm: float | None = None, y_mm: float | None = None, theta_deg: float | None = None,
                 feed_mm_per_min: float | None = None, *, wait: bool = False, timeout_s: float = 60.0) -> None:
         """Go to a work-coordinate pose (None: that axis stays). ``feed_mm_per_min`` None: a rapid (G0),
@@ -685,6 +694,7 @@ class Jig(Driver):
         if wait:
             self.wait_idle(timeout_s)
 
+    @locked
     def jog(self, dx_mm: float = 0.0, dy_mm: float = 0.0, dtheta_deg: float = 0.0, *,
             feed_mm_per_min: float, relative: bool = True) -> None:
         """Jog (``$J=``): relative by default; absolute work coordinates with ``relative=False``.
@@ -701,6 +711,7 @@ class Jig(Driver):
         self.command(f"$J={'G91' if relative else 'G90'}{words}F{feed_mm_per_min:.1f}")
 
     # -- settings --------------------------------------------------------------------------------------------------
+    @locked
     def read_settings(self) -> dict[int, float]:
         """``$$`` → {setting number: value}."""
         out: dict[int, float] = {}
@@ -713,6 +724,7 @@ class Jig(Driver):
                     continue
         return out
 
+    @locked
     def write_setting(self, number: int, value: float) -> None:
         """``$N=value`` (persists in GRBL's EEPROM); unknown numbers are refused here, bad values by GRBL."""
         if number not in gp.SETTINGS:
@@ -720,6 +732,7 @@ class Jig(Driver):
         text = str(int(value)) if number in gp.INTEGER_SETTINGS else f"{float(value):.3f}"
         self.command(f"${number}={text}")
 
+    @locked
     def set_check_mode(self, enabled: bool, timeout_s: float = 2.0) -> None:
         """Enter or leave check mode (``$C``: lines are parsed and answered but nothing moves).
         Leaving it soft-resets GRBL, as the firmware does; this waits for that banner."""
@@ -734,13 +747,16 @@ class Jig(Driver):
                 raise DeviceTimeout(f"no banner within {timeout_s:.3g} s of leaving check mode", device=self.device)
             self._pump(dl.remaining_s() or 0.0)
 
+    @locked
     def build_info(self) -> list[str]:
         return self.command("$I")
 
+    @locked
     def parser_state(self) -> list[str]:
         return self.command("$G")
 
     # -- streaming ------------------------------------------------------------------------------------------------------
+    @locked
     def stream(self, lines: Iterable[str], *, timeout_s: float = 600.0, stop_on_error: bool = True,
                on_progress: Callable[[int, str, str], None] | None = None) -> StreamResult:
         """Stream G-code with character counting; returns when every sent line is answered.
@@ -819,6 +835,7 @@ class Jig(Driver):
         return res
 
     # -- Motion protocol -------------------------------------------------------------------------------------------------
+    @locked
     def move_toward(self, target: Pose, speed_mps: float) -> None:
         """Start moving toward ``target`` (a Pose: x_mm, y_mm, theta_deg) at ``speed_mps`` (mm/s × 1000
         along the combined path, θ counted in degrees as GRBL does). A newer call replaces an older one."""
@@ -831,6 +848,7 @@ class Jig(Driver):
         words = self._axis_words(target.x_mm, target.y_mm, target.theta_deg)
         self.command(f"$J=G90{words}F{speed_mps * 60000.0:.1f}")
 
+    @locked
     def pose(self) -> Pose:
         """The work-coordinate pose now (mm, θ in degrees)."""
         return self.pose_from_status(self.status())
@@ -846,6 +864,7 @@ class Jig(Driver):
                               device=self.device)
         return Pose(x_mm=pos[0], y_mm=pos[1], z_mm=0.0, theta_deg=pos[idx])
 
+    @locked
     def stop(self) -> None:
         """Stop as fast as GRBL allows: jog cancel when jogging, else feed hold, then flush the plan
         with a soft reset once stopped (position is kept; no alarm)."""

@@ -31,7 +31,7 @@ from tactile_rig.core.errors import (
     check_range,
 )
 from tactile_rig.devices import scale as sp
-from tactile_rig.drivers.base import Driver, Lifecycle
+from tactile_rig.drivers.base import Driver, Lifecycle, locked
 from tactile_rig.drivers.transport import SerialTransport
 
 log = logging.getLogger("tactile_rig.scale")
@@ -393,6 +393,7 @@ class Scale(Driver):
                 )
             self._pump(dl.remaining_s() or 0.0)
 
+    @locked
     def reconnect(self, timeout_s: float = 10.0) -> None:
         """Close and reopen by the stable path (the port may come back under another ttyACM name)."""
         self.close()
@@ -519,6 +520,7 @@ class Scale(Driver):
             self.zero_lost = False
         return replace(r, grams=grams_mg(r.raw, self.zero_raw, self.cal_milli) / 1000.0, sketch_grams=r.grams)
 
+    @locked
     def set_zero_raw(self, zero_raw: int) -> None:
         """Use ``zero_raw`` counts as zero from now on (e.g. a zero kept from an earlier session)."""
         check_range("zero_raw", zero_raw, sp.RAW_MIN, sp.RAW_MAX, "counts")
@@ -563,6 +565,7 @@ class Scale(Driver):
         self._queue.append(r)
         self.stats.readings += 1
 
+    @locked
     def read(self, timeout_s: float | None = None) -> ScaleReading:
         """The next reading in order; waits up to ``timeout_s`` (default ``stale_after_s``) for one.
 
@@ -583,10 +586,12 @@ class Scale(Driver):
             self._pump(dl.remaining_s() or 0.0)
         return self._queue.popleft()
 
+    @locked
     def read_many(self, n: int, timeout_s: float | None = None) -> list[ScaleReading]:
         """The next ``n`` readings; each may take up to ``timeout_s`` to come."""
         return [self.read(timeout_s) for _ in range(int(n))]
 
+    @locked
     def poll(self) -> list[ScaleReading]:
         """Every reading that has arrived so far, without waiting."""
         while self._pump(0.0):
@@ -595,11 +600,13 @@ class Scale(Driver):
         self._queue.clear()
         return out
 
+    @locked
     def latest(self, timeout_s: float | None = None) -> ScaleReading:
         """The newest reading (older queued ones are consumed); waits for one if none is queued."""
         got = self.poll()
         return got[-1] if got else self.read(timeout_s)
 
+    @locked
     def force_n(self, timeout_s: float | None = None) -> float:
         """The newest reading as a force in newtons (weight of the grams on the scale)."""
         return self.latest(timeout_s).newtons
@@ -624,6 +631,7 @@ class Scale(Driver):
                 raise DeviceTimeout(f"no answer to {what} within {timeout_s:.3g} s", device=self.device)
             self._pump(dl.remaining_s() or 0.0)
 
+    @locked
     def tare(self, timeout_s: float | None = None) -> None:
         """Zero the scale with what is on it now; returns when the sketch confirms (one smoothing window).
 
@@ -633,6 +641,7 @@ class Scale(Driver):
         self.transport.write(sp.CMD_TARE)  # type: ignore[union-attr]
         self._await_reply(("tare", "stock_tare"), timeout, "tare ('t')")
 
+    @locked
     def calibrate(self, known_mass_g: float, timeout_s: float | None = None) -> float:
         """Calibrate with ``known_mass_g`` on the (tared) scale; return the new factor (counts per gram)."""
         check_range("known_mass_g", known_mass_g, 1e-3, 1e6, "g")
@@ -651,6 +660,7 @@ class Scale(Driver):
             self.info = ScaleInfo(self.info.firmware, self.info.version, self.info.rate_sps, rep.value)
         return rep.value
 
+    @locked
     def identify(self, timeout_s: float = 0.5) -> ScaleInfo:
         """Ask the sketch for its ID line (firmware, version, rate, calibration factor)."""
         self._replies.clear()
