@@ -71,6 +71,16 @@ class LinkCorrupt(RigError, IOError):
     """
 
 
+class ReplyLost(LinkCorrupt):
+    """A device executed a request but its answer was lost on the wire (a GRBL ``ok``/``error`` the
+    host never received, detected from a later status report). ``line`` is what was sent; whether
+    the device accepted it is unknown, so read the state back before relying on it."""
+
+    def __init__(self, message: str, *, device: str | None = None, line: str | None = None) -> None:
+        super().__init__(message, device=device)
+        self.line = line
+
+
 class DeviceFault(RigError):
     """The device reports a fault of its own; motion must stop.
 
@@ -162,6 +172,11 @@ class CalibrationError(RigError, ValueError):
     """A calibration is missing, of the wrong version or sensor, or cannot be fitted from the data."""
 
 
+class ZeroLost(RigError, ValueError):
+    """A scale's zero can no longer be trusted (its sketch re-tared with an unknown load on it and
+    sends no raw counts the host could correct with); ``tare()`` sets a new zero."""
+
+
 class ControlReadbackError(RigError, ValueError):
     """The camera did not keep a format or control value we wrote (read back differs)."""
 
@@ -202,24 +217,9 @@ def check_range(name: str, value: float, low: float, high: float, unit: str = ""
     return value
 
 
-class ReplyLost(LinkCorrupt):
-    """A device executed a request but its answer was lost on the wire (a GRBL ``ok``/``error`` the
-    host never received, detected from a later status report). ``line`` is what was sent; whether
-    the device accepted it is unknown, so read the state back before relying on it."""
-
-    def __init__(self, message: str, *, device: str | None = None, line: str | None = None) -> None:
-        super().__init__(message, device=device)
-        self.line = line
-
-
 class PortInUse(NotConnected):
-    """The port is already open (by this process or another one); ``port`` names it."""
+    """The port is held by another process or handle (opened exclusively); ``port`` names it."""
 
     def __init__(self, message: str, *, device: str | None = None, port: str | None = None) -> None:
         super().__init__(message, device=device)
         self.port = port
-
-
-class ZeroLost(RigError, ValueError):
-    """A scale's zero can no longer be trusted (its sketch re-tared with an unknown load on it and
-    sends no raw counts the host could correct with); ``tare()`` sets a new zero."""
