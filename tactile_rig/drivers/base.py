@@ -32,12 +32,22 @@ F = TypeVar("F", bound=Callable[..., Any])
 
 
 def locked(method: F) -> F:
-    """Run ``method`` holding the driver's call lock (re-entrant: a locked method may call another)."""
+    """Run ``method`` holding the driver's call lock (re-entrant: a locked method may call another).
+
+    Around the call the driver's hooks run: ``_before_call()`` (a driver whose port vanished fails
+    fast or reconnects there) and, when the call raises :class:`NotConnected`, ``_on_not_connected``
+    (the port is gone: release it and start the reconnect backoff)."""
 
     @functools.wraps(method)
     def wrapper(self: "Driver", *args: Any, **kwargs: Any) -> Any:
         with self.call_lock:
-            return method(self, *args, **kwargs)
+            self._before_call()
+            try:
+                return method(self, *args, **kwargs)
+            except NotConnected as exc:
+                if self.lifecycle is not Lifecycle.CLOSED:
+                    self._on_not_connected(exc)
+                raise
 
     return wrapper  # type: ignore[return-value]
 
@@ -133,6 +143,12 @@ class Driver:
 
     def _close(self) -> None:
         """Subclass hook: release the port (default: nothing to release)."""
+
+    def _before_call(self) -> None:
+        """Subclass hook run before each :func:`locked` call (default: nothing)."""
+
+    def _on_not_connected(self, error: NotConnected) -> None:
+        """Subclass hook: a :func:`locked` call found the port gone (default: nothing)."""
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.device!r}, {self.lifecycle.value})"

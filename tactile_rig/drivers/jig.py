@@ -25,12 +25,14 @@ from tactile_rig.core.errors import (
     GrblReset,
     LimitError,
     LinkCorrupt,
+    NotConnected,
     ReplyLost,
     check_range,
 )
 from tactile_rig.core.geometry import Pose
 from tactile_rig.devices import grbl as gp
 from tactile_rig.drivers.base import Driver, Lifecycle, locked
+from tactile_rig.drivers.reconnect import Reconnect
 from tactile_rig.drivers.transport import SerialTransport
 
 log = logging.getLogger("tactile_rig.jig")
@@ -267,6 +269,7 @@ class Jig(Driver):
         y_range_mm: tuple[float, float] | None = None,
         theta_range_deg: tuple[float, float] | None = None,
         device: str | None = None,
+        reconnect_policy: Reconnect | None = None,
     ) -> None:
         theta_axis = theta_axis.upper()
         if theta_axis not in ("Z", "A"):
@@ -277,6 +280,12 @@ class Jig(Driver):
         self.ranges = {"x_mm": x_range_mm, "y_mm": y_range_mm, "theta_deg": theta_range_deg}
         self.transport = SerialTransport(port, baudrate=baudrate, device=self.device, clock=clock)
         self.clock: Clock = self.transport.clock
+        self.baudrate = baudrate
+        self.boot_timeout_s = boot_timeout_s
+        #: when to try reopening a port that vanished (backoff on the port's clock)
+        self.reconnect_policy = reconnect_policy if reconnect_policy is not None else Reconnect(self.clock)
+        self.disconnects = 0
+        self.reconnects = 0
         self._rx = bytearray()
         self._responses: deque[str] = deque()
         self._outstanding: deque[_Outstanding] = deque()
@@ -314,6 +323,46 @@ class Jig(Driver):
             self.transport.close()
             raise
         self.lifecycle = Lifecycle.CONNECTED if self.alarm_on_boot else Lifecycle.ACTIVE
+
+    # -- unplug and replug --------------------------------------------------------------------------------
+    def _on_not_connected(self, error: NotConnected) -> None:
+        """The port failed (unplugged): release it; calls fail fast until the backoff allows a reopen."""
+        if self.reconnect_policy.away:
+            return
+        self.transport.close()
+        self.reconnect_policy.lost(str(error))
+        self.disconnects += 1
+        log.warning("%s: port lost (%s)", self.device, error)
+
+    def _before_call(self) -> None:
+        """While the port is away: ``NotConnected`` at once, or, when the backoff allows, a reopen.
+        GRBL resets on the reopen: motion in its buffers is gone, so the jig comes back in fault
+        (``GrblReset``) and moves are refused until :meth:`activate` starts from the measured pose."""
+        policy = getattr(self, "reconnect_policy", None)
+        if policy is None or not policy.away or self.closed:
+            return
+        if not policy.due():
+            raise policy.not_connected(self.device, self.port)
+        try:
+            self.transport = SerialTransport(self.port, baudrate=self.baudrate, device=self.device, clock=self.clock)
+            self._rx.clear()
+            self.lines_lost += len(self._outstanding)
+            for item in (self._outstanding, self._results, self._statuses, self._status_errors, self._fences,
+                         self._alarms):
+                item.clear()
+            self._quiet = None
+            self._expect_banner = True
+            self._await_banner(self.boot_timeout_s)
+        except (NotConnected, DeviceTimeout) as exc:
+            self.transport.close()
+            policy.failed(str(exc))
+            raise NotConnected(f"port {self.port!r} is still gone: {exc}", device=self.device) from exc
+        policy.succeeded()
+        self.reconnects += 1
+        self._unexpected_reset = False
+        self.resets += 1
+        self.fault(GrblReset("the port came back after an unplug: GRBL rebooted and buffered motion was lost; "
+                             "activate() to continue from the measured pose", device=self.device))
 
     # -- plumbing ---------------------------------------------------------------------------------------
     def _await_banner(self, timeout_s: float) -> None:

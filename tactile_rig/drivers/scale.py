@@ -32,6 +32,7 @@ from tactile_rig.core.errors import (
 )
 from tactile_rig.devices import scale as sp
 from tactile_rig.drivers.base import Driver, Lifecycle, locked
+from tactile_rig.drivers.reconnect import Reconnect
 from tactile_rig.drivers.transport import SerialTransport
 
 log = logging.getLogger("tactile_rig.scale")
@@ -255,6 +256,8 @@ class ScaleStats:
     overflowed: int = 0  # readings discarded because the caller did not consume them
     rezeroed: int = 0  # the sketch's zero moved with no reboot or tare seen (a missed reboot)
     untrusted: int = 0  # readings withheld because the zero was lost (stock sketch rebooted)
+    disconnects: int = 0  # the port vanished (USB unplugged)
+    reconnects: int = 0  # ... and came back
 
 
 @dataclass(frozen=True)
@@ -301,6 +304,7 @@ class Scale(Driver):
         max_queue: int = 100_000,
         on_event: Callable[[ScaleEvent], None] | None = None,
         device: str | None = None,
+        reconnect_policy: Reconnect | None = None,
     ) -> None:
         check_range("boot_timeout_s", boot_timeout_s, 0.0, 600.0, "s")
         self.port = port
@@ -333,6 +337,9 @@ class Scale(Driver):
         self._last_sample_s: float | None = None
         self.transport: SerialTransport | None = None
         self._open(self.port)
+        assert self.transport is not None
+        #: when to try reopening a port that vanished (backoff on the port's clock)
+        self.reconnect_policy = reconnect_policy if reconnect_policy is not None else Reconnect(self.transport.clock)
 
     # -- connection -----------------------------------------------------------------------------
     @property
@@ -414,6 +421,39 @@ class Scale(Driver):
         if self.transport is not None:
             self.transport.close()
             self.transport = None
+
+    # -- unplug and replug ------------------------------------------------------------------------
+    def _on_not_connected(self, error: NotConnected) -> None:
+        """The port failed (unplugged): release it; calls fail fast until the backoff allows a reopen."""
+        policy = self.reconnect_policy
+        if policy.away:
+            return
+        if self.transport is not None:
+            self.transport.close()
+            self.transport = None
+        policy.lost(str(error))
+        self.stats.disconnects += 1
+        self._event("disconnect", policy.clock.now_s(), detail=str(error))
+
+    def _before_call(self) -> None:
+        """While the port is away: ``NotConnected`` at once, or, when the backoff allows, a reopen by
+        the stable path (the Arduino resets on it: a reset event; the driver's zero stands)."""
+        policy = getattr(self, "reconnect_policy", None)
+        if policy is None or not policy.away or self.closed:
+            return
+        if not policy.due():
+            raise policy.not_connected(self.device, self.reconnect_port)
+        try:
+            self._open(self.reconnect_port)
+        except (NotConnected, DeviceTimeout) as exc:
+            if self.transport is not None:
+                self.transport.close()
+                self.transport = None
+            policy.failed(str(exc))
+            raise NotConnected(f"port {self.reconnect_port!r} is still gone: {exc}", device=self.device) from exc
+        policy.succeeded()
+        self.stats.reconnects += 1
+        self._event("reconnect", policy.clock.now_s(), detail=self.reconnect_port)
 
     # -- reading --------------------------------------------------------------------------------
     def _pump(self, wait_s: float) -> int:
