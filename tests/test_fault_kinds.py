@@ -11,10 +11,11 @@ from tactile_rig.drivers.jig import Jig
 from tactile_rig.drivers.scale import Scale
 from tactile_rig.mocks.faults import FaultInjector
 from tactile_rig.mocks.grbl import GrblMock
+from tactile_rig.mocks.relay import PtyRelay
 from tactile_rig.mocks.scale import ScaleMock
 from tactile_rig.sim.world.load_cell import LoadCell
 from tactile_rig.sim.world.stage import Stage
-from tactile_rig.testing import serve_in_process
+from tactile_rig.testing import serve_in_process, serve_on_pty
 
 
 def test_every_kind_parses_and_bad_values_are_refused() -> None:
@@ -109,3 +110,25 @@ def test_an_unplugged_jig_fails_fast_then_comes_back_in_fault_and_activates() ->
         assert jig.reconnects == 1
         with pytest.raises(DeviceFault):
             jig.move_to(1.0, 0.0, 0.0)  # GRBL rebooted: moves wait for activate()
+
+
+def test_the_pty_relay_passes_bytes_and_an_unplug_there_is_not_connected_then_a_reconnect() -> None:
+    mock = ScaleMock(boot_s=0.05, spike_prob=0.0)
+    faults = FaultInjector(replug_s=0.2)
+    with serve_on_pty(mock) as server, PtyRelay(server.port, faults, baudrate=57600, name="scale") as relay:
+        with Scale(relay.port, boot_timeout_s=3.0) as scale:
+            seqs = [r.seq for r in scale.read_many(20, timeout_s=1.0)]
+            assert seqs == list(range(seqs[0], seqs[0] + 20))
+            faults.replug = 1.0
+            with pytest.raises(NotConnected):
+                for _ in range(50):
+                    scale.read(timeout_s=1.0)
+            faults.replug = 0.0
+            for _ in range(100):
+                try:
+                    scale.read(timeout_s=1.0)
+                    break
+                except (NotConnected, DeviceTimeout):
+                    relay._stop.wait(0.05)
+            assert scale.stats.disconnects == 1 and scale.stats.reconnects == 1 and relay.unplugs == 1
+        assert relay.error is None
