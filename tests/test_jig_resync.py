@@ -21,10 +21,12 @@ class LossyGrbl(GrblMock):
     """GRBL whose answers number ``lose`` (0-based, counting every ok/error it prints) never reach
     the host; ``corrupt_reports`` status reports get a digit dropped on the way."""
 
-    def __init__(self, *, lose: set[int] = frozenset(), corrupt_reports: set[int] = frozenset(), **kw) -> None:
+    def __init__(self, *, lose: set[int] = frozenset(), corrupt_reports: set[int] = frozenset(),
+                 flip_reports: set[int] = frozenset(), **kw) -> None:
         super().__init__(**kw)
         self.lose = set(lose)
         self.corrupt = set(corrupt_reports)
+        self.flip = set(flip_reports)
         self.answers = 0
         self.reports = 0
 
@@ -38,6 +40,9 @@ class LossyGrbl(GrblMock):
     def _status_report(self, t_s: float) -> str:
         text = super()._status_report(t_s)
         n, self.reports = self.reports, self.reports + 1
+        if n in self.flip:  # one bit of the first digit of the position: still a number in GRBL's format
+            i = text.index("Pos:") + 4
+            text = text[:i] + chr(ord(text[i]) ^ 0x08) + text[i + 1:]
         return text.replace(".", "", 1) if n in self.corrupt else text
 
 
@@ -143,3 +148,14 @@ def test_corrupted_reports_never_become_values(bad: str) -> None:
 def test_inch_reports_are_converted_to_mm() -> None:
     st = parse_status("<Run|MPos:1.0000,-0.5000,2.0000|FS:39.4,0>")
     assert st.inches and st.mpos == pytest.approx((25.4, -12.7, 50.8)) and st.feed_mm_per_min == pytest.approx(1000.76)
+
+
+def test_a_flipped_digit_in_an_idle_report_is_outvoted_by_the_next_reports() -> None:
+    clock, mock, stage = _jig({})
+    with serve_in_process(mock, clock) as url:
+        jig = Jig(url)
+        jig.move_to(1.0, 0.0, 0.0, wait=True)  # wait_idle confirms the position with a second report
+        mock.flip = {mock.reports + 1}  # the second report from now has X 1.000 -> 9.000
+        got = [jig.status().mpos for _ in range(4)]
+        assert all(p == pytest.approx((1.0, 0.0, 0.0)) for p in got), got
+        assert jig.corrupt_reports == 1

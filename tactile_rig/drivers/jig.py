@@ -316,6 +316,9 @@ class Jig(Driver):
         self._replies_seen = 0
         self._quiet: tuple[int, int, int] | None = None  # (report no, replies seen, fence ident) of a quiet report
         self._clean_mark = 0  # first ident sent since nothing was outstanding
+        # (position field, lines sent) of the last Idle report returned, and of the one before it
+        self._last_idle: tuple[tuple[float, ...] | None, int] | None = None
+        self._prev_idle: tuple[tuple[float, ...] | None, int] | None = None
         self._uncertain: list[tuple[int, int]] = []  # ident ranges whose answers may be shifted by a loss
         try:
             self._await_banner(boot_timeout_s)
@@ -450,6 +453,7 @@ class Jig(Driver):
             self._fences.clear()
             self._quiet = None
             self._clean_mark = self._next_id
+            self._last_idle = None  # a reboot may have lost the position without a line sent
             if self._expect_banner:
                 self._expect_banner = False
             else:
@@ -599,7 +603,35 @@ class Jig(Driver):
     def status(self, timeout_s: float = 0.5) -> GrblStatus:
         """Ask for a status report (``?``) and return it parsed. GRBL answers none in a critical
         alarm (hard or soft limit) until a soft reset: that, or a report that an alarm held back
-        past ``timeout_s``, raises :class:`GrblAlarm` instead of a timeout."""
+        past ``timeout_s``, raises :class:`GrblAlarm` instead of a timeout.
+
+        GRBL's lines carry no checksum, and a flipped digit is still a number in GRBL's format. A
+        machine that was Idle and has been sent nothing since cannot have moved: when such a report
+        disagrees with the previous one, a third decides (two that agree), else :class:`LinkCorrupt`.
+        """
+        st = self._status_once(timeout_s)
+        prev = self._last_idle
+        if st.state == "Idle" and prev is not None and prev[1] == self._next_id and _position(st) != prev[0]:
+            third = self._status_once(timeout_s)
+            if _position(third) == _position(st):
+                self.corrupt_reports += 1  # the previous one was wrong (and was returned: see docs)
+            elif _position(third) == prev[0] and third.state == "Idle":
+                self.corrupt_reports += 1
+                st = third
+            else:
+                self._last_idle = None
+                raise LinkCorrupt(f"three Idle reports with no line sent between them disagree on the position: "
+                                  f"{prev[0]}, {st.raw!r}, {third.raw!r}", device=self.device)
+        self._last_idle = (_position(st), self._next_id) if st.state == "Idle" else None
+        return st
+
+    def idle_confirmed(self, st: GrblStatus) -> bool:
+        """Whether ``st`` (Idle) repeats the previous report's position with no line sent between them."""
+        prev = self._prev_idle
+        return st.state == "Idle" and prev is not None and prev[1] == self._next_id and prev[0] == _position(st)
+
+    def _status_once(self, timeout_s: float) -> GrblStatus:
+        self._prev_idle = self._last_idle
         if self.needs_reset:
             raise self.fault(gp.alarm(self.last_alarm or 0, device=self.device,
                                       hint="GRBL sends no status until a soft reset (soft_reset() or activate())"))
@@ -632,7 +664,9 @@ class Jig(Driver):
             st = self.status(min(0.5, max(0.05, dl.remaining_s() or 0.05)))
             self._check_events()
             if st.state == "Idle" and not self._outstanding:
-                return st
+                if self.idle_confirmed(st):
+                    return st
+                continue  # a second report confirms the position (a flipped digit would pass alone)
             if st.state == "Alarm":
                 raise self.fault(gp.alarm(self._alarms.popleft() if self._alarms else 0, device=self.device))
             if dl.expired():
@@ -931,6 +965,11 @@ class Jig(Driver):
 
     def _close(self) -> None:
         self.transport.close()
+
+
+def _position(st: GrblStatus) -> tuple[float, ...] | None:
+    """The position field a report printed (MPos or WPos), for comparing reports."""
+    return st.mpos if "MPos:" in st.raw else st.wpos
 
 
 def _error_code(line: str) -> int:
