@@ -226,6 +226,10 @@ class _Fence:
 
 
 _DWELL = re.compile(r"G0*4(?![0-9.])")
+# Lines that may move the machine (axis words, G28/G30 to a stored position, homing, jogging, sleep)
+# and lines that may change the work offset (WCO = coordinate system + G92 + tool length offset).
+_MAY_MOVE = re.compile(r"[XYZABC][-+.0-9]|G0*28|G30|^\$H|^\$J|^\$SLP")
+_MAY_OFFSET = re.compile(r"G10|G92|G5[4-9]|G43|G49|^\$RST")
 
 
 def clean_gcode_line(line: str) -> str:
@@ -318,7 +322,9 @@ class Jig(Driver):
         self._clean_mark = 0  # first ident sent since nothing was outstanding
         # (position field, lines sent) of the last Idle report returned, and of the one before it
         self._last_idle: tuple[tuple[float, ...] | None, int] | None = None
-        self._prev_idle: tuple[tuple[float, ...] | None, int] | None = None
+        self._motion_mark = 0  # lines sent that may move the machine
+        self._offset_mark = 0  # lines sent that may change the work offset
+        self._wco_mark = -1  # _offset_mark when the remembered WCO was adopted
         self._uncertain: list[tuple[int, int]] = []  # ident ranges whose answers may be shifted by a loss
         try:
             self._await_banner(boot_timeout_s)
@@ -428,9 +434,21 @@ class Jig(Driver):
                 self._status_errors.append(exc)
                 self._quiet = None
                 return
+            if (st.wco is not None and self._wco is not None and st.wco != self._wco
+                    and self._wco_mark == self._offset_mark):
+                # No line that changes the work offset was sent since it was last seen: the report
+                # was corrupted on the wire (its WCO would make every work position after it wrong).
+                self.corrupt_reports += 1
+                exc = LinkCorrupt(f"corrupt status report {line!r}: WCO changed from {self._wco} with no "
+                                  "offset-changing line sent", device=self.device)
+                log.warning("%s: %s", self.device, exc)
+                self._status_errors.append(exc)
+                self._quiet = None
+                return
             self._reports_seen += 1
             if st.wco is not None:
                 self._wco = st.wco
+                self._wco_mark = self._offset_mark
             self.last_status = st
             self._statuses.append(st)
             while len(self._statuses) > 8:
@@ -454,6 +472,7 @@ class Jig(Driver):
             self._quiet = None
             self._clean_mark = self._next_id
             self._last_idle = None  # a reboot may have lost the position without a line sent
+            self._wco = None  # ... and clears G92
             if self._expect_banner:
                 self._expect_banner = False
             else:
@@ -561,6 +580,11 @@ class Jig(Driver):
         ident = self._next_id
         if not self._outstanding:
             self._clean_mark = ident
+        upper = line.upper()
+        if _MAY_MOVE.search(upper):
+            self._motion_mark += 1
+        if _MAY_OFFSET.search(upper):
+            self._offset_mark += 1
         self._next_id += 1
         self._outstanding.append(_Outstanding(ident, line, len(data)))
         self.transport.write(data)
@@ -606,32 +630,44 @@ class Jig(Driver):
         past ``timeout_s``, raises :class:`GrblAlarm` instead of a timeout.
 
         GRBL's lines carry no checksum, and a flipped digit is still a number in GRBL's format. A
-        machine that was Idle and has been sent nothing since cannot have moved: when such a report
-        disagrees with the previous one, a third decides (two that agree), else :class:`LinkCorrupt`.
+        machine that was Idle and has been sent no line that moves it since (no axis word, G28/G30,
+        $H, $J) cannot have moved: when such a report disagrees with the previous one, a third
+        decides (two that agree), else :class:`LinkCorrupt`; the first Idle report after motion is
+        confirmed by a second one. Reports while moving cannot be checked this way. Likewise a
+        report whose WCO changed with no offset-changing line sent (G10, G92, G54-G59, G43.1/G49,
+        $RST) is ``LinkCorrupt``.
         """
         st = self._status_once(timeout_s)
+        if st.state != "Idle":
+            self._last_idle = None
+            return st
         prev = self._last_idle
-        if st.state == "Idle" and prev is not None and prev[1] == self._next_id and _position(st) != prev[0]:
-            third = self._status_once(timeout_s)
-            if _position(third) == _position(st):
-                self.corrupt_reports += 1  # the previous one was wrong (and was returned: see docs)
-            elif _position(third) == prev[0] and third.state == "Idle":
-                self.corrupt_reports += 1
-                st = third
-            else:
+        if prev is None or prev[1] != self._motion_mark:
+            # Nothing to hold this position against yet: a second report must agree.
+            other = self._status_once(timeout_s)
+            if other.state != "Idle":  # it started moving (a queued line): that is the news
                 self._last_idle = None
-                raise LinkCorrupt(f"three Idle reports with no line sent between them disagree on the position: "
-                                  f"{prev[0]}, {st.raw!r}, {third.raw!r}", device=self.device)
-        self._last_idle = (_position(st), self._next_id) if st.state == "Idle" else None
+                return other
+            prev_pos = _position(other)
+            if prev_pos == _position(st):
+                return self._idle(other)
+        else:
+            prev_pos = prev[0]
+            if prev_pos == _position(st):
+                return self._idle(st)
+        third = self._status_once(timeout_s)
+        if third.state == "Idle" and _position(third) in (_position(st), prev_pos):
+            self.corrupt_reports += 1  # the odd one out was corrupted on the wire
+            return self._idle(third)
+        self._last_idle = None
+        raise LinkCorrupt(f"three Idle reports with no motion line sent between them disagree on the position: "
+                          f"{prev_pos}, {st.raw!r}, {third.raw!r}", device=self.device)
+
+    def _idle(self, st: GrblStatus) -> GrblStatus:
+        self._last_idle = (_position(st), self._motion_mark)
         return st
 
-    def idle_confirmed(self, st: GrblStatus) -> bool:
-        """Whether ``st`` (Idle) repeats the previous report's position with no line sent between them."""
-        prev = self._prev_idle
-        return st.state == "Idle" and prev is not None and prev[1] == self._next_id and prev[0] == _position(st)
-
     def _status_once(self, timeout_s: float) -> GrblStatus:
-        self._prev_idle = self._last_idle
         if self.needs_reset:
             raise self.fault(gp.alarm(self.last_alarm or 0, device=self.device,
                                       hint="GRBL sends no status until a soft reset (soft_reset() or activate())"))
@@ -664,9 +700,7 @@ class Jig(Driver):
             st = self.status(min(0.5, max(0.05, dl.remaining_s() or 0.05)))
             self._check_events()
             if st.state == "Idle" and not self._outstanding:
-                if self.idle_confirmed(st):
-                    return st
-                continue  # a second report confirms the position (a flipped digit would pass alone)
+                return st
             if st.state == "Alarm":
                 raise self.fault(gp.alarm(self._alarms.popleft() if self._alarms else 0, device=self.device))
             if dl.expired():
