@@ -60,6 +60,7 @@ FAULT_QUERIES: dict[str, str] = {
     "reboot": "reboot=0.01",
 }
 LOAD_G = 150.0  # on the scale during the soak
+SETTLE_S = 0.4  # the sketch's smoothing window (18 samples at 80/s) plus its latency
 SCALE_TOLERANCE_G = 1.0  # noise of the smoothed HX711 at this load is a few hundredths of a gram
 JIG_TOLERANCE_MM = 0.0011  # GRBL prints 3 decimals
 
@@ -162,15 +163,20 @@ class _Scale(_Harness):
                               drift_counts=0.0, seed=seed, boot_s=0.3)
 
     def open(self, port: str) -> Scale:
-        self.cell.applied_force_n = 0.0  # the session starts with the scale empty: that is the zero
+        """Open, tare the empty scale (the session's zero), then put the load on and let the sketch's
+        smoothing window fill with it (by time: lines queued before the change are read first)."""
+        self.cell.applied_force_n = 0.0
         scale = Scale(port, boot_timeout_s=3.0)
-        got = 0
-        while got < 30:  # fill the smoothing window with the load
-            if got == 5:
-                self.cell.applied_force_n = LOAD_G / 1000.0 * sp.STANDARD_GRAVITY_MPS2
-            scale.read()
-            got += 1
+        self._read_until(scale, scale.clock.now_s() + SETTLE_S)
+        scale.tare()
+        self.cell.applied_force_n = LOAD_G / 1000.0 * sp.STANDARD_GRAVITY_MPS2
+        self._read_until(scale, scale.clock.now_s() + SETTLE_S)
         return scale
+
+    @staticmethod
+    def _read_until(scale: Scale, t_s: float) -> None:
+        while scale.read().t_host_s < t_s:
+            pass
 
     def operate(self, scale: Scale, i: int) -> str | None:
         r = scale.read()
