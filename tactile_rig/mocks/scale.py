@@ -504,12 +504,12 @@ class ScaleMock(SerialDevice):
             self._line.append(b)
 
     def _command(self, line: bytes, t: float) -> None:
-        if line == b"t":
+        if line == sp.CMD_TARE.rstrip(b"\n"):
             self._tare_left = WINDOW  # let the window refill with what is on the scale now
-        elif line == b"?":
+        elif line == sp.CMD_ID.rstrip(b"\n"):
             self._emit(frame(self._id_body(sp.TAG_ID)), t + self._lat(T_ID_S), reply=True)
-        elif line.startswith(b"c,"):
-            mg = parse_mass_mg(line[2:].decode("latin-1"))
+        elif line.startswith(sp.CMD_CALIBRATE_PREFIX):
+            mg = parse_mass_mg(line[len(sp.CMD_CALIBRATE_PREFIX):].decode("latin-1"))
             if mg is None:
                 self._emit(frame(f"{sp.TAG_ERROR},2,{sp.ERRORS[2]}"), t + self._lat(T_MASS_ERROR_S), reply=True)
             else:
