@@ -33,7 +33,6 @@ from typing import Any
 import numpy as np
 
 import tactile_rig.mocks.grbl.gcode as gcode
-import tactile_rig.mocks.grbl.homing as homing
 import tactile_rig.mocks.grbl.report as report
 import tactile_rig.mocks.grbl.system as system
 from tactile_rig.core.clock import Clock
