@@ -197,3 +197,11 @@ def check_range(name: str, value: float, low: float, high: float, unit: str = ""
         u = f" {unit}" if unit else ""
         raise ValueError(f"{name}={value!r}{u} is outside the allowed range [{low}, {high}]{u}")
     return value
+
+
+class PortInUse(NotConnected):
+    """The port is held by another process or handle (opened exclusively); ``port`` names it."""
+
+    def __init__(self, message: str, *, device: str | None = None, port: str | None = None) -> None:
+        super().__init__(message, device=device)
+        self.port = port
