@@ -296,7 +296,9 @@ class DynamixelBus(Driver):
         """The status answering ``req``; stale packets are discarded. ``exact``: no parameterless
         rejection accepted (the resync read)."""
         n = req.expected_params or 0
-        scanner = wire.StatusScanner(self.protocol)
+        # a status longer than ours or any still in flight is corruption, not worth waiting for
+        longest = max([n, 3] + [k for lengths in self._in_flight.values() for k in lengths])
+        scanner = wire.StatusScanner(self.protocol, max_params=longest)
         deadline = Deadline(self.clock, self.packet_timeout_s(tx_bytes, n + (11 if self.protocol == 2 else 6)))
         corrupt = 0
         ser = port.ser

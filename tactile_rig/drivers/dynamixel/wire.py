@@ -172,14 +172,21 @@ class StatusScanner:
 
     :meth:`feed` returns the events completed by the new bytes, in order: :class:`StatusPacket`,
     :class:`Corrupt`, :class:`Foreign`. ``skipped`` counts bytes dropped while hunting for a
-    header. After a checksum failure the scan resumes one byte after the false header, so a real
+    header. ``max_params``: the most status parameters the caller can expect; a longer length
+    field is taken for corruption at once instead of waiting for that many bytes. After a checksum failure the scan resumes one byte after the false header, so a real
     packet hidden behind garbage that looked like a header is still found.
     """
 
-    def __init__(self, protocol: int) -> None:
+    def __init__(self, protocol: int, *, max_params: int | None = None) -> None:
         if protocol not in (1, 2):
             raise ValueError(f"protocol={protocol!r} must be 1 or 2")
         self.protocol = protocol
+        # A corrupted length field must not swallow the real answer behind it: a frame longer
+        # than any status the caller can expect is not waited for (the scan moves on one byte).
+        if max_params is None:
+            self.max_length = MAX_P2_LENGTH if protocol == 2 else MAX_P1_LENGTH
+        else:
+            self.max_length = (2 * max_params + 4) if protocol == 2 else max_params + 2  # P2: stuffing
         self.buf = bytearray()
         self.skipped = 0
 
@@ -248,7 +255,7 @@ class StatusScanner:
             self._drop(1)
             return True
         length = b[5] | b[6] << 8
-        if b[3] != 0x00 or b[4] > 0xFE or not 3 <= length <= MAX_P2_LENGTH:
+        if b[3] != 0x00 or b[4] > 0xFE or not 3 <= length <= self.max_length:
             self._drop(1)
             return True
         total = 7 + length
@@ -269,7 +276,7 @@ class StatusScanner:
         b = self.buf
         if len(b) < 4:
             return None
-        if b[2] >= BROADCAST_ID or not 2 <= b[3] <= MAX_P1_LENGTH:  # FF FF FF ..: the header is one byte on
+        if b[2] >= BROADCAST_ID or not 2 <= b[3] <= self.max_length:  # FF FF FF ..: the header is one byte on
             self._drop(1)
             return True
         total = 4 + b[3]
