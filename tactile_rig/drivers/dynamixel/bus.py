@@ -68,6 +68,8 @@ DEFAULT_LATENCY_TIMER_MS = 16.0
 _MAX_RETURN_DELAY_S = 254 * 2e-6  # Return Delay Time at its maximum (2 µs/unit)
 _TIMEOUT_MARGIN_S = 0.002  # the SDK's 2 ms
 _RESYNC_ADDRESS = 0  # Model Number: readable on both protocols, EEPROM, no side effects
+#: a status later than this after its request failed is not guarded against by a resync
+LATE_HORIZON_S = 1.0
 
 
 def check_latency_timer(port: str, *, sysfs_root: str | Path = "/sys") -> int | None:
@@ -190,8 +192,8 @@ class DynamixelBus(Driver):
         #: the latency timer the packet timeout allows for (ms)
         self.latency_timer_ms = max(float(latency_timer_ms), float(measured or 0))
         self.stats = BusStats()
-        #: ID → status parameter counts that may still be in flight (a request to it failed)
-        self._in_flight: dict[int, set[int]] = {}
+        #: ID → {status parameter count: when its request failed} for statuses that may still come
+        self._in_flight: dict[int, dict[int, float]] = {}
         self.port = UrlPortHandler(port, exclusive=exclusive)
         self.lock = self.port.lock
         self.packet = sdk.PacketHandler(float(protocol))
@@ -328,7 +330,7 @@ class DynamixelBus(Driver):
             ser.timeout = 0
             self.stats.skipped_bytes += scanner.skipped
         # Our status may still come, late: the next request to this ID resyncs first.
-        self._in_flight.setdefault(req.dxl_id, set()).update({n, 0})
+        self._expect_late(req.dxl_id, n)
         if corrupt or scanner.pending:
             partial = f" ({len(scanner.pending)} byte(s) of a cut-off packet)" if scanner.pending else ""
             raise LinkCorrupt(f"{what}: corrupt or cut-off status packet{partial}; "
@@ -339,10 +341,21 @@ class DynamixelBus(Driver):
             f"rate {self.baudrate}, the power and, for a U2D2, the latency timer: {self.latency_timer_ms:g} ms "
             "allowed)", device=dev)
 
+    def _expect_late(self, dxl_id: int, n_params: int) -> None:
+        """A request to ``dxl_id`` failed: its status (or a parameterless rejection) may still come."""
+        now = self.clock.now_s()
+        self._in_flight.setdefault(dxl_id, {}).update({n_params: now, 0: now})
+
     def _resync(self, port: UrlPortHandler, dxl_id: int, what: str) -> None:
         """Read a length no in-flight status of ``dxl_id`` has; when it arrives the line is clean."""
-        busy = self._in_flight.get(dxl_id, set())
-        length = next(k for k in range(1, 12) if k not in busy)
+        busy = self._in_flight.get(dxl_id, {})
+        now = self.clock.now_s()
+        for k in [k for k, t in busy.items() if now - t > LATE_HORIZON_S]:
+            del busy[k]  # a status this late is not waited for any more
+        length = next((k for k in range(1, 12) if k not in busy), None)
+        if length is None:
+            raise LinkCorrupt(f"{what}: the line is too noisy to resync (11 requests failed within "
+                              f"{LATE_HORIZON_S} s)", device=self.name(dxl_id))
         req = wire.Request(self.protocol, dxl_id, wire.READ, self._read_params(_RESYNC_ADDRESS, length))
         self.stats.resyncs += 1
         self._flush(port)
@@ -583,7 +596,7 @@ class DynamixelBus(Driver):
                 pkt = self._receive(port, req, tx_bytes if k == 0 else 0, f"{what}: ID {i}")
             except (DeviceTimeout, LinkCorrupt):
                 for j, _, n in reqs[k + 1:]:  # their statuses may still come, late
-                    self._in_flight.setdefault(j, set()).update({n, 0})
+                    self._expect_late(j, n)
                 raise
             self._check_status(i, pkt.error, f"{what}: ID {i}", fault_ok=True)
             if len(pkt.params) != size:
