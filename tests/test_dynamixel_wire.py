@@ -148,14 +148,18 @@ def test_no_wrong_value_from_splits_garbage_stale_or_cut_off_packets(protocol, d
         pkt = wire.encode_status(protocol, sid, 0, (payload * 8)[:n])
         stream += pkt
         if protocol == 2 and k < len(cut_off):  # a cut-off copy of the true answer's shape
-            stream += wire.encode_status(2, dxl_id, 0, bytes(length))[:cut_off[k] % 14]
+            shape = wire.encode_status(2, dxl_id, 0, bytes(length))
+            stream += shape[:cut_off[k] % len(shape)]
     flipped = bytearray(wire.encode_status(protocol, dxl_id, 0, bytes(reversed(truth)) if truth else b""))
     flipped[flip[0] % len(flipped)] ^= 1 << flip[1]
     g = [bytes(x) if protocol == 2 else bytes(x).replace(b"\xff", b"\x00") for x in garbage]
     stream = g[0] + bytes(stream) + g[1] + bytes(flipped) + wire.encode_status(protocol, dxl_id, 0, truth) + g[2]
     found, _ = _answer(protocol, req, _splits(bytes(stream), cuts), max(length, 6))
-    assert found is not None
-    assert found.params == truth, bytes(stream).hex(" ")
+    if protocol == 2:
+        assert found is not None
+    # P1: a corrupted length may frame the start of the true packet into a checksum-valid stale
+    # frame (1 in 256); the answer is then lost (a timeout, retried), never replaced
+    assert found is None or found.params == truth, bytes(stream).hex(" ")
 
 
 @given(data=st.binary(max_size=64), cuts=st.lists(st.integers(0, 80), max_size=10), protocol=st.sampled_from([1, 2]))
