@@ -35,6 +35,8 @@ def _source_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--camera", help="perception topic name in the recording (default: the only one)")
     p.add_argument("--seed", type=int, default=0, help="seed of the mock session (default 0)")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures and Markdown page")
+    p.add_argument("--force", action="store_true",
+                   help="overwrite the newest model version instead of adding <name>-vN+1")
     add_json_flag(p)
 
 
@@ -77,7 +79,7 @@ def _force_map(args: argparse.Namespace) -> int:
     report = force_map_session(Path(args.out), n_trials=args.trials, max_force_n=args.max_force, seed=args.seed,
                                recording=args.from_recording, holdout=args.holdout, alpha=args.alpha,
                                gamma=DEFAULT_GAMMA if args.gamma is None else args.gamma, camera=args.camera,
-                               bench=bench, figures=not args.no_figures)
+                               bench=bench, figures=not args.no_figures, force=args.force)
     if args.json:
         print_json(report)
     else:
@@ -108,7 +110,8 @@ def _substance(args: argparse.Namespace) -> int:
         raise ValueError(f"--per-substance {args.per_substance} must be >= 2 (train and test trials)")
     report = substance_session(Path(args.out), per_substance=args.per_substance, seed=args.seed,
                                recording=args.from_recording, test_fraction=args.test_fraction,
-                               window_s=args.window, camera=args.camera, figures=not args.no_figures)
+                               window_s=args.window, camera=args.camera, figures=not args.no_figures,
+                               force=args.force)
     if args.json:
         print_json(report)
     else:

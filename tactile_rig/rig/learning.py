@@ -33,6 +33,7 @@ import numpy as np
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.core.errors import CalibrationError
 from tactile_rig.core.jsonable import to_jsonable
+from tactile_rig.rig.calibrations import plan_version, publish
 from tactile_rig.rig.recording import Recorder, read_recording
 from tactile_rig.rig.reports import (
     Report,
@@ -290,24 +291,33 @@ def fit_force_map_trials(trials: Sequence[ForceTrialData], *, holdout: int | Non
 def force_map_session(out_dir: str | Path, *, n_trials: int = 10, max_force_n: float = 20.0, seed: int = 0,
                       recording: str | Path | None = None, holdout: int | None = None, alpha: float = 0.02,
                       gamma: float | None = DEFAULT_GAMMA, camera: str | None = None, bench: Any = None,
-                      figures: bool = True) -> dict[str, Any]:
-    """The whole session: collect (mock) or read (``recording``) trials, fit, save, report.
+                      figures: bool = True, force: bool = False, collect: Any = None) -> dict[str, Any]:
+    """The whole session: collect (mock, or live with ``collect``) or read (``recording``) trials, fit,
+    save, report.
 
+    The model is versioned (:mod:`tactile_rig.rig.calibrations`): ``OUT/force_map-vN.npz`` + ``.json``
+    with ``OUT/force_map.npz`` / ``.json`` linking to the newest; ``force`` rewrites the newest.
     On mocks the trials come from :class:`~tactile_rig.sim.world.stick_press.StickPressScene` and are
-    recorded to ``OUT/force_map.mcap`` first; the fit always reads a recording.
+    recorded to ``OUT/force_map-vN.mcap`` first; ``collect(path) -> path`` records a live session
+    there instead (:mod:`tactile_rig.rig.live_collection`); the fit always reads a recording.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    ver = plan_version(out / "force_map", (".npz", ".json"), force=force)
     scene = None
-    if recording is None:
+    if recording is None and collect is not None:
+        recording = collect(ver.path(".mcap"))
+        camera = camera or "fingervision"
+    elif recording is None:
 
         scene = StickPressScene()
         trials_sim = scene.trials(increasing_peaks(n_trials, max_force_n), seed=seed)
-        recording = record_force_map_session(out / "force_map.mcap", trials_sim, bench=bench)
+        recording = record_force_map_session(ver.path(".mcap"), trials_sim, bench=bench)
         camera = camera or "fingervision"
     trials = force_trials_from_recording(recording, camera=camera)
     model, report = fit_force_map_trials(trials, holdout=holdout, alpha=alpha, gamma=gamma)
-    report["source"] = "mock stick-press scene" if scene is not None else str(recording)
+    report["source"] = ("mock stick-press scene" if scene is not None
+                        else "live collection" if collect is not None else str(recording))
     report["recording"] = str(recording)
     test = next(t for t in trials if t.index == report["holdout_trial"])
     pred = model.predict(test.features)
@@ -316,8 +326,10 @@ def force_map_session(out_dir: str | Path, *, n_trials: int = 10, max_force_n: f
         report["scene_noise_rms_n"] = float(np.sqrt(np.mean(noise**2)))
         report["scene"] = {"marker_noise_px": scene.marker_noise_px, "scale_noise_n": scene.scale_noise_n,
                            "gain_sd": scene.gain_sd, "seed": seed}
-    npz, js = model.save(out / "force_map")
-    report["model"] = {"npz": str(npz), "json": str(js)}
+    npz, js = model.save(ver.stem)
+    links = publish(ver, (".npz", ".json", ".mcap"))
+    report["model"] = {"npz": str(npz), "json": str(js), "version": ver.version,
+                       "latest": [str(p) for p in links]}
     if figures:
 
         f1 = plot_estimated_vs_true(test.force_n, pred, out / "force_map_holdout.png", quantity="force", unit="N",
@@ -507,15 +519,20 @@ def stirring_trials_from_recording(path: str | Path, *, camera: str | None = Non
 
 def substance_session(out_dir: str | Path, *, per_substance: int = 12, seed: int = 0,
                       recording: str | Path | None = None, test_fraction: float = 0.25, window_s: float = 2.0,
-                      camera: str | None = None, figures: bool = True) -> dict[str, Any]:
-    """Collect (mock) or read stirring trials, fit the MLP on some trials, report held-out accuracy."""
+                      camera: str | None = None, figures: bool = True, force: bool = False,
+                      collect: Any = None) -> dict[str, Any]:
+    """Collect (mock, or live with ``collect(path) -> path``) or read stirring trials, fit the MLP on
+    some trials, report held-out accuracy. Versioned as the force map: ``OUT/substance-vN.*``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if not 0 < test_fraction < 1:
         raise ValueError(f"test_fraction={test_fraction!r} must be in (0, 1)")
-    if recording is None:
+    ver = plan_version(out / "substance", (".npz", ".json"), force=force)
+    if recording is None and collect is not None:
+        recording = collect(ver.path(".mcap"))
+    elif recording is None:
 
-        recording = record_stirring_session(out / "substance.mcap", StirringScene().trials(per_substance, seed=seed))
+        recording = record_stirring_session(ver.path(".mcap"), StirringScene().trials(per_substance, seed=seed))
     trials = stirring_trials_from_recording(recording, camera=camera)
     rng = np.random.default_rng(seed)
     by_label: dict[str, list[int]] = {}
@@ -550,8 +567,10 @@ def substance_session(out_dir: str | Path, *, per_substance: int = 12, seed: int
               "n_train_trials": len(train_sel), "n_test_trials": len(test_idx), "n_train_windows": len(ytr),
               "n_test_windows": len(yte), "window_s": window_s, "recording": str(recording), "seed": seed}
     model.meta.update({k: report[k] for k in ("accuracy_holdout", "n_train_windows", "window_s")})
-    npz, js = model.save(out / "substance")
-    report["model"] = {"npz": str(npz), "json": str(js)}
+    npz, js = model.save(ver.stem)
+    links = publish(ver, (".npz", ".json", ".mcap"))
+    report["model"] = {"npz": str(npz), "json": str(js), "version": ver.version,
+                       "latest": [str(p) for p in links]}
     if figures:
 
         write_summary(out, report, [{"true": t, "predicted": p} for t, p in zip(yte, pred)], name="substance_summary")
