@@ -119,6 +119,22 @@ class ForceMapModel:
             out[i:i + 2048] = np.exp(-self.gamma * np.maximum(d2, 0.0)) @ self.dual_coef
         return out
 
+    def to_newtons(self, force_px: Sequence[float], torque_px2: Sequence[float]
+                   ) -> tuple[np.ndarray, np.ndarray, float]:
+        """One fingertip's marker force (px) and torque (px²) → (force N (3,), torque N·px (3,), |F| N).
+
+        The map was fitted on the force the scale measured, so it gives the magnitude ``|F|``
+        (clamped at 0 N); the direction is the marker force's. Force and torque are scaled by the
+        same ``|F| / |force_px|`` (zero when the markers do not move); multiply the torque by the
+        camera's mm/px for N·mm.
+        """
+        f = np.asarray(force_px, float).reshape(3)
+        tq = np.asarray(torque_px2, float).reshape(3)
+        magnitude = max(0.0, float(self.predict(np.concatenate([f, tq])[None, :])[0]))
+        norm = float(np.linalg.norm(f))
+        k = magnitude / norm if norm > 1e-9 else 0.0
+        return f * k, tq * k, magnitude
+
     def save(self, path: str | Path) -> tuple[Path, Path]:
         """Write ``<stem>.npz`` (arrays) and ``<stem>.json`` (metadata); no pickle anywhere."""
         npz, js = _paths(path)
@@ -145,6 +161,35 @@ class ForceMapModel:
                         feature_names=tuple(meta.get("features", FORCE_FEATURES)))
         model.meta = {k: v for k, v in meta.items() if k not in ("format", "version", "arrays")}
         return model
+
+
+def _model_path(path: str | Path, name: str) -> Path:
+    """A model named by its .json, .npz, stem, or the session's output folder (``<folder>/<name>``)."""
+    p = Path(path)
+    return p / name if p.is_dir() else p
+
+
+def load_force_map(path: str | Path) -> ForceMapModel:
+    """The force map a bench names (``calib/force_map``, ``.../force_map.json`` or ``.npz``; the
+    stable name reads the newest version). Raises CalibrationError naming the file and the command."""
+    p = _model_path(path, "force_map")
+    try:
+        model = ForceMapModel.load(p)
+    except CalibrationError as exc:
+        raise CalibrationError(f"{exc}; make it with: tactile-rig calibrate force-map", device="force-map") from None
+    model.meta.setdefault("path", str(_paths(p)[1]))
+    return model
+
+
+def load_substance_model(path: str | Path) -> SubstanceModel:
+    """The substance classifier a bench names (folder, ``.json``, ``.npz`` or stem)."""
+    p = _model_path(path, "substance")
+    try:
+        model = SubstanceModel.load(p)
+    except CalibrationError as exc:
+        raise CalibrationError(f"{exc}; make it with: tactile-rig calibrate substance", device="substance") from None
+    model.meta.setdefault("path", str(_paths(p)[1]))
+    return model
 
 
 def _load_meta(js: Path, fmt: str) -> dict[str, Any]:
@@ -431,6 +476,9 @@ class SubstanceModel:
     def load(cls, path: str | Path) -> "SubstanceModel":
         npz, js = _paths(path)
         meta = _load_meta(js, SUBSTANCE_FORMAT)
+        if not npz.is_file():
+            raise CalibrationError(f"substance model arrays {npz} are missing (the .json is there)",
+                                   device="substance")
         with np.load(npz, allow_pickle=False) as z:
             n = int(meta["layers"])
             model = cls(center=z["center"], scale=z["scale"], weights=[z[f"W{i}"] for i in range(n)],
@@ -583,3 +631,57 @@ def substance_session(out_dir: str | Path, *, per_substance: int = 12, seed: int
          .table("Confusion (held-out windows)", rows)
          .write("substance.md"))
     return report
+
+
+def predict_substance(model: SubstanceModel, series: np.ndarray, rate_hz: float, *,
+                      window_s: float | None = None) -> dict[str, Any]:
+    """Classify a stirring series (T × 3: fx, fy, tz in px) window by window, then by majority.
+
+    ``window_s`` defaults to the window the model was trained on. Returns the per-window labels and
+    probabilities, the majority ``substance`` and its share of the windows (``agreement``).
+    """
+    w = float(window_s if window_s is not None else model.meta.get("window_s", 2.0))
+    X = stirring_features(series, rate_hz, window_s=w)
+    if X.shape[0] == 0:
+        raise ValueError(f"the series has {np.asarray(series).shape[0]} samples at {rate_hz:.3g} Hz: shorter "
+                         f"than one {w:g} s window")
+    proba = model.predict_proba(X)
+    labels = [model.classes[i] for i in np.argmax(proba, axis=1)]
+    counts = {c: labels.count(c) for c in model.classes}
+    best = max(model.classes, key=lambda c: (counts[c], float(proba[:, model.classes.index(c)].mean())))
+    return {"substance": best, "agreement": counts[best] / len(labels), "windows": len(labels),
+            "window_s": w, "counts": counts, "per_window": labels,
+            "mean_probability": {c: float(proba[:, i].mean()) for i, c in enumerate(model.classes)}}
+
+
+def stirring_series_from_recording(path: str | Path, *, camera: str | None = None
+                                   ) -> list[dict[str, Any]]:
+    """Every trial's marker series (T × 3: fx, fy, tz px) in a recording, labelled or not.
+
+    Messages without a ``trial`` field form one series (trial None). Each item: ``trial``, ``label``
+    (the trial start's label, or None), ``series``, ``rate_hz``.
+    """
+    rec = read_recording(path)
+    labels = {int(m.data["trial"]): str(m.data["label"]) for m in rec.on("/command/session")
+              if m.data.get("command") == "trial_start" and "label" in m.data and "trial" in m.data}
+    perc = sorted({m.topic for m in rec.messages if m.topic.startswith("/perception/")})
+    topic = f"/perception/{camera}" if camera else (perc[0] if len(perc) == 1 else None)
+    if topic is None or topic not in perc:
+        raise CalibrationError(f"{path}: pick the camera's perception topic with --camera; found: "
+                               f"{', '.join(perc) or '(none)'}", device="substance")
+    rows: dict[int | None, list[tuple[float, list[float]]]] = {}
+    for m in rec.on(topic):
+        f, tq = m.data.get("force_px"), m.data.get("torque_px2")
+        if f is None or tq is None:
+            continue
+        k = m.data.get("trial")
+        rows.setdefault(None if k is None else int(k), []).append((m.t_s, [f[0], f[1], tq[2]]))
+    out = []
+    for k, samples in sorted(rows.items(), key=lambda kv: -1 if kv[0] is None else kv[0]):
+        t = np.array([s[0] for s in samples])
+        rate = (t.size - 1) / (t[-1] - t[0]) if t.size > 1 and t[-1] > t[0] else 30.0
+        out.append({"trial": k, "label": labels.get(k) if k is not None else None,
+                    "series": np.array([s[1] for s in samples], float), "rate_hz": float(rate)})
+    if not out:
+        raise CalibrationError(f"{path}: no marker forces (force_px, torque_px2) on {topic}", device="substance")
+    return out
