@@ -10,6 +10,7 @@ import argparse
 import glob
 import json
 import os
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -147,7 +148,7 @@ def _track(args: argparse.Namespace) -> int:
         cal.calibration.apply(fv)  # the stored baseline: no frames spent rebuilding it
     fm = cal.force_map
     if not args.json:
-        print(f"calibration: {describe_files(cal)}")
+        print(f"calibration: {describe_files(cal)}", file=sys.stderr)
     learnt = args.object_rect is None
     n = 0
     for i, (name, frame) in enumerate(iter_frames(args.frames)):
