@@ -289,8 +289,8 @@ def force_trials_from_recording(path: str | Path, *, camera: str | None = None,
     t_sorted, f_sorted = t_scale[order], f_scale[order]
     for m in rec.on(topic):
         d = m.data
-        if "force_px" not in d or "torque_px2" not in d:
-            continue
+        if "force_px" not in d or "torque_px2" not in d or d.get("phase", "press") != "press":
+            continue  # a live session also records the fingertip at rest, probing and released
         trial = d.get("trial")
         if trial is None:
             trial = max((k for ts, k in starts if ts <= m.t_s), default=0)
