@@ -73,7 +73,7 @@ def _live_camera(args: argparse.Namespace, bench: Any) -> str:
     if name is None or name not in bench.cameras:
         raise ValueError(f"{bench.source}: no FingerVision camera for the live session (cameras: "
                          f"{', '.join(bench.cameras) or 'none'}); add one with sensor = \"fingervision\" or "
-                         "pass --camera NAME")
+                         "pass --camera NAME (or learn from a recording with --from-recording FILE.mcap)")
     return name
 
 
@@ -108,6 +108,10 @@ def _force_map(args: argparse.Namespace) -> int:
         raise ValueError(f"--max-force {args.max_force} must be > 0 N")
     collect, camera = None, args.camera
     if live:
+        missing = [d for d in ("gripper", "scale") if d not in bench.devices]
+        if missing:
+            raise ValueError(f"force-map live collection: {bench.source} has no [{'], ['.join(missing)}]; add "
+                             "them, or learn from a recorded session with --from-recording FILE.mcap")
         camera = _live_camera(args, bench)
         plan = PressPlan(peaks_n=tuple(float(v) for v in increasing_peaks(args.trials, args.max_force)),
                          max_effort=args.max_effort, release_opening_m=args.release_opening_m, ramp_s=args.ramp,
