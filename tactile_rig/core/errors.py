@@ -18,6 +18,7 @@ the device latched a fault      DeviceFault                            3
   ... an unasked reset          GrblReset (DeviceFault)                3
 outside a configured limit      LimitError (ValueError)                2
 a calibration unusable          CalibrationError (ValueError)          2
+  ... would replace a file      CalibrationExists (CalibrationError)   2
 a camera kept no setting        ControlReadbackError (ValueError)      2
 a camera stream frozen          FrozenStream (DeviceTimeout)           2
 a bench file unusable           BenchError (ValueError)                2
@@ -175,6 +176,11 @@ class CalibrationError(RigError, ValueError):
 class ZeroLost(RigError, ValueError):
     """A scale's zero can no longer be trusted (its sketch re-tared with an unknown load on it and
     sends no raw counts the host could correct with); ``tare()`` sets a new zero."""
+
+
+class CalibrationExists(CalibrationError, FileExistsError):
+    """Writing a calibration would replace an existing file (a version, or an unversioned file at the
+    stable name); pass ``force=True`` (``--force``) to overwrite it."""
 
 
 class ControlReadbackError(RigError, ValueError):
