@@ -197,3 +197,24 @@ def check_range(name: str, value: float, low: float, high: float, unit: str = ""
         u = f" {unit}" if unit else ""
         raise ValueError(f"{name}={value!r}{u} is outside the allowed range [{low}, {high}]{u}")
     return value
+
+
+class BadFile(RigError, ValueError):
+    """A file that cannot be used as it is: ``path`` names it, ``problem`` says what is wrong with it
+    and ``expected`` what was expected (a directory given for a file, zero bytes, a truncated
+    archive, a pickle or complex ``.npy``, a 65535 x 65535 image header, JSON nested too deep)."""
+
+    def __init__(self, path: Any, problem: str, expected: str = "") -> None:
+        self.path = str(path)
+        self.problem = problem
+        self.expected = expected
+        super().__init__(f"{self.path}: {problem}" + (f"; expected {expected}" if expected else ""))
+
+
+class MissingFile(RigError, FileNotFoundError):
+    """A file the command needs does not exist; ``path`` names it and ``what`` says what it was for."""
+
+    def __init__(self, path: Any, what: str = "file") -> None:
+        self.path = str(path)
+        self.what = what
+        RigError.__init__(self, f"{self.path}: the {what} does not exist")
