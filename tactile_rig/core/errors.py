@@ -18,6 +18,8 @@ the device latched a fault      DeviceFault                            3
   ... an unasked reset          GrblReset (DeviceFault)                3
 outside a configured limit      LimitError (ValueError)                2
 a calibration unusable          CalibrationError (ValueError)          2
+  ... no markers to calibrate   MarkersNotFound (CalibrationError)     2
+frame outside the valid input   InvalidFrame (ValueError)              2
 a camera kept no setting        ControlReadbackError (ValueError)      2
 a camera stream frozen          FrozenStream (DeviceTimeout)           2
 a bench file unusable           BenchError (ValueError)                2
@@ -157,6 +159,14 @@ class NotConnected(RigError, ConnectionError):
 
 class CalibrationError(RigError, ValueError):
     """A calibration is missing, of the wrong version or sensor, or cannot be fitted from the data."""
+
+
+class MarkersNotFound(CalibrationError):
+    """A marker sensor's calibration frames hold no marker lattice (black, white, flat, covered)."""
+
+
+class InvalidFrame(RigError, ValueError):
+    """A frame outside a perception entry point's valid input: shape, channels, dtype or size."""
 
 
 class ControlReadbackError(RigError, ValueError):
