@@ -114,9 +114,9 @@ class FingerVisionResult:
     marker_valid: np.ndarray
     marker_found: np.ndarray
     force_px: np.ndarray
-    """(fx, fy, fz) mean marker displacement / size growth, px (N if ForceParams.newton_per_px)."""
+    """(fx, fy, fz) mean marker displacement / size growth, px (a force map on the rig converts to N)."""
     torque_px2: np.ndarray
-    """Mean r x f about the image centre, px^2 (N*mm if both scales are given)."""
+    """Mean r x f about the image centre, px^2."""
     object_area_px: float
     object_centroid_px: tuple[float, float] | None
     object_orientation_deg: float | None
@@ -316,9 +316,9 @@ class FingerVision:
         mom = prox.moments
         return FingerVisionResult(
             t_s, False, st.ids, st.positions_px, st.sizes_px, st.valid, st.found,
-            ft.force, ft.torque, mom.area_px, mom.centroid_px, mom.orientation_deg,
+            ft.force_px, ft.torque_px2, mom.area_px, mom.centroid_px, mom.orientation_deg,
             prox.slip, prox.slip_magnitude_px, prox.slip_direction_deg,
-            bool(np.linalg.norm(ft.force) >= self.params.contact_threshold_px),
+            bool(np.linalg.norm(ft.force_px) >= self.params.contact_threshold_px),
             {"contrast": (t1 - t0) * 1e3, "track": (t2 - t1) * 1e3, "force": (t3 - t2) * 1e3,
              "proximity": (t4 - t3) * 1e3, "total": (t4 - t0) * 1e3},
         )
