@@ -157,8 +157,11 @@ def _predict(nodes: dict[tuple[int, int], int], pos: np.ndarray, ij: tuple[int, 
             steps.append(float(np.hypot(*step)))
     if not preds:
         return None
-    # parallelograms first (interpolation), then extrapolations: average the best kind present
-    return np.mean(preds, axis=0), float(np.median(steps)), support
+    steps.sort()
+    m = len(steps) // 2
+    step_px = steps[m] if len(steps) % 2 else 0.5 * (steps[m - 1] + steps[m])
+    mean = preds[0] if len(preds) == 1 else np.add.reduce(preds) / len(preds)
+    return mean, step_px, support
 
 
 def fit_lattice(
@@ -202,6 +205,13 @@ def fit_lattice(
     tried_fill: set[tuple[int, int]] = set()
 
     pos_arr = np.array(pos)
+    cache: dict[tuple[int, int], tuple[np.ndarray, float, int] | None] = {}
+
+    def added(ij: tuple[int, int]) -> None:
+        # a prediction leans on nodes up to 3 steps away: forget the ones the new node may change
+        for key in [k for k in cache if abs(k[0] - ij[0]) <= 3 and abs(k[1] - ij[1]) <= 3]:
+            del cache[key]
+
     changed = True
     while changed and len(nodes) < params.max_nodes:
         changed = False
@@ -209,7 +219,9 @@ def fit_lattice(
         frontier -= set(nodes)
         scored = []
         for ij in frontier:
-            pr = _predict(nodes, pos_arr, ij, default_steps)
+            if ij not in cache:
+                cache[ij] = _predict(nodes, pos_arr, ij, default_steps)
+            pr = cache[ij]
             if pr is not None:
                 scored.append((-pr[2], ij, pr))
         scored.sort(key=lambda t: (t[0], t[1]))
@@ -225,6 +237,7 @@ def fit_lattice(
                 if d[k] <= params.tolerance * step:
                     nodes[ij] = free[k]
                     taken.add(free[k])
+                    added(ij)
                     changed = True
                     break  # re-predict with the new node: later predictions lean on it
         if changed:
@@ -249,6 +262,7 @@ def fit_lattice(
             detected.append(False)
             pos_arr = np.array(pos)
             nodes[ij] = len(pos) - 1
+            added(ij)
             changed = True
             break
     if len(nodes) < params.min_markers:
