@@ -19,6 +19,10 @@ the device latched a fault      DeviceFault                            3
 outside a configured limit      LimitError (ValueError)                2
 a calibration unusable          CalibrationError (ValueError)          2
   ... would replace a file      CalibrationExists (CalibrationError)   2
+
+
+  ... no markers to calibrate   MarkersNotFound (CalibrationError)     2
+frame outside the valid input   InvalidFrame (ValueError)              2
 a camera kept no setting        ControlReadbackError (ValueError)      2
 a camera stream frozen          FrozenStream (DeviceTimeout)           2
 a bench file unusable           BenchError (ValueError)                2
@@ -181,6 +185,14 @@ class ZeroLost(RigError, ValueError):
 class CalibrationExists(CalibrationError, FileExistsError):
     """Writing a calibration would replace an existing file (a version, or an unversioned file at the
     stable name); pass ``force=True`` (``--force``) to overwrite it."""
+
+
+class MarkersNotFound(CalibrationError):
+    """A marker sensor's calibration frames hold no marker lattice (black, white, flat, covered)."""
+
+
+class InvalidFrame(RigError, ValueError):
+    """A frame outside a perception entry point's valid input: shape, channels, dtype or size."""
 
 
 class ControlReadbackError(RigError, ValueError):
