@@ -20,6 +20,7 @@ from tactile_rig.core.errors import DeviceFault, RigError
 # Command groups, in the order they appear in --help.
 COMMAND_MODULES: tuple[str, ...] = (
     "mock",
+    "bench",
     "devices",
     "gripper",
     "scale",
