@@ -29,6 +29,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "fingervision",
     "scene",
     "run",
+    "record",
+    "camera",
     "calibrate",
     "replay",
     "sweep",

@@ -31,8 +31,9 @@ def register(sub: Any) -> None:
     r.add_argument("--out", default="rehearsal", metavar="DIR",
                    help="folder for bench.toml, the device links (dev/) and the calibration (default: rehearsal)")
     r.add_argument("--camera", action="append", default=[], metavar="NAME=SOURCE[@SENSOR]",
-                   help="a camera playing recorded footage at its recorded rate: a video file or "
-                        "FILE.mcap[#TOPIC]; SENSOR fingervision (default) or gelsight; repeat for several")
+                   help="a camera playing recorded footage at its recorded rate: a video file, a folder of "
+                        "images, FILE.mcap[#TOPIC], or 'rendered' (a FingerVision press video the rehearsal "
+                        "writes); SENSOR fingervision (default) or gelsight; repeat for several")
     r.add_argument("--seed", type=int, default=0, help="seed of the mocks' noise (default 0)")
     r.add_argument("--homing", action="store_true",
                    help="GRBL homing enabled: the jig boots locked and $H takes ~20 s, as on a real jig")

@@ -10,7 +10,8 @@ Devices (each its own process, real time):
 * ``jig`` + ``camera_gelsight``: the GRBL mock on a pty and the GelSight camera rendering the object on
   its stage, served as MJPEG over HTTP (:mod:`.child` ``stage``: one process, one world);
 * ``camera_<name>`` for each recorded footage given (``cameras={"fingervision": "run.mcap#/camera/x"}``):
-  the footage played at its recorded rate as MJPEG over HTTP (:mod:`.child` ``camera``).
+  the footage played at its recorded rate as MJPEG over HTTP (:mod:`.child` ``camera``); the source
+  ``"rendered"`` is a FingerVision video the rehearsal writes first to ``OUT/footage/<name>.avi``.
 
 The serial devices are named in the bench file through links in ``OUT/dev/`` (``OUT/dev/gripper`` →
 ``/dev/pts/N``), as a lab names USB adapters through ``/dev/serial/by-path`` links. A GelSight
@@ -28,11 +29,13 @@ from typing import Any, Mapping
 
 from tactile_rig.rig.jig_accuracy import mock_gelsight_calibration
 from tactile_rig.rig.rehearsal.bench_file import RehearsalDevice, bench_toml, link_device
+from tactile_rig.rig.rehearsal.frames import write_fingervision_footage
 from tactile_rig.rig.rehearsal.processes import DeviceProcess, child_argv, mock_serve_argv
 
 BENCH_FILE = "bench.toml"
 STATE_FILE = "rehearsal.json"
 SENSORS = ("gelsight", "fingervision")
+SYNTHETIC_FOOTAGE = "rendered"  # --camera NAME=rendered: a FingerVision video the rehearsal renders
 
 
 @dataclass
@@ -89,6 +92,8 @@ class RehearsalBench:
             "stage": DeviceProcess("jig", child_argv("stage", stage_opts)),
         }
         for name, source in o.cameras.items():
+            if source == SYNTHETIC_FOOTAGE:
+                source = str(write_fingervision_footage(self.out / "footage" / f"{name}.avi", seed=o.seed))
             procs[f"camera_{name}"] = DeviceProcess(f"camera_{name}", child_argv(
                 "camera", ["--source", str(source), "--name", name, "--seed", str(o.seed)]))
         self.processes = procs
