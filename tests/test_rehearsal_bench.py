@@ -10,6 +10,7 @@ import threading
 from pathlib import Path
 
 import cv2
+import numpy as np
 import pytest
 
 from tactile_rig.cli import main
@@ -148,3 +149,42 @@ def test_record_live_streams_what_it_records(rehearsal, tmp_path, capsys) -> Non
     assert all((b - a) % 65536 == 1 for a, b in zip(seqs, seqs[1:]))  # no sample lost or reordered
     frame = client.on("/camera/camera_fingervision/compressed")[-1].data
     assert frame["format"] == "jpeg" and frame["frame_id"] == "camera_fingervision"
+
+
+def test_fingervision_track_live_from_the_bench_camera(rehearsal, capsys) -> None:
+    port = _free_port()
+    client = LiveClient(f"ws://127.0.0.1:{port}")
+    rc: list[int] = []
+    run = threading.Thread(target=lambda: rc.append(main([
+        "fingervision", "track", "--bench", str(rehearsal.bench_path), "--camera", "camera_fingervision",
+        "--frames-max", "60", "--json", "--live", "--live-port", str(port)])))
+    run.start()
+    client.start()
+    run.join(60)
+    client.stop()
+    assert rc == [0]
+    rows = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    frames, summary = rows[:-1], rows[-1]
+    assert summary["summary"] and summary["frames"] == 60 == len(frames)
+    assert [r["frame"] for r in frames] == list(range(60))
+    assert frames[0]["calibrating"] and not frames[-1]["calibrating"]
+    tracked = [r for r in frames if not r["calibrating"]]
+    assert all(r["marker_count"] >= 20 for r in tracked)
+    assert all(r["fps"] > 0 for r in frames[1:])
+    got = client.on("/perception/camera_fingervision/fingervision")
+    assert 0 < len(got) <= 60
+    assert [m.data["frame"] for m in got] == sorted(m.data["frame"] for m in got)
+    assert client.advertised["/camera/camera_fingervision/compressed"] == "foxglove.CompressedImage"
+
+
+def test_gelsight_height_live_saves_the_last_map(rehearsal, tmp_path, capsys) -> None:
+    out = tmp_path / "h.npy"
+    assert main(["gelsight", "height", "--bench", str(rehearsal.bench_path), "--frames-max", "5", "--json",
+                 "-o", str(out)]) == 0
+    rows = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert len(rows) == 6 and rows[-1]["camera"] == "camera_gelsight"
+    h = np.load(out)
+    assert h.shape == (240, 320)
+    assert rows[-2]["max_height_mm"] == pytest.approx(float(h.max()), abs=1e-4)
+    assert rows[-2]["max_height_mm"] > 0.05  # the jig's object presses the gel
+    assert main(["gelsight", "height"]) == 2  # neither files nor a bench: one line, exit 2

@@ -12,27 +12,9 @@ import time
 from typing import Any
 
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
+from tactile_rig.cli.bench_live import add_live_arguments, live_from_args
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.rig.bench_record import record_bench
-from tactile_rig.rig.live import DEFAULT_LIVE_PORT, LiveServer
-
-
-def add_live_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--live`` / ``--live-port`` (the Foxglove WebSocket live view on 127.0.0.1)."""
-    parser.add_argument("--live", action="store_true",
-                        help=f"serve the session live over the Foxglove WebSocket protocol on 127.0.0.1 "
-                             f"(open ws://127.0.0.1:{DEFAULT_LIVE_PORT} in Foxglove; needs tactile-rig[live])")
-    parser.add_argument("--live-port", type=int, default=DEFAULT_LIVE_PORT, metavar="PORT",
-                        help=f"port of the live view (default {DEFAULT_LIVE_PORT}; 0: any free port, printed)")
-
-
-def live_from_args(args: argparse.Namespace) -> LiveServer | None:
-    """The live server ``--live`` asks for (its URL printed on stderr), or None."""
-    if not getattr(args, "live", False):
-        return None
-    live = LiveServer(port=args.live_port)
-    print(f"live view: {live.url} (Foxglove: Open connection → Foxglove WebSocket)", file=sys.stderr, flush=True)
-    return live
 
 
 def register(sub: Any) -> None:
