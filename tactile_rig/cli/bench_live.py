@@ -27,6 +27,8 @@ from tactile_rig.rig.live_perception import (
     height_image,
     run_live,
 )
+from tactile_rig.rig.scene_runner import run_episode, summarize
+from tactile_rig.sim.scenes import resolve_scene_path
 
 
 def add_live_arguments(parser: argparse.ArgumentParser) -> None:
@@ -36,14 +38,29 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
                              f"(ws://127.0.0.1:{DEFAULT_LIVE_PORT} in Foxglove; needs tactile-rig[live])")
     parser.add_argument("--live-port", type=int, default=DEFAULT_LIVE_PORT, metavar="PORT",
                         help=f"port of the live view (default {DEFAULT_LIVE_PORT}; 0: any free port, printed)")
+    parser.add_argument("--live-wait", type=float, default=0.0, metavar="S",
+                        help="with --live: wait up to S s for a viewer to subscribe before starting (default 0)")
 
 
-def live_from_args(args: argparse.Namespace, clock: Any = None) -> LiveServer | None:
-    """The live server ``--live`` asks for (its URL printed on stderr), or None."""
+SESSION_TOPIC = "/session"  # advertised at once so a viewer can subscribe before the session's own topics exist
+
+
+def live_from_args(args: argparse.Namespace, clock: Any = None, topics: tuple[str, ...] = ()) -> LiveServer | None:
+    """The live server ``--live`` asks for (its URL printed on stderr), or None. With ``--live-wait``
+    it waits for a viewer to subscribe to ``topics`` (advertised first), or to anything."""
     if not getattr(args, "live", False):
         return None
+    if args.live_wait < 0:
+        raise ValueError(f"--live-wait {args.live_wait} must be >= 0 s")
     live = LiveServer(port=args.live_port, clock=clock)
     print(f"live view: {live.url} (Foxglove: Open connection -> Foxglove WebSocket)", file=sys.stderr, flush=True)
+    if args.live_wait > 0 and not topics:
+        live.advertise(SESSION_TOPIC)
+        live.wait_for_subscriber(args.live_wait)
+    elif args.live_wait > 0:
+        for t in topics:
+            live.advertise(t, "tactile_rig.Perception")
+        live.wait_for_subscriber(args.live_wait, set(topics))
     return live
 
 
@@ -128,3 +145,28 @@ def need_files(args: argparse.Namespace, *names: str) -> None:
     for n in names:
         if not getattr(args, n, None):
             raise ValueError(f"{n.replace('_', '-')} is required (or pass --bench FILE to run live from a camera)")
+
+
+def scene_live(args: argparse.Namespace, show: Any) -> dict[str, Any]:
+    """``scene run --live``: each episode's report on ``/perception/<scene>/episode`` and its controller
+    trace on ``/perception/<scene>/trace``, one message per sample, episodes one after the other in
+    simulated time. Returns the summary ``run_episodes`` would."""
+    stem = resolve_scene_path(args.name).stem
+    live = live_from_args(args, topics=(f"/perception/{stem}/trace", f"/perception/{stem}/episode"))
+    assert live is not None
+    reports = []
+    t0 = 0.0
+    try:
+        for i in range(args.episodes):
+            r = run_episode(args.name, args.seed + i, episode=i, speed_mps=args.speed_mps)
+            name = r.scene
+            if r.result is not None:
+                live.write_trace(f"{name}/trace", r.result.trace, t0_s=t0)
+            live.write_perception(f"{name}/episode", r.to_json(), t_s=t0 + r.sim_s)
+            t0 += r.sim_s
+            r.result = None
+            reports.append(r)
+            show(r)
+    finally:
+        live.close()
+    return summarize(args.name, reports)

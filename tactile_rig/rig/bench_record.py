@@ -57,7 +57,7 @@ def record_bench(bench: Bench, duration_s: float, out: str | Path | None, *, liv
                     recorder.add_calibration(name, path=cfg.calibration)
         sink = Tee(recorder, live)
         if live is not None:
-            live.clock = clock
+            live.use_clock(clock)
         outcome = RecordOutcome(Path(out) if out is not None else None)
         counts = outcome.counts
 

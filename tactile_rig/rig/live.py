@@ -29,6 +29,7 @@ from tactile_rig.rig.recording import SCHEMAS
 __all__ = ["DEFAULT_LIVE_PORT", "LiveServer", "Tee", "require_foxglove"]
 
 DEFAULT_LIVE_PORT = 8765  # the Foxglove app's default for "Foxglove WebSocket"
+BACKLOG_MESSAGES = 16384  # per client; a simulated episode's trace arrives as one burst
 
 
 def require_foxglove() -> Any:
@@ -81,11 +82,33 @@ class LiveServer:
         self.jpeg_quality = int(jpeg_quality)
         self._fg = fg
         self._ctx = fg.Context()
-        self._server = fg.start_server(name=name, host=host, port=int(port), context=self._ctx)
+        self._sub_cond = threading.Condition()
+        self.subscribed_topics: set[str] = set()
+        self._server = fg.start_server(name=name, host=host, port=int(port), context=self._ctx,
+                                       server_listener=_Listener(self), message_backlog_size=BACKLOG_MESSAGES)
         self._channels: dict[str, Any] = {}
         self._lock = threading.Lock()
         self._epoch_ns = time.time_ns() - int(self.clock.now_s() * 1e9)
         self.published = 0
+
+    def advertise(self, topic: str, schema: str = "tactile_rig.Json") -> None:
+        """Create ``topic``'s channel now (clients see it and may subscribe before its first message)."""
+        self._channel(topic, schema)
+
+    def wait_for_subscriber(self, timeout_s: float, topics: set[str] | None = None) -> bool:
+        """Block until a client has subscribed to every topic of ``topics`` (None: to any channel), or
+        ``timeout_s`` passes; True if it did. A session that publishes a burst at once (a simulated
+        episode) waits so a viewer sees it from its first message."""
+        def ready() -> bool:
+            return bool(self.subscribed_topics) if topics is None else topics <= self.subscribed_topics
+
+        with self._sub_cond:
+            return self._sub_cond.wait_for(ready, timeout=max(0.0, float(timeout_s)))
+
+    def use_clock(self, clock: Clock) -> None:
+        """Time messages by ``clock`` from now on (a session's clock, virtual or real)."""
+        self.clock = clock
+        self._epoch_ns = time.time_ns() - int(clock.now_s() * 1e9)
 
     @property
     def port(self) -> int:
@@ -152,11 +175,12 @@ class LiveServer:
     def write_scale(self, force_n: float, *, t_s: float | None = None, **extra: Any) -> None:
         self.write("/scale/force", {"force_n": float(force_n), **extra}, t_s=t_s, schema="tactile_rig.ScaleReading")
 
-    def write_trace(self, name: str, trace: Any, *, t0_s: float = 0.0) -> None:
+    def write_trace(self, name: str, trace: Any, *, t0_s: float = 0.0) -> int:
         """A controller's :class:`~tactile_rig.core.types.Trace`, one message per sample on
-        ``/perception/<name>`` (what a recording stores for a controller run)."""
+        ``/perception/<name>`` at ``t0_s`` + its time; returns the number of samples."""
         for i, t in enumerate(trace.t_s):
             self.write_perception(name, {k: v[i] for k, v in trace.channels.items()}, t_s=t0_s + t)
+        return len(trace.t_s)
 
     # Metadata and attachments belong to the recording; the live view has no place for them.
     def add_metadata(self, name: str, values: Mapping[str, Any]) -> None:
@@ -187,6 +211,21 @@ class LiveServer:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class _Listener:
+    """The SDK's server listener: counts subscriptions (see :meth:`LiveServer.wait_for_subscriber`)."""
+
+    def __init__(self, server: LiveServer) -> None:
+        self.server = server
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        with self.server._sub_cond:
+            self.server.subscribed_topics.add(str(channel.topic))
+            self.server._sub_cond.notify_all()
+
+    def on_unsubscribe(self, client: Any, channel: Any) -> None:
+        pass
 
 
 class Tee:
