@@ -38,6 +38,8 @@ def register(sub: Any) -> None:
     r.add_argument("--homing", action="store_true",
                    help="GRBL homing enabled: the jig boots locked and $H takes ~20 s, as on a real jig")
     r.add_argument("--gelsight-fps", type=float, default=25.0, help="frame rate of the GelSight camera (default 25)")
+    r.add_argument("--gelsight-jpeg-quality", type=int, default=100, metavar="Q",
+                   help="JPEG quality of the GelSight stream, 1..100 (default 100; a camera's MJPG is nearer 90)")
     r.add_argument("--no-calibration", action="store_true",
                    help="do not make the GelSight calibration on the mocks (the bench then names none)")
     r.add_argument("--duration", type=float, metavar="S", help="stop after S seconds instead of at Ctrl-C")
@@ -71,6 +73,7 @@ def _rehearse(args: argparse.Namespace) -> int:
         raise ValueError(f"--duration {args.duration} must be > 0 s")
     opts = RehearsalOptions(cameras={n: s for n, s, _ in cams}, camera_sensors={n: k for n, _, k in cams},
                             seed=args.seed, homing=args.homing, gelsight_fps=args.gelsight_fps,
+                            gelsight_jpeg_quality=args.gelsight_jpeg_quality,
                             calibration=not args.no_calibration)
     stop = threading.Event()
 

@@ -43,7 +43,8 @@ class RehearsalOptions:
     """What the rehearsal serves. ``cameras`` maps a camera name to footage (a video or
     ``FILE.mcap[#TOPIC]``) and ``camera_sensors`` a camera name to its sensor (default fingervision);
     ``homing`` enables GRBL homing (the jig boots locked and ``$H`` takes ~20 s, as on a real jig);
-    ``calibration`` makes the GelSight calibration when it is missing."""
+    ``calibration`` makes the GelSight calibration when it is missing; ``gelsight_jpeg_quality`` is
+    the GelSight stream's JPEG quality (a GelSight Mini streams MJPG too)."""
 
     cameras: Mapping[str, str] = field(default_factory=dict)
     camera_sensors: Mapping[str, str] = field(default_factory=dict)
@@ -52,6 +53,7 @@ class RehearsalOptions:
     gelsight_fps: float = 25.0
     calibration: bool = True
     scale_rate_sps: int = 80
+    gelsight_jpeg_quality: int = 100
 
     def __post_init__(self) -> None:
         for name, sensor in self.camera_sensors.items():
@@ -63,6 +65,8 @@ class RehearsalOptions:
                                  "the stage's camera)")
         if not 0 < self.gelsight_fps <= 60:
             raise ValueError(f"gelsight_fps={self.gelsight_fps!r} must be in (0, 60] frames per second")
+        if not 1 <= self.gelsight_jpeg_quality <= 100:
+            raise ValueError(f"gelsight_jpeg_quality={self.gelsight_jpeg_quality!r} must be in 1..100")
         if self.scale_rate_sps not in (10, 80):
             raise ValueError(f"scale_rate_sps={self.scale_rate_sps!r} must be 10 or 80 (the HX711 RATE pin)")
 
@@ -83,7 +87,8 @@ class RehearsalBench:
         o = self.options
         self.out.mkdir(parents=True, exist_ok=True)
         cal = self.out / "calib" / "gelsight.json"
-        stage_opts = ["--seed", str(o.seed), "--fps", repr(float(o.gelsight_fps))] + (["--homing"] if o.homing else [])
+        stage_opts = ["--seed", str(o.seed), "--fps", repr(float(o.gelsight_fps)),
+                      "--jpeg-quality", str(o.gelsight_jpeg_quality)] + (["--homing"] if o.homing else [])
         procs = {
             "gripper": DeviceProcess("gripper", mock_serve_argv("dynamixel", ["--protocol", "2", "--id", "1",
                                                                                "--baud", "57600"])),

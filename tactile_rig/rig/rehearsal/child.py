@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import sys
 import threading
@@ -41,7 +42,10 @@ def _wait_for_signal(check: Any) -> int:
 
     signal.signal(signal.SIGINT, _on_signal)
     signal.signal(signal.SIGTERM, _on_signal)
+    parent = os.getppid()
     while not stop.wait(0.2):
+        if os.getppid() != parent:  # the rehearsal that started us is gone: a device without a bench
+            return 0
         problem = check()
         if problem:
             print(f"tactile-rig rehearsal: {problem}", file=sys.stderr)
@@ -64,7 +68,7 @@ def serve_stage(args: argparse.Namespace) -> int:
     cam = SimulatedCamera(world.require("gelsight", "the rehearsal's GelSight camera"), clock=clock,
                           name="gelsight", fourcc=fourcc, width=width, height=height, fps=args.fps,
                           modes={GELSIGHT_FORMAT: args.fps}, seed=args.seed)
-    with PtyServer(jig, clock=clock, name="jig") as pty_server, CameraServer(cam) as cams:
+    with PtyServer(jig, clock=clock, name="jig") as pty_server, CameraServer(cam, jpeg_quality=args.jpeg_quality) as cams:
         _emit({"device": "jig", "port": pty_server.port, "baud": jig.baud, "homing": bool(args.homing),
                "scene": args.scene, "camera": {"url": cams.url, "sensor": "gelsight", "fourcc": fourcc,
                                                "width": width, "height": height, "fps": args.fps}})
@@ -94,6 +98,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     st.add_argument("--seed", type=int, default=0)
     st.add_argument("--homing", action="store_true", help="GRBL homing enabled: the jig boots in Alarm, $H homes")
     st.add_argument("--fps", type=float, default=25.0)
+    st.add_argument("--jpeg-quality", type=int, default=95)
     st.set_defaults(func=serve_stage)
     cam = sub.add_parser("camera")
     cam.add_argument("--source", required=True)
