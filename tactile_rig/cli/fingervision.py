@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from tactile_rig.cli import bench_live
 from tactile_rig.cli.args import float_in, int_in
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.cli.loaders import load_config_mapping, read_frame
@@ -39,7 +40,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("fingervision", help="FingerVision perception over recorded frames")
     fsub = p.add_subparsers(dest="fv_command", metavar="ACTION")
     t = fsub.add_parser("track", help="track markers, force/torque, object and slip, frame by frame")
-    t.add_argument("frames", help="folder of images, glob pattern (quote it) or video file")
+    t.add_argument("frames", nargs="?", help="folder of images, glob pattern (quote it) or video file "
+                   "(or --bench: live from the bench's camera)")
     t.add_argument("--config", help="TOML or JSON file of FingerVisionParams (sections detector, tracker, force, proximity)")
     t.add_argument("--calib-frames", type=int_in(1, 100_000), help="no-contact frames for the baseline (overrides the config)")
     t.add_argument("--fps", type=float_in(0.0, 100_000.0, "frames/s", low_open=True), help="frame rate, for timestamps t_s = index / fps (Kalman time step)")
@@ -53,6 +55,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--no-calibration", action="store_true",
                    help="load no stored file: build the baseline from the first frames, forces in px")
     add_json_flag(t)
+    bench_live.add_bench_camera_arguments(t)
     t.set_defaults(func=_track)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
@@ -141,6 +144,9 @@ def _record(i: int, name: str, r) -> dict[str, Any]:
 
 
 def _track(args: argparse.Namespace) -> int:
+    if bench_live.wants_bench(args):
+        return bench_live.track(args, load_params(args.config, args.calib_frames))
+    bench_live.need_files(args, "frames")
 
     if args.fps is not None and not (0 < args.fps < float("inf")):
         raise ValueError(f"--fps: expected a finite rate > 0 frames/s, got {args.fps}")

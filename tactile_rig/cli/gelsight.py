@@ -13,6 +13,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from tactile_rig.cli import bench_live
 from tactile_rig.cli.args import float_in, int_in, output_dir, output_file
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.cli.loaders import (
@@ -83,6 +84,9 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_height(args: argparse.Namespace) -> int:
+    if bench_live.wants_bench(args):
+        return bench_live.height(args)
+    bench_live.need_files(args, "calib", "images", "output")
     rec = _reconstructor(args.calib, args.background, args.solver)
     out = Path(args.output)
     written = []
@@ -208,13 +212,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_cmd_calibrate)
 
     p = sub.add_parser("height", help="height maps (mm, .npy) from frames")
-    p.add_argument("calib", help="calibration (.npz/.json base path)")
-    p.add_argument("images", nargs="+", help="BGR frames")
+    p.add_argument("calib", nargs="?", help="calibration (.npz/.json base path; --bench: default the camera's)")
+    p.add_argument("images", nargs="*", help="BGR frames (or --bench: live from the bench's GelSight camera)")
     p.add_argument("--background", help="a fresh no-contact frame replacing the calibration's")
     p.add_argument("--solver", choices=["dst", "dct", "fc"], help="Poisson solver (default: the pipeline's)")
-    p.add_argument("-o", "--output", type=output_dir, required=True,
-                   help="OUT.npy for one image, a folder for several (its parent must exist)")
+    p.add_argument("-o", "--output", type=output_dir,
+                   help="OUT.npy for one image, a folder for several (its parent must exist; required with "
+                   "files; --bench: the last map)")
     add_json_flag(p)
+    bench_live.add_bench_camera_arguments(p)
     p.set_defaults(func=_cmd_height)
 
     p = sub.add_parser("register", help="rigid transform taking height map B into A (exit 1 when refused)")
