@@ -219,7 +219,7 @@ class TradeTable:
         path = Path(path)
         ok = [i for i, r in enumerate(self.rows) if math.isfinite(r.speed) and math.isfinite(r.error)
               and r.speed > 0]
-        fig, ax = plt.subplots(figsize=(6.4, 4.4), dpi=110)
+        fig, ax = plt.subplots(figsize=(7.0, 5.2), dpi=110)
         ax.scatter([self.rows[i].speed for i in ok], [self.rows[i].error for i in ok], s=18,
                    color="0.55", label="setting")
         front = [i for i in self.front() if i in ok]
@@ -229,16 +229,26 @@ class TradeTable:
         if d in ok:
             ax.scatter([self.rows[d].speed], [self.rows[d].error], s=110, facecolors="none",
                        edgecolors="tab:red", linewidths=1.6, label="default")
-        for i in front:
-            ax.annotate(_setting_text(self.rows[i].setting), (self.rows[i].speed, self.rows[i].error),
-                        fontsize=6, xytext=(3, 3), textcoords="offset points")
+        # Front points are numbered; the settings are listed under the axes (long labels beside the
+        # points would squeeze the plot).
+        legend_lines = []
+        for n, i in enumerate(front, 1):
+            ann = ax.annotate(str(n), (self.rows[i].speed, self.rows[i].error), fontsize=7, xytext=(4, 3),
+                              textcoords="offset points", color="tab:blue")
+            ann.set_in_layout(False)
+            legend_lines.append(f"{n}: {_setting_text(self.rows[i].setting)}"
+                                f"{' (default)' if self.rows[i].is_default else ''}")
+        if d not in front:
+            legend_lines.append(f"default: {_setting_text(self.rows[d].setting)}")
         ax.set_xscale("log")
         ax.set_xlabel(f"{self.speed_name} (higher is better)")
         ax.set_ylabel(f"{self.error_name} (lower is better)")
         ax.set_title(f"trade {self.topic}")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
-        fig.tight_layout()
+        caption = "\n".join(legend_lines[:12] + (["…"] if len(legend_lines) > 12 else []))
+        fig.text(0.01, 0.01, caption, fontsize=6.5, va="bottom", ha="left", family="monospace")
+        fig.tight_layout(rect=(0, 0.026 * (min(len(legend_lines), 13) + 0.5), 1, 1))
         path.parent.mkdir(parents=True, exist_ok=True)
         fig.savefig(path)
         plt.close(fig)
