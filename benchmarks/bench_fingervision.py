@@ -3,7 +3,7 @@
     python benchmarks/bench_fingervision.py [--quick] [--speed-only]
 
 Side by side in the same run: the reference setting (fv_2_r.yaml thresholds through plain
-SimpleBlobDetector) and our chain. Writes ``benchmarks/results/fingervision.json`` and prints tables.
+SimpleBlobDetector) and our chain. Prints tables; ``--save`` writes ``benchmarks/results/fingervision.json``.
 Real frames are read in place from ../shared/data/real/fingervision_demo_gpl3 (GPL; skipped if absent).
 Speed is measured on one core (``cv2.setNumThreads(1)``) at 320x240.
 """
@@ -17,6 +17,8 @@ import os
 import sys
 import time
 from pathlib import Path
+
+from _output import add_save_args, parse_args, save_json  # noqa: E402  (benchmarks/ is the script's folder)
 
 import cv2
 import numpy as np
@@ -235,14 +237,14 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer frames and angles")
     ap.add_argument("--speed-only", action="store_true",
-                    help="re-measure speed only (e.g. on an idle machine) and update the saved results")
-    args = ap.parse_args()
-    out_dir = ROOT / "benchmarks" / "results"
-    saved = out_dir / "fingervision.json"
+                    help="re-measure speed only (e.g. on an idle machine); with --save, update the saved results")
+    add_save_args(ap, "fingervision.json")
+    args = parse_args(ap)
+    saved = ROOT / "benchmarks" / "results" / "fingervision.json"
     if args.speed_only and saved.is_file():
         res = json.loads(saved.read_text())
         res["speed_320x240_one_core"] = bench_speed(args.quick)
-        saved.write_text(json.dumps(res, indent=1, default=float))
+        save_json(args, res, default=float)
         _print(res)
         return 0
     res = {"opencv": cv2.__version__, "quick": args.quick}
@@ -254,8 +256,7 @@ def main() -> int:
         res["mock_renderer"] = bench_mock_renderer()
     except Exception as exc:  # the renderer belongs to another module; report, do not fail
         res["mock_renderer"] = {"error": repr(exc)}
-    out_dir.mkdir(parents=True, exist_ok=True)
-    saved.write_text(json.dumps(res, indent=1, default=float))
+    save_json(args, res, default=float)
     _print(res)
     return 0
 
