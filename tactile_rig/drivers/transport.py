@@ -94,7 +94,6 @@ class SerialTransport:
         self.device = device
         self.clock: Clock = clock if clock is not None else port_clock(self.serial)
         self.lock = bus_lock(self.port_name)
-        self._rx_log_enabled = log.isEnabledFor(logging.DEBUG)
 
     # -- basic I/O -------------------------------------------------------------------------
     def write(self, data: bytes) -> None:
