@@ -7,6 +7,12 @@ waits for Idle, reads and writes settings, and streams G-code with character cou
 than GRBL's 128-byte receive buffer in flight). Every ``error:N`` becomes :class:`GrblError` and
 every ``ALARM:N`` :class:`GrblAlarm`, with GRBL's own message. It satisfies the controllers'
 ``Motion`` protocol (``move_toward``, ``pose``, ``stop``).
+
+GRBL's lines carry no checksum, so the wire is checked the ways GRBL allows: status reports are
+parsed strictly (GRBL's fixed decimals, known fields; corrupt is ``LinkCorrupt``), Idle positions
+are confirmed by two reports, an ``ok``/``error`` lost on the wire is found from later status
+reports and resynchronised out of the character counting (``ReplyLost`` for that line), an
+unplugged port fails fast and reopens with backoff, and every call holds the driver's lock.
 """
 
 from __future__ import annotations

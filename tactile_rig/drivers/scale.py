@@ -6,7 +6,12 @@ and delivers every sample in order as a :class:`ScaleReading` (grams, raw counts
 number, host time). Drops and device resets are detected from the sequence numbers and the banner,
 bad checksums are counted and rejected, and a scale that stops talking raises
 :class:`~tactile_rig.core.errors.DeviceTimeout`. Nothing is lost or duplicated without being counted in
-:attr:`Scale.stats`. The wire codec (:class:`ScaleLineParser`) is pure and usable on its own.
+:attr:`Scale.stats`. The driver computes grams itself from the sketch's absolute raw counts with its
+own zero, so a sketch reboot (which re-tares) changes no reading; where grams cannot be trusted
+(the stock sketch rebooted) :class:`~tactile_rig.core.errors.ZeroLost` is raised instead. An
+unplugged port is ``NotConnected`` at once while it is away and reopened with backoff when it
+returns; every call holds the driver's lock. The wire codec (:class:`ScaleLineParser`) is pure and
+usable on its own.
 """
 
 from __future__ import annotations
