@@ -139,6 +139,11 @@ def test_a_silent_grbl_is_still_a_timeout_not_a_lost_answer() -> None:
     "<Idle|MPos:1.000,-1.000,0.000|Bf:15,-3|FS:0,0>",
     "<Idle|MPos:1.000,+1.000,0.000|FS:0,0>",
     "<Idle|MPos:1.000,1e3,0.000|FS:0,0>",
+    "<Run|MPos:00.339,2.358,0.000|FS:446,0>",  # a duplicated zero: GRBL prints no leading zeros
+    "<Run|MPos:0.339,2.358,0.000|FS:0446,0>",
+    "<Idle|MPos:0.339,2.358,0.000|Bf:015,128|FS:0,0>",
+    "<Run|MPos:-0.223,1.876,0.000|FS:600,0|Ov:100,1000,100>",  # a duplicated digit in an override
+    "<Run|MPos:-0.223,1.876,0.000|FS:600,0|Ov:100,75,100>",
 ])
 def test_corrupted_reports_never_become_values(bad: str) -> None:
     with pytest.raises(LinkCorrupt):
@@ -159,3 +164,20 @@ def test_a_flipped_digit_in_an_idle_report_is_outvoted_by_the_next_reports() -> 
         got = [jig.status().mpos for _ in range(4)]
         assert all(p == pytest.approx((1.0, 0.0, 0.0)) for p in got), got
         assert jig.corrupt_reports == 1
+
+
+def test_a_report_off_the_commanded_path_or_too_fast_is_link_corrupt() -> None:
+    clock, mock, stage = _jig({})
+    with serve_in_process(mock, clock) as url:
+        jig = Jig(url)
+        jig.move_to(0.0, 0.0, 0.0, wait=True)
+        jig.move_to(2.0, 0.0, None, 600.0)  # along X only, at 600 mm/min
+        bad = ["<Run|MPos:1.000,0.400,0.000|FS:600,0>",   # Y flipped off the path
+               "<Run|MPos:1.000,0.000,0.000|FS:6000,0>",  # ten times the feed asked for
+               "<Run|MPos:9.000,0.000,0.000|FS:600,0>"]   # past the target
+        for text in bad:
+            st = parse_status(text, clock.now_s(), jig._wco)
+            with pytest.raises(LinkCorrupt):
+                jig._check_moving(st)
+        jig._check_moving(parse_status("<Run|MPos:1.000,0.000,0.000|FS:600,0>", clock.now_s(), jig._wco))
+        jig.wait_idle(10.0)

@@ -75,9 +75,11 @@ class GrblStatus:
         return self.state == "Idle"
 
 
-_UINT = re.compile(r"[0-9]{1,7}")
-_COORD = {d: re.compile(r"-?[0-9]{1,7}\.[0-9]{%d}" % d) for d in gp.COORD_DECIMALS.values()}
-_RATE = {d: re.compile(r"[0-9]{1,7}" + (r"\.[0-9]{%d}" % d if d else "")) for d in gp.RATE_DECIMALS.values()}
+# GRBL prints integers and integer parts without leading zeros (print.c): "0.339", never "00.339".
+_INT_PART = r"(?:0|[1-9][0-9]{0,6})"
+_UINT = re.compile(_INT_PART)
+_COORD = {d: re.compile(r"-?%s\.[0-9]{%d}" % (_INT_PART, d)) for d in gp.COORD_DECIMALS.values()}
+_RATE = {d: re.compile(_INT_PART + (r"\.[0-9]{%d}" % d if d else "")) for d in gp.RATE_DECIMALS.values()}
 _LETTERS = re.compile(r"[A-Z]+")
 MM_PER_INCH = 25.4
 
@@ -165,7 +167,11 @@ def parse_status(line: str, t_s: float = 0.0, wco: tuple[float, ...] | None = No
                 raise LinkCorrupt(f"unknown pin letters in Pn:{val!r} in {line!r}")
             kw["pins"] = val
         elif name == "Ov":
-            kw["overrides"] = _uints(name, val, 3, line)
+            ov = _uints(name, val, 3, line)
+            if not all(lo <= v <= hi for v, (lo, hi) in zip(ov, gp.OVERRIDE_LIMITS)) or ov[1] not in gp.RAPID_OVERRIDES:
+                raise _corrupt(f"overrides Ov:{val!r} outside GRBL's ranges (feed and spindle 10-200 %, "
+                               "rapid 25, 50 or 100 %)", line)
+            kw["overrides"] = ov
         elif name == "A":
             if not val or any(c not in gp.ACCESSORY_LETTERS for c in val) or len(set(val)) != len(val):
                 raise _corrupt(f"unknown accessory letters in A:{val!r}", line)
@@ -236,6 +242,12 @@ _DWELL = re.compile(r"G0*4(?![0-9.])")
 # and lines that may change the work offset (WCO = coordinate system + G92 + tool length offset).
 _MAY_MOVE = re.compile(r"[XYZABC][-+.0-9]|G0*28|G30|^\$H|^\$J|^\$SLP")
 _MAY_OFFSET = re.compile(r"G10|G92|G5[4-9]|G43|G49|^\$RST")
+# Absolute straight moves (what move_to and move_toward send): their targets bound the path.
+_ABS_MOVE = re.compile(r"^(?:\$J=G90|G90G([01]))(?![0-9.])")
+_AXIS_WORD = re.compile(r"([XYZA])(-?[0-9]+(?:\.[0-9]*)?)")
+_FEED_WORD = re.compile(r"F([0-9]+(?:\.[0-9]*)?)")
+ENVELOPE_TOL = 0.03  # mm (deg on θ): a step of the θ axis, plus the printed rounding
+FEED_OVERRIDE_MAX = 2.0  # GRBL's feed override tops out at 200 %
 
 
 def clean_gcode_line(line: str) -> str:
@@ -329,6 +341,11 @@ class Jig(Driver):
         # (position field, lines sent) of the last Idle report returned, and of the one before it
         self._last_idle: tuple[tuple[float, ...] | None, int] | None = None
         self._motion_mark = 0  # lines sent that may move the machine
+        # Where the machine can be while it moves: the box spanned by the last confirmed Idle work
+        # position and the targets of the absolute moves sent since (None: not known), and the
+        # fastest feed they asked for (None: a rapid or an unknown line, no bound).
+        self._envelope: tuple[list[float], list[float]] | None = None
+        self._feed_cap: float | None = None
         self._offset_mark = 0  # lines sent that may change the work offset
         self._wco_mark = -1  # _offset_mark when the remembered WCO was adopted
         self._uncertain: list[tuple[int, int]] = []  # ident ranges whose answers may be shifted by a loss
@@ -478,6 +495,7 @@ class Jig(Driver):
             self._quiet = None
             self._clean_mark = self._next_id
             self._last_idle = None  # a reboot may have lost the position without a line sent
+            self._envelope = None
             self._wco = None  # ... and clears G92
             if self._expect_banner:
                 self._expect_banner = False
@@ -589,8 +607,10 @@ class Jig(Driver):
         upper = line.upper()
         if _MAY_MOVE.search(upper):
             self._motion_mark += 1
+            self._extend_envelope(upper)
         if _MAY_OFFSET.search(upper):
             self._offset_mark += 1
+            self._envelope = None
         self._next_id += 1
         self._outstanding.append(_Outstanding(ident, line, len(data)))
         self.transport.write(data)
@@ -646,6 +666,8 @@ class Jig(Driver):
         st = self._status_once(timeout_s)
         if st.state != "Idle":
             self._last_idle = None
+            if st.state in ("Run", "Jog", "Hold"):
+                self._check_moving(st)
             return st
         prev = self._last_idle
         if prev is None or prev[1] != self._motion_mark:
@@ -671,7 +693,50 @@ class Jig(Driver):
 
     def _idle(self, st: GrblStatus) -> GrblStatus:
         self._last_idle = (_position(st), self._motion_mark)
+        if st.wpos is not None and not st.inches:
+            self._envelope = (list(st.wpos), list(st.wpos))
+            self._feed_cap = 0.0
+        else:
+            self._envelope = None
         return st
+
+    def _extend_envelope(self, upper: str) -> None:
+        """A line that may move was sent: widen the box to its target, or forget the box."""
+        m = _ABS_MOVE.match(upper)
+        if self._envelope is None or m is None or "G9" in upper[m.end():]:
+            self._envelope = None
+            self._feed_cap = None
+            return
+        lo, hi = self._envelope
+        for letter, value in _AXIS_WORD.findall(upper[m.end():]):
+            i = gp.AXIS_LETTERS.index(letter)
+            if i >= len(lo):
+                self._envelope = None
+                return
+            lo[i], hi[i] = min(lo[i], float(value)), max(hi[i], float(value))
+        feed = _FEED_WORD.search(upper)
+        if m.group(1) == "0" or feed is None or self._feed_cap is None:
+            self._feed_cap = None  # a rapid runs at each axis's maximum rate, which the driver need not know
+        else:
+            self._feed_cap = max(self._feed_cap, float(feed.group(1)))
+
+    def _check_moving(self, st: GrblStatus) -> None:
+        """A report while moving must lie on the way the driver sent the machine, at a feed it asked
+        for: else it was corrupted on the wire (a digit flipped into a digit parses)."""
+        env = self._envelope
+        if env is not None and st.wpos is not None and not st.inches and len(st.wpos) == len(env[0]):
+            for i, v in enumerate(st.wpos):
+                if not env[0][i] - ENVELOPE_TOL <= v <= env[1][i] + ENVELOPE_TOL:
+                    self.corrupt_reports += 1
+                    raise LinkCorrupt(f"corrupt status report {st.raw!r}: axis {gp.AXIS_LETTERS[i]} at {v:.3f}, "
+                                      f"outside the path commanded [{env[0][i]:.3f}, {env[1][i]:.3f}]",
+                                      device=self.device)
+        if (self._feed_cap is not None and st.feed_mm_per_min is not None
+                and st.feed_mm_per_min > self._feed_cap * FEED_OVERRIDE_MAX + 1.0):
+            self.corrupt_reports += 1
+            raise LinkCorrupt(f"corrupt status report {st.raw!r}: feed {st.feed_mm_per_min:g} mm/min, above the "
+                              f"{self._feed_cap:g} mm/min commanded (x{FEED_OVERRIDE_MAX:g} override)",
+                              device=self.device)
 
     def _status_once(self, timeout_s: float) -> GrblStatus:
         if self.needs_reset:

@@ -345,6 +345,76 @@ def soak_row(device: str, fault: str, *, transport: str = "in_process", n: int =
     return row
 
 
+@dataclass
+class MovingReports:
+    """Status reports read while the jig moves, under ``fault``: how many, how many typed errors,
+    and how many returned a report GRBL never printed (a corrupted one that passed every check)."""
+
+    fault: str
+    transport: str
+    reports: int = 0
+    typed: int = 0
+    wrong: int = 0
+    examples: list[str] = field(default_factory=list)
+
+    @property
+    def wrong_rate(self) -> float:
+        return self.wrong / self.reports if self.reports else 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self) | {"wrong_rate": self.wrong_rate}
+
+
+def moving_reports(fault: str = "flip", *, moves: int = 100, seed: int = 0) -> MovingReports:
+    """The residual the jig's checks cannot remove: reports polled while moving (in process).
+
+    The truth is the text GRBL printed: a report the driver returns that GRBL never printed was
+    corrupted on the wire and still passed the strict parser (a digit flipped into a digit)."""
+    clock = VirtualClock()
+    h = _Jig(clock, seed)
+    printed: set[str] = set()
+    original = h.mock._status_report
+
+    def recording(t_s: float) -> str:
+        text = original(t_s)
+        printed.add(text)
+        return text
+
+    h.mock._status_report = recording  # type: ignore[method-assign]
+    out = MovingReports(fault, "in_process")
+    with serve_in_process(h.mock, clock) as url:
+        jig = Jig(f"rigfault://{url}#{FAULT_QUERIES[fault]}&seed={seed}", boot_timeout_s=2.0)
+        try:
+            for _ in range(moves):
+                x, y = (round(float(v), 3) for v in h.rng.uniform(-3.0, 3.0, 2))
+                try:
+                    jig.move_to(x, y, None, 600.0)
+                except RigError:
+                    out.typed += 1
+                    with contextlib.suppress(RigError):
+                        jig.wait_idle(10.0)
+                    continue
+                for _ in range(200):
+                    try:
+                        st = jig.status()
+                    except RigError as exc:
+                        out.typed += 1
+                        with contextlib.suppress(RigError):
+                            h.recover(jig, exc)
+                        continue
+                    if st.state == "Idle":
+                        break
+                    out.reports += 1
+                    if st.raw not in printed:
+                        out.wrong += 1
+                        if len(out.examples) < 5:
+                            out.examples.append(st.raw)
+                    clock.sleep(0.02)
+        finally:
+            jig.close()
+    return out
+
+
 def soak(devices: tuple[str, ...] = DEVICES, faults: tuple[str, ...] = KINDS,
          transports: tuple[str, ...] = TRANSPORTS, *, n: int = 500, n_relay: int | None = None, seed: int = 0,
          on_row: Callable[[SoakRow], None] | None = None) -> list[SoakRow]:
@@ -380,5 +450,5 @@ def totals(rows: list[SoakRow]) -> dict[str, int]:
                                                            "wrong")} | {"typed_errors": sum(r.typed_errors for r in rows)}
 
 
-__all__ = ["DEVICES", "FAULT_QUERIES", "KINDS", "SoakRow", "TRANSPORTS", "format_table", "soak", "soak_row",
-           "totals"]
+__all__ = ["DEVICES", "FAULT_QUERIES", "KINDS", "MovingReports", "SoakRow", "TRANSPORTS", "format_table",
+           "moving_reports", "soak", "soak_row", "totals"]
