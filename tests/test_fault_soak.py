@@ -9,7 +9,7 @@ import pytest
 
 from tactile_rig.drivers.scale import Scale
 from tactile_rig.mocks.faults import KINDS
-from tactile_rig.testing.faultsoak import FAULT_QUERIES, format_table, soak_row
+from tactile_rig.testing.faultsoak import FAULT_QUERIES, format_table, moving_reports, soak_row
 
 
 @pytest.mark.parametrize("fault", KINDS)
@@ -32,3 +32,8 @@ def test_the_soak_sees_a_wrong_value_when_a_driver_returns_one(monkeypatch: pyte
 
 def test_every_fault_kind_has_a_query() -> None:
     assert set(FAULT_QUERIES) == set(KINDS)
+
+
+def test_reports_read_while_the_jig_moves_are_ones_grbl_printed_or_typed_errors() -> None:
+    m = moving_reports("garbage", moves=10, seed=1)
+    assert m.reports > 50 and m.wrong == 0, m.examples
