@@ -10,7 +10,7 @@ from __future__ import annotations
 import pytest
 
 from tactile_rig.core.clock import VirtualClock
-from tactile_rig.core.errors import DeviceTimeout, GrblError, LinkCorrupt, ReplyLost
+from tactile_rig.core.errors import GrblError, LinkCorrupt, ReplyLost
 from tactile_rig.drivers.jig import Jig, parse_status
 from tactile_rig.mocks.grbl import GrblMock
 from tactile_rig.sim import World

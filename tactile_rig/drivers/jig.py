@@ -152,15 +152,15 @@ def parse_status(line: str, t_s: float = 0.0, wco: tuple[float, ...] | None = No
         elif name in ("F", "FS"):
             if {"F", "FS"} & (seen - {name}):
                 raise _corrupt("both F and FS", line)
-            vals = val.split(",")
-            if len(vals) != (1 if name == "F" else 2):
-                raise _corrupt(f"{name}:{val!r} has {len(vals)} value(s)", line)
-            rates["feed"] = vals[0]
+            texts = val.split(",")
+            if len(texts) != (1 if name == "F" else 2):
+                raise _corrupt(f"{name}:{val!r} has {len(texts)} value(s)", line)
+            rates["feed"] = texts[0]
             if name == "FS":
-                if not _UINT.fullmatch(vals[1]):
-                    raise _corrupt(f"spindle speed {vals[1]!r} is not an integer (GRBL prints RPM without decimals)",
+                if not _UINT.fullmatch(texts[1]):
+                    raise _corrupt(f"spindle speed {texts[1]!r} is not an integer (GRBL prints RPM without decimals)",
                                    line)
-                kw["spindle_rpm"] = float(vals[1])
+                kw["spindle_rpm"] = float(texts[1])
         elif name == "Pn":
             if not val or any(c not in gp.PIN_LETTERS + gp.PIN_OVERRIDE_LETTERS for c in val) \
                     or len(set(val)) != len(val):
@@ -462,10 +462,10 @@ class Jig(Driver):
                 # No line that changes the work offset was sent since it was last seen: the report
                 # was corrupted on the wire (its WCO would make every work position after it wrong).
                 self.corrupt_reports += 1
-                exc = LinkCorrupt(f"corrupt status report {line!r}: WCO changed from {self._wco} with no "
+                err = LinkCorrupt(f"corrupt status report {line!r}: WCO changed from {self._wco} with no "
                                   "offset-changing line sent", device=self.device)
-                log.warning("%s: %s", self.device, exc)
-                self._status_errors.append(exc)
+                log.warning("%s: %s", self.device, err)
+                self._status_errors.append(err)
                 self._quiet = None
                 return
             self._reports_seen += 1
@@ -800,7 +800,7 @@ class Jig(Driver):
         self.last_fault = None
 
     @locked
-    def activate(self, *, home: bool = True, timeout_s: float = 60.0) -> None:  # type: ignore[override]
+    def activate(self, *, home: bool = True, timeout_s: float = 60.0) -> None:
         """Make the jig ready to move from wherever it is: a soft reset if a critical alarm needs one,
         then, if GRBL is locked (Alarm), ``$H`` (``home=True``) or ``$X`` (only if you know where the
         stage is). Clears a fault; the next move starts from the measured pose."""

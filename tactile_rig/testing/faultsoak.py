@@ -380,7 +380,7 @@ def moving_reports(fault: str = "flip", *, moves: int = 100, seed: int = 0) -> M
         printed.add(text)
         return text
 
-    h.mock._status_report = recording  # type: ignore[method-assign]
+    h.mock._status_report = recording
     out = MovingReports(fault, "in_process")
     with serve_in_process(h.mock, clock) as url:
         jig = Jig(f"rigfault://{url}#{FAULT_QUERIES[fault]}&seed={seed}", boot_timeout_s=2.0)
