@@ -346,6 +346,9 @@ class Jig(Driver):
         # fastest feed they asked for (None: a rapid or an unknown line, no bound).
         self._envelope: tuple[list[float], list[float]] | None = None
         self._feed_cap: float | None = None
+        #: how far (mm, deg on θ) a report while moving may lie outside the commanded box: at least
+        #: half a step of the coarsest axis (θ on the default jig: 0.028 deg per step)
+        self.path_tolerance = ENVELOPE_TOL
         self._offset_mark = 0  # lines sent that may change the work offset
         self._wco_mark = -1  # _offset_mark when the remembered WCO was adopted
         self._uncertain: list[tuple[int, int]] = []  # ident ranges whose answers may be shifted by a loss
@@ -726,7 +729,7 @@ class Jig(Driver):
         env = self._envelope
         if env is not None and st.wpos is not None and not st.inches and len(st.wpos) == len(env[0]):
             for i, v in enumerate(st.wpos):
-                if not env[0][i] - ENVELOPE_TOL <= v <= env[1][i] + ENVELOPE_TOL:
+                if not env[0][i] - self.path_tolerance <= v <= env[1][i] + self.path_tolerance:
                     self.corrupt_reports += 1
                     raise LinkCorrupt(f"corrupt status report {st.raw!r}: axis {gp.AXIS_LETTERS[i]} at {v:.3f}, "
                                       f"outside the path commanded [{env[0][i]:.3f}, {env[1][i]:.3f}]",
