@@ -29,6 +29,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "scene",
     "run",
     "calibrate",
+    "substance",
     "replay",
     "sweep",
     "trade",

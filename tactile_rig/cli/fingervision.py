@@ -9,6 +9,8 @@ from __future__ import annotations
 import argparse
 import glob
 import json
+import os
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -17,6 +19,8 @@ import numpy as np
 
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.perception.fingervision import FingerVision, FingerVisionParams
+from tactile_rig.rig.bench import load_bench
+from tactile_rig.rig.camera_calibrations import camera_calibrations, describe_files
 
 _IMAGE_EXT = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
 
@@ -32,6 +36,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--object-rect", type=int, nargs=4, metavar=("X", "Y", "W", "H"),
                    help="learn the object's colours from this rectangle (px) of the first frame after calibration")
     t.add_argument("--limit", type=int, help="stop after this many frames")
+    t.add_argument("--calibration", help="marker baseline (calibrate fingervision) to start from; default: the "
+                   "bench camera's, else calib/fingervision.json when present")
+    t.add_argument("--force-map", help="force map for newtons (calibrate force-map); default: the bench camera's, "
+                   "else calib/force_map when present")
+    t.add_argument("--no-calibration", action="store_true",
+                   help="load no stored file: build the baseline from the first frames, forces in px")
     add_json_flag(t)
     t.set_defaults(func=_track)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
@@ -133,6 +143,12 @@ def _track(args: argparse.Namespace) -> int:
     if args.fps is not None and not args.fps > 0:
         raise ValueError(f"--fps: expected > 0 frames/s, got {args.fps}")
     fv = FingerVision(load_params(args.config, args.calib_frames))
+    cal, mm_per_px = _calibrations(args)
+    if cal.calibration is not None:
+        cal.calibration.apply(fv)  # the stored baseline: no frames spent rebuilding it
+    fm = cal.force_map
+    if not args.json:
+        print(f"calibration: {describe_files(cal)}", file=sys.stderr)
     learnt = args.object_rect is None
     n = 0
     for i, (name, frame) in enumerate(iter_frames(args.frames)):
@@ -143,6 +159,10 @@ def _track(args: argparse.Namespace) -> int:
             learnt = True
         r = fv.process(frame, None if args.fps is None else i / args.fps)
         rec = _record(i, name, r)
+        if fm is not None and not r.calibrating:
+            f_n, tq, mag = fm.to_newtons(r.force_px, r.torque_px2)
+            rec.update(force_n=f_n, force_map_n=mag)
+            rec["torque_nmm" if mm_per_px else "torque_npx"] = tq * (mm_per_px or 1.0)
         n += 1
         if args.json:
             print_json(rec)
@@ -152,8 +172,23 @@ def _track(args: argparse.Namespace) -> int:
             obj = "no object" if r.object_centroid_px is None else (
                 f"object {r.object_area_px:.0f} px2 at ({r.object_centroid_px[0]:.1f}, {r.object_centroid_px[1]:.1f})"
                 + ("" if r.object_orientation_deg is None else f" {r.object_orientation_deg:+.1f} deg"))
-            print(f"{i:5d} {name:<24} {state}  force ({f[0]:+.2f}, {f[1]:+.2f}, {f[2]:+.2f}) px  "
+            newtons = f"  {rec['force_map_n']:6.2f} N" if "force_map_n" in rec else ""
+            print(f"{i:5d} {name:<24} {state}  force ({f[0]:+.2f}, {f[1]:+.2f}, {f[2]:+.2f}) px{newtons}  "
                   f"torque_z {r.torque_px2[2]:+.1f} px2  {'SLIP' if r.slip else 'still'}  {obj}")
     if n == 0:
         raise ValueError(f"{args.frames}: no frames")
     return 0
+
+
+def _calibrations(args: argparse.Namespace) -> tuple[Any, float | None]:
+    """The marker baseline and force map ``track`` uses: named on the command line, else by the bench
+    (``--bench``/``$TACTILE_RIG_BENCH``) for ``--camera``, else the sessions' default files."""
+    bench_path = getattr(args, "bench", None) or os.environ.get("TACTILE_RIG_BENCH")
+    bench = None if args.no_calibration or not bench_path else load_bench(bench_path, check_ports=False)
+    camera = getattr(args, "camera", None)
+    cal = camera_calibrations(bench, camera, calibration=None if args.no_calibration else args.calibration,
+                              force_map=None if args.no_calibration else args.force_map,
+                              defaults=not args.no_calibration,
+                              load=() if args.no_calibration else ("calibration", "force_map"))
+    cfg = bench.cameras.get(cal.camera) if bench is not None else None
+    return cal, (float(cfg.mm_per_px_x) if cfg is not None else None)

@@ -18,11 +18,15 @@ the device latched a fault      DeviceFault                            3
   ... an unasked reset          GrblReset (DeviceFault)                3
 outside a configured limit      LimitError (ValueError)                2
 a calibration unusable          CalibrationError (ValueError)          2
+  ... would replace a file      CalibrationExists (CalibrationError)   2
 a camera kept no setting        ControlReadbackError (ValueError)      2
 a camera stream frozen          FrozenStream (DeviceTimeout)           2
 a bench file unusable           BenchError (ValueError)                2
 a run folder of another run     RunConflict (ValueError)               2
 several devices failed          ConnectErrors                          2
+an answer lost on the wire      ReplyLost (LinkCorrupt)                2
+a port another handle holds     PortInUse (NotConnected)               2
+a scale zero no longer true     ZeroLost (ValueError)                  2
 ==============================  =====================================  =====================
 
 Device-specific texts (GRBL's messages, Dynamixel error names) are device facts and live in
@@ -66,6 +70,16 @@ class LinkCorrupt(RigError, IOError):
     Examples: a CRC or checksum mismatch, a packet cut off mid-way, a status packet from the wrong
     ID, a line that does not parse.
     """
+
+
+class ReplyLost(LinkCorrupt):
+    """A device executed a request but its answer was lost on the wire (a GRBL ``ok``/``error`` the
+    host never received, detected from a later status report). ``line`` is what was sent; whether
+    the device accepted it is unknown, so read the state back before relying on it."""
+
+    def __init__(self, message: str, *, device: str | None = None, line: str | None = None) -> None:
+        super().__init__(message, device=device)
+        self.line = line
 
 
 class DeviceFault(RigError):
@@ -157,6 +171,16 @@ class NotConnected(RigError, ConnectionError):
 
 class CalibrationError(RigError, ValueError):
     """A calibration is missing, of the wrong version or sensor, or cannot be fitted from the data."""
+
+
+class ZeroLost(RigError, ValueError):
+    """A scale's zero can no longer be trusted (its sketch re-tared with an unknown load on it and
+    sends no raw counts the host could correct with); ``tare()`` sets a new zero."""
+
+
+class CalibrationExists(CalibrationError, FileExistsError):
+    """Writing a calibration would replace an existing file (a version, or an unversioned file at the
+    stable name); pass ``force=True`` (``--force``) to overwrite it."""
 
 
 class ControlReadbackError(RigError, ValueError):

@@ -213,6 +213,8 @@ class CameraConfig(DeviceConfig):
     height: int = 240
     fps: float = 25.0
     fourcc: str = "MJPG"
+    force_map: Path | None = None  # marker forces → newtons (tactile-rig calibrate force-map)
+    substance_model: Path | None = None  # stirring features → substance (tactile-rig calibrate substance)
 
     kind: ClassVar[str] = "camera"
     example_port: ClassVar[str] = "/dev/video0"
