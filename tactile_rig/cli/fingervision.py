@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import glob
-import json
 import os
 import sys
 from collections.abc import Iterator
@@ -17,7 +16,10 @@ from typing import Any
 
 import numpy as np
 
+from tactile_rig.cli.args import float_in, int_in
 from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.cli.loaders import load_config_mapping, read_frame
+from tactile_rig.core.files import check_file, check_image_dims, checked, quiet_opencv
 from tactile_rig.perception.fingervision import FingerVision, FingerVisionParams
 from tactile_rig.rig.bench import load_bench
 from tactile_rig.rig.camera_calibrations import camera_calibrations, describe_files
@@ -31,11 +33,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     t = fsub.add_parser("track", help="track markers, force/torque, object and slip, frame by frame")
     t.add_argument("frames", help="folder of images, glob pattern (quote it) or video file")
     t.add_argument("--config", help="TOML or JSON file of FingerVisionParams (sections detector, tracker, force, proximity)")
-    t.add_argument("--calib-frames", type=int, help="no-contact frames for the baseline (overrides the config)")
-    t.add_argument("--fps", type=float, help="frame rate, for timestamps t_s = index / fps (Kalman time step)")
-    t.add_argument("--object-rect", type=int, nargs=4, metavar=("X", "Y", "W", "H"),
+    t.add_argument("--calib-frames", type=int_in(1, 100_000), help="no-contact frames for the baseline (overrides the config)")
+    t.add_argument("--fps", type=float_in(0.0, 100_000.0, "frames/s", low_open=True), help="frame rate, for timestamps t_s = index / fps (Kalman time step)")
+    t.add_argument("--object-rect", type=int_in(0, 65535, "px"), nargs=4, metavar=("X", "Y", "W", "H"),
                    help="learn the object's colours from this rectangle (px) of the first frame after calibration")
-    t.add_argument("--limit", type=int, help="stop after this many frames")
+    t.add_argument("--limit", type=int_in(1, 10**9), help="stop after this many frames")
     t.add_argument("--calibration", help="marker baseline (calibrate fingervision) to start from; default: the "
                    "bench camera's, else calib/fingervision.json when present")
     t.add_argument("--force-map", help="force map for newtons (calibrate force-map); default: the bench camera's, "
@@ -52,22 +54,13 @@ def load_params(path: str | None, calib_frames: int | None = None):
 
     data: dict[str, Any] = {}
     if path:
-        file = Path(path)
-        if not file.is_file():
-            raise FileNotFoundError(f"--config: no such file {path!r}")
-        text = file.read_text(encoding="utf-8")
-        if file.suffix.lower() == ".json":
-            data = json.loads(text)
-        else:
-            import tomllib
-
-            try:
-                data = tomllib.loads(text)
-            except tomllib.TOMLDecodeError as exc:
-                raise ValueError(f"--config {path}: not valid TOML ({exc})") from exc
+        data = load_config_mapping(path, "FingerVision config")
     if calib_frames is not None:
         data = {**data, "n_calib_frames": calib_frames}
-    return FingerVisionParams.from_mapping(data)
+    if not path:
+        return FingerVisionParams.from_mapping(data)
+    with checked(path, "FingerVision config", "sections detector, tracker, force, proximity of FingerVisionParams"):
+        return FingerVisionParams.from_mapping(data)
 
 
 def iter_frames(source: str) -> Iterator[tuple[str, np.ndarray]]:
@@ -86,9 +79,13 @@ def iter_frames(source: str) -> Iterator[tuple[str, np.ndarray]]:
     elif path.is_file() and path.suffix.lower() in _IMAGE_EXT:
         files = [path]
     elif path.is_file():
-        cap = cv2.VideoCapture(str(path))
+        check_file(path, "video")
+        with quiet_opencv():
+            cap = cv2.VideoCapture(str(path))
         if not cap.isOpened():
             raise ValueError(f"{source}: not an image and OpenCV cannot open it as a video")
+        check_image_dims(path, "video frame", int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)) or 1,
+                         int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)) or 1)
         try:
             i = 0
             while True:
@@ -105,10 +102,7 @@ def iter_frames(source: str) -> Iterator[tuple[str, np.ndarray]]:
     else:
         raise FileNotFoundError(f"{source}: no such folder, video or matching files")
     for f in files:
-        frame = cv2.imread(str(f), cv2.IMREAD_COLOR)
-        if frame is None:
-            raise ValueError(f"{f}: cannot decode the image")
-        yield f.name, frame
+        yield f.name, read_frame(f)
 
 
 def _record(i: int, name: str, r) -> dict[str, Any]:

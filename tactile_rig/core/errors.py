@@ -229,3 +229,24 @@ class PortInUse(NotConnected):
     def __init__(self, message: str, *, device: str | None = None, port: str | None = None) -> None:
         super().__init__(message, device=device)
         self.port = port
+
+
+class BadFile(RigError, ValueError):
+    """A file that cannot be used as it is: ``path`` names it, ``problem`` says what is wrong with it
+    and ``expected`` what was expected (a directory given for a file, zero bytes, a truncated
+    archive, a pickle or complex ``.npy``, a 65535 x 65535 image header, JSON nested too deep)."""
+
+    def __init__(self, path: Any, problem: str, expected: str = "") -> None:
+        self.path = str(path)
+        self.problem = problem
+        self.expected = expected
+        super().__init__(f"{self.path}: {problem}" + (f"; expected {expected}" if expected else ""))
+
+
+class MissingFile(RigError, FileNotFoundError):
+    """A file the command needs does not exist; ``path`` names it and ``what`` says what it was for."""
+
+    def __init__(self, path: Any, what: str = "file") -> None:
+        self.path = str(path)
+        self.what = what
+        RigError.__init__(self, f"{self.path}: the {what} does not exist")
