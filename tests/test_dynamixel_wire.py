@@ -168,3 +168,29 @@ def test_splitting_never_changes_what_is_found(data: bytes, cuts: list[int], pro
     sc = wire.StatusScanner(protocol)
     pieces = [ev for c in _splits(data, cuts) for ev in sc.feed(c)]
     assert pieces == whole
+
+
+def test_instruction_encoding_and_stuffing() -> None:
+    assert wire.encode_instruction_p2(1, wire.PING, b"") == H("FF FF FD 00 01 03 00 01 19 4E")
+    assert wire.encode_instruction_p2(1, wire.WRITE, H("74 00 00 02 00 00")) == \
+        H("FF FF FD 00 01 09 00 03 74 00 00 02 00 00 CA 89")
+    assert wire.stuff(H("03 14 00 FF FF FD FF")) == H("03 14 00 FF FF FD FD FF")
+    assert wire.unstuff(wire.stuff(H("FF FF FD FD FF FF FD"))) == H("FF FF FD FD FF FF FD")
+    status = wire.encode_status(2, 1, 0, H("FF FF FD FF"))
+    assert H("FF FF FD FD FF") in status and wire.parse_status(2, status)[0].params == H("FF FF FD FF")
+
+
+def test_a_write_whose_data_holds_a_header_is_sent_stuffed() -> None:
+    from tactile_rig.drivers.dynamixel import DynamixelBus
+    from tactile_rig.mocks.dynamixel import make_bus
+    from tactile_rig.testing import serve_in_process
+
+    dev = make_bus(protocol=2, ids=[1], timing=True, return_delay_us=0)
+    sent: list[bytes] = []
+    orig = dev.feed
+    dev.feed = lambda data, t_s: (sent.append(bytes(data)), orig(data, t_s))[1]
+    with serve_in_process(dev) as url, DynamixelBus(url) as bus:
+        bus.write(1, "Homing Offset", -131073)  # little-endian FF FF FD FF
+        assert dev.servo(1).item("Homing Offset") == -131073
+        assert bus.read(1, "Homing Offset") == -131073  # the status is stuffed too
+    assert any(H("FF FF FD FD FF") in s for s in sent)

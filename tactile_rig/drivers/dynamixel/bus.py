@@ -278,6 +278,13 @@ class DynamixelBus(Driver):
     def _send(self, port: UrlPortHandler, req: wire.Request, what: str) -> int:
         """Send ``req`` through the SDK (its framing, stuffing and CRC); return the bytes sent."""
         n = len(req.params)
+        if self.protocol == 2 and b"\xff\xff\xfd" in bytes([req.instruction]) + req.params:
+            # SDK 4.1.0's addStuffing rebinds its argument and so sends such a packet unstuffed
+            raw = wire.encode_instruction_p2(req.dxl_id, req.instruction, req.params)
+            port.clearPort()
+            if port.writePort(raw) != len(raw):
+                raise NotConnected(f"{what}: the port took only part of the packet", device=self.name(req.dxl_id))
+            return len(raw)
         if self.protocol == 2:
             tx = [0] * (10 + n)
             tx[4], tx[5], tx[6], tx[7] = req.dxl_id, (n + 3) & 0xFF, (n + 3) >> 8, req.instruction

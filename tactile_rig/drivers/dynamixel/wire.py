@@ -298,6 +298,25 @@ def parse_status(protocol: int, data: bytes) -> list[StatusPacket | Corrupt | Fo
     return StatusScanner(protocol).feed(data)
 
 
+def stuff(payload: bytes) -> bytes:
+    """Protocol 2.0 byte stuffing of instruction + parameters (``FF FF FD`` → ``FF FF FD FD``)."""
+    out = bytearray()
+    for b in payload:
+        out.append(b)
+        if b == 0xFD and out[-3:-1] == b"\xff\xff" and len(out) >= 3:
+            out.append(0xFD)
+    return bytes(out)
+
+
+def encode_instruction_p2(dxl_id: int, instruction: int, params: bytes) -> bytes:
+    """A Protocol 2.0 instruction packet, stuffed (for payloads the SDK 4.1.0 does not stuff)."""
+    body = stuff(bytes([instruction]) + bytes(params))
+    length = len(body) + 2
+    pkt = P2_HEADER + bytes([0, dxl_id, length & 0xFF, length >> 8]) + body
+    crc = crc16(pkt)
+    return pkt + bytes([crc & 0xFF, crc >> 8])
+
+
 def encode_status(protocol: int, dxl_id: int, error: int, params: bytes) -> bytes:
     """A status packet (for tests and tools: the host never sends one)."""
     if protocol == 2:
