@@ -473,8 +473,9 @@ class DynamixelBus(Driver):
             self._check_status(dxl_id, pkt.error, "ping", fault_ok=True)
             if self.protocol == 2:
                 return pkt.params[0] | pkt.params[1] << 8
-            # Protocol 1.0 has no model in the ping status: read it, as the SDK does.
-            raw = self._read_raw(dxl_id, 0, 2, "ping (read Model Number)")
+            # Protocol 1.0 has no model in the ping status: read it, as the SDK does, twice (the
+            # model decides whether a driver accepts the servo; P1's checksum is weak)
+            raw = self.read_bytes(dxl_id, 0, 2, what="ping (read Model Number)", verify=True)
             return raw[0] | raw[1] << 8
 
     def read_bytes(self, dxl_id: int, address: int, length: int, *, what: str | None = None,
