@@ -356,3 +356,52 @@ def test_typed_errors_only_from_a_cut_off_and_flipped_link() -> None:
         with pytest.raises(LinkCorrupt):
             bus.read(1, "Model Number")
         assert not bus.port.is_using
+
+
+def test_verify_that_never_agrees_is_link_corrupt() -> None:
+    with _bus(1, ids=[1]) as (bus, dev):
+        orig, n = dev.emit, [0]
+
+        def emit(data: bytes, t_s: float, *, delay_s: float = 0.0, reply: bool = True) -> float:
+            n[0] += 1  # every status a different (valid) value: a register that keeps changing
+            return orig(wire.encode_status(1, 1, 0, n[0].to_bytes(2, "little")), t_s, delay_s=delay_s, reply=reply)
+
+        dev.emit = emit
+        with pytest.raises(LinkCorrupt, match="never agreed"):
+            bus.read(1, "Goal Position", verify=True)
+        assert bus.stats.verify_mismatches == bus.retries + 1
+
+
+def test_an_id_write_with_a_lost_status_is_an_error_not_a_repeat() -> None:
+    with _bus(2, ids=[1]) as (bus, dev):
+        sent: list[bytes] = []
+        orig = dev.feed
+        dev.feed = lambda data, t_s: (sent.append(bytes(data)), orig(data, t_s))[1]
+        LateReplies(dev, [None])
+        with pytest.raises(DeviceTimeout):
+            bus.write(1, "ID", 7)  # the servo answers to 7 now; reading ID 1 back would mislead
+        assert dev.servo(7) is not None
+        assert sum(1 for d in sent if d[7:8] == b"\x03") == 1 and bus.stats.writes_repeated_after_readback == 0
+
+
+def test_reconnect_backoff_grows_to_its_cap_and_resets() -> None:
+    clock = VirtualClock()
+    r = Reconnect(clock, initial_s=0.1, factor=3.0, max_s=0.5)
+    assert not r.away and not r.due()
+    r.lost("EIO")
+    assert r.away and not r.due()
+    waits = []
+    for _ in range(4):
+        clock.advance(r.next_attempt_s - clock.now_s())
+        assert r.due()
+        r.failed()
+        waits.append(round(r.wait_s, 6))
+    assert waits == [0.3, 0.5, 0.5, 0.5]
+    assert "EIO" in str(r.not_connected("dev", "/dev/ttyUSB0")) and "/dev/ttyUSB0" in str(r.not_connected("d", "/dev/ttyUSB0"))
+    clock.advance(0.5)
+    r.succeeded()
+    assert not r.away and r.reconnects == 1
+    r.lost()
+    assert r.next_attempt_s == pytest.approx(clock.now_s() + 0.1)  # back to the first wait
+    with pytest.raises(ValueError, match="factor"):
+        Reconnect(clock, factor=0.5)
