@@ -1,7 +1,12 @@
 """``tactile-rig fingervision track FRAMES_OR_VIDEO``: run the FingerVision processor over recorded frames.
 
-FRAMES may be a folder of images, a glob pattern or a video file. The first ``n_calib_frames`` frames
-(no contact) build the marker baseline. With ``--json`` one JSON object per frame is printed.
+FRAMES may be a folder of images, a glob pattern or a video file. Markers get their ids on the first
+frame (a lattice fit); the first ``n_calib_frames`` frames (no contact) refine their rest positions.
+With ``--json`` one JSON object per frame is printed.
+
+Exit codes: 0 done; 2 bad input (a missing file, a bad option, an undecodable image, frames of
+different sizes) or no marker lattice in the first ``n_calib_frames`` frames (black, white, flat,
+out-of-focus frames: ``MarkersNotFound``), one line on stderr.
 """
 
 from __future__ import annotations
@@ -16,10 +21,14 @@ from typing import Any
 
 import numpy as np
 
+from tactile_rig.cli import bench_live
 from tactile_rig.cli.args import float_in, int_in
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.cli.loaders import load_config_mapping, read_frame
 from tactile_rig.core.files import check_file, check_image_dims, checked, quiet_opencv
+
+
+from tactile_rig.core.errors import MarkersNotFound
 from tactile_rig.perception.fingervision import FingerVision, FingerVisionParams
 from tactile_rig.rig.bench import load_bench
 from tactile_rig.rig.camera_calibrations import camera_calibrations, describe_files
@@ -31,7 +40,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("fingervision", help="FingerVision perception over recorded frames")
     fsub = p.add_subparsers(dest="fv_command", metavar="ACTION")
     t = fsub.add_parser("track", help="track markers, force/torque, object and slip, frame by frame")
-    t.add_argument("frames", help="folder of images, glob pattern (quote it) or video file")
+    t.add_argument("frames", nargs="?", help="folder of images, glob pattern (quote it) or video file "
+                   "(or --bench: live from the bench's camera)")
     t.add_argument("--config", help="TOML or JSON file of FingerVisionParams (sections detector, tracker, force, proximity)")
     t.add_argument("--calib-frames", type=int_in(1, 100_000), help="no-contact frames for the baseline (overrides the config)")
     t.add_argument("--fps", type=float_in(0.0, 100_000.0, "frames/s", low_open=True), help="frame rate, for timestamps t_s = index / fps (Kalman time step)")
@@ -45,6 +55,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--no-calibration", action="store_true",
                    help="load no stored file: build the baseline from the first frames, forces in px")
     add_json_flag(t)
+    bench_live.add_bench_camera_arguments(t)
     t.set_defaults(func=_track)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
@@ -133,9 +144,16 @@ def _record(i: int, name: str, r) -> dict[str, Any]:
 
 
 def _track(args: argparse.Namespace) -> int:
+    if bench_live.wants_bench(args):
+        return bench_live.track(args, load_params(args.config, args.calib_frames))
+    bench_live.need_files(args, "frames")
 
-    if args.fps is not None and not args.fps > 0:
-        raise ValueError(f"--fps: expected > 0 frames/s, got {args.fps}")
+    if args.fps is not None and not (0 < args.fps < float("inf")):
+        raise ValueError(f"--fps: expected a finite rate > 0 frames/s, got {args.fps}")
+    if args.limit is not None and args.limit < 1:
+        raise ValueError(f"--limit: expected >= 1 frames, got {args.limit}")
+    if args.object_rect is not None and (args.object_rect[2] < 1 or args.object_rect[3] < 1):
+        raise ValueError(f"--object-rect: expected a width and height >= 1 px, got {args.object_rect[2:]}")
     fv = FingerVision(load_params(args.config, args.calib_frames))
     cal, mm_per_px = _calibrations(args)
     if cal.calibration is not None:
@@ -152,6 +170,13 @@ def _track(args: argparse.Namespace) -> int:
             fv.learn_object(frame, rects=[tuple(args.object_rect)])
             learnt = True
         r = fv.process(frame, None if args.fps is None else i / args.fps)
+        if fv.tracker is None and i + 1 >= fv.params.n_calib_frames and (
+                fv.params.init == "lattice" or i + 1 > fv.params.n_calib_frames):
+            raise MarkersNotFound(
+                f"{args.frames}: no marker lattice in the first {i + 1} frame(s) (frame {name}); expected dark "
+                f"dots on the skin: the frames are black, white, flat or out of focus", device="fingervision")
+        if fv.tracker is not None and fv.baseline is not None and not np.any(fv.baseline.valid):
+            raise MarkersNotFound(f"{args.frames}: the baseline frames hold no stable marker", device="fingervision")
         rec = _record(i, name, r)
         if fm is not None and not r.calibrating:
             f_n, tq, mag = fm.to_newtons(r.force_px, r.torque_px2)
@@ -171,6 +196,9 @@ def _track(args: argparse.Namespace) -> int:
                   f"torque_z {r.torque_px2[2]:+.1f} px2  {'SLIP' if r.slip else 'still'}  {obj}")
     if n == 0:
         raise ValueError(f"{args.frames}: no frames")
+    if fv.tracker is None:
+        raise MarkersNotFound(f"{args.frames}: no marker lattice in any of the {n} frame(s); expected dark dots "
+                              f"on the skin: the frames are black, white, flat or out of focus", device="fingervision")
     return 0
 
 

@@ -19,9 +19,17 @@ the device latched a fault      DeviceFault                            3
 outside a configured limit      LimitError (ValueError)                2
 a calibration unusable          CalibrationError (ValueError)          2
   ... would replace a file      CalibrationExists (CalibrationError)   2
+  ... no markers to calibrate   MarkersNotFound (CalibrationError)     2
+frame outside the valid input   InvalidFrame (ValueError)              2
 a camera kept no setting        ControlReadbackError (ValueError)      2
 a camera stream frozen          FrozenStream (DeviceTimeout)           2
 a bench file unusable           BenchError (ValueError)                2
+perception input out of range   PerceptionError (ValueError)           2
+  ... nothing touches the gel   NoContact (PerceptionError)            2
+  ... clipped (black/white)     SaturatedFrame (PerceptionError)       2
+  ... beyond the calibration    GradientOutOfRange (PerceptionError)   2
+  ... not a gel surface         HeightOutOfRange (PerceptionError)     2
+  ... a squashed transform      DegenerateTransform (PerceptionError)  2
 a run folder of another run     RunConflict (ValueError)               2
 several devices failed          ConnectErrors                          2
 an answer lost on the wire      ReplyLost (LinkCorrupt)                2
@@ -183,6 +191,14 @@ class CalibrationExists(CalibrationError, FileExistsError):
     stable name); pass ``force=True`` (``--force``) to overwrite it."""
 
 
+class MarkersNotFound(CalibrationError):
+    """A marker sensor's calibration frames hold no marker lattice (black, white, flat, covered)."""
+
+
+class InvalidFrame(RigError, ValueError):
+    """A frame outside a perception entry point's valid input: shape, channels, dtype or size."""
+
+
 class ControlReadbackError(RigError, ValueError):
     """The camera did not keep a format or control value we wrote (read back differs)."""
 
@@ -204,6 +220,40 @@ class BenchError(RigError, ValueError):
 
 class RunConflict(RigError, ValueError):
     """A run folder holds a run with another configuration (or an unreadable one)."""
+
+
+class PerceptionError(RigError, ValueError):
+    """A perception input outside the range its function can turn into a physical result.
+
+    ``value`` is what was seen (a fraction, a slope, a height in mm, a determinant) and ``limit`` the
+    bound it broke; the message names both and the component (``device``).
+    """
+
+    def __init__(self, message: str, *, device: str | None = None, value: float | None = None,
+                 limit: float | None = None) -> None:
+        super().__init__(message, device=device)
+        self.value = value
+        self.limit = limit
+
+
+class NoContact(PerceptionError):
+    """Nothing presses the gel (a flat map), where the function needs a contact."""
+
+
+class SaturatedFrame(PerceptionError):
+    """Too much of a frame is clipped at 0 or 255 (covered lens, lights off, over-exposure)."""
+
+
+class GradientOutOfRange(PerceptionError):
+    """Colours or slopes beyond what the calibration was fitted on (its heights would be invented)."""
+
+
+class HeightOutOfRange(PerceptionError):
+    """Heights no gel can show (beyond its range of a few mm): the input is not a gel surface."""
+
+
+class DegenerateTransform(PerceptionError):
+    """Two maps are related by a squashing transform (det R far from 1), not a rigid move."""
 
 
 class ConnectErrors(RigError):

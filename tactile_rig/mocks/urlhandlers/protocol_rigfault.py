@@ -101,7 +101,7 @@ class Serial(SerialBase):
         if fate.unplug_s is not None:
             self._dead = True
             with _AWAY_LOCK:
-                _AWAY[self._port] = (self._clock.now_s() + fate.unplug_s, self.faults)  # type: ignore[index]
+                _AWAY[self._port] = (self._clock.now_s() + fate.unplug_s, self.faults)
             raise _eio()
         if not fate.data:
             return
