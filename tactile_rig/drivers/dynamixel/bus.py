@@ -102,6 +102,9 @@ class UrlPortHandler(sdk.PortHandler):
     hold it around each SDK transaction when using the SDK directly from several threads.
     """
 
+    is_open: bool
+    is_using: bool
+
     def __init__(self, port_name: str, *, exclusive: bool | None = None) -> None:
         super().__init__(port_name)
         self.lock = transport.bus_lock(port_name)
@@ -308,7 +311,8 @@ class DynamixelBus(Driver):
         # a status longer than ours or any still in flight is corruption, not worth waiting for
         longest = max([n, 3] + [k for lengths in self._in_flight.values() for k in lengths])
         scanner = wire.StatusScanner(self.protocol, max_params=longest)
-        deadline = Deadline(self.clock, self.packet_timeout_s(tx_bytes, n + (11 if self.protocol == 2 else 6)))
+        timeout_s = self.packet_timeout_s(tx_bytes, n + (11 if self.protocol == 2 else 6))
+        deadline = Deadline(self.clock, timeout_s)
         corrupt = 0
         ser = port.ser
         dev = self.name(req.dxl_id)
@@ -344,7 +348,7 @@ class DynamixelBus(Driver):
                               f"{corrupt} CRC/checksum failure(s)", device=dev)
         self.stats.timeouts += 1
         raise DeviceTimeout(
-            f"{what}: no status packet within {deadline.timeout_s * 1000:.3g} ms (check the ID, the baud "
+            f"{what}: no status packet within {timeout_s * 1000:.3g} ms (check the ID, the baud "
             f"rate {self.baudrate}, the power and, for a U2D2, the latency timer: {self.latency_timer_ms:g} ms "
             "allowed)", device=dev)
 

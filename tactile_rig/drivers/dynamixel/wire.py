@@ -220,7 +220,7 @@ class StatusScanner:
             ev = self._step()
             if ev is None:
                 return out
-            if ev is not True:
+            if not isinstance(ev, bool):
                 out.append(ev)
 
     def _drop(self, n: int) -> None:
