@@ -405,3 +405,23 @@ def test_reconnect_backoff_grows_to_its_cap_and_resets() -> None:
     assert r.next_attempt_s == pytest.approx(clock.now_s() + 0.1)  # back to the first wait
     with pytest.raises(ValueError, match="factor"):
         Reconnect(clock, factor=0.5)
+
+
+@pytest.mark.parametrize("protocol", [2, 1])
+def test_after_a_long_silence_the_bus_answers_as_soon_as_the_line_is_back(protocol: int) -> None:
+    """Dozens of failed requests (each one's status may still come) exhaust no resync: the bus
+    never refuses to try, and the first request after the silence is answered."""
+    # latency timer 0: timeouts of ~3 ms, so all 80 failures fall within LATE_HORIZON_S
+    with _bus(protocol, ids=[1], latency_timer_ms=0) as (bus, dev):
+        silent = LateReplies(dev, [None] * 80)
+        failures = 0
+        while True:
+            try:
+                model = bus.ping(1)
+                break
+            except DeviceTimeout:
+                failures += 1
+        assert silent.count > 80 and model == MODEL[protocol]  # answered once statuses came again
+        assert failures >= 12 and bus.stats.resyncs > 64  # more than the lengths a resync can use
+        assert bus.clock.now_s() < 1.0
+        assert bus.read(1, "Model Number") == MODEL[protocol]

@@ -70,6 +70,8 @@ _TIMEOUT_MARGIN_S = 0.002  # the SDK's 2 ms
 _RESYNC_ADDRESS = 0  # Model Number: readable on both protocols, EEPROM, no side effects
 #: a status later than this after its request failed is not guarded against by a resync
 LATE_HORIZON_S = 1.0
+#: resync reads use lengths 1..this (from address 0; gaps in the table read as zeros)
+_RESYNC_MAX_LENGTH = 64
 
 
 def check_latency_timer(port: str, *, sysfs_root: str | Path = "/sys") -> int | None:
@@ -363,10 +365,12 @@ class DynamixelBus(Driver):
         now = self.clock.now_s()
         for k in [k for k, t in busy.items() if now - t > LATE_HORIZON_S]:
             del busy[k]  # a status this late is not waited for any more
-        length = next((k for k in range(1, 12) if k not in busy), None)
+        length = next((k for k in range(1, min(self.table.size, _RESYNC_MAX_LENGTH) + 1) if k not in busy), None)
         if length is None:
-            raise LinkCorrupt(f"{what}: the line is too noisy to resync (11 requests failed within "
-                              f"{LATE_HORIZON_S} s)", device=self.name(dxl_id))
+            # Every length is in flight (a dead line, many fast timeouts): the oldest of those
+            # statuses is the least likely to come at all; reuse its length.
+            length = min((k for k in busy if k), key=lambda k: busy[k])
+            del busy[length]
         req = wire.Request(self.protocol, dxl_id, wire.READ, self._read_params(_RESYNC_ADDRESS, length))
         self.stats.resyncs += 1
         self._flush(port)
