@@ -32,6 +32,7 @@ writes again only if the value is not there. Errors:
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
 from dataclasses import asdict, dataclass
@@ -246,7 +247,7 @@ class DynamixelBus(Driver):
 
     def _lost(self, exc: BaseException, what: str) -> NotConnected:
         """The port failed under us: close it, free the SDK's ``is_using``, start reconnecting."""
-        why = "unplugged (EIO)" if getattr(exc, "errno", None) == 5 else (str(exc) or type(exc).__name__)
+        why = "unplugged (EIO)" if getattr(exc, "errno", None) == errno.EIO else (str(exc) or type(exc).__name__)
         self.port.closePort()
         self._in_flight.clear()
         self.stats.disconnects += 1
