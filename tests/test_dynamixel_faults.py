@@ -425,3 +425,16 @@ def test_after_a_long_silence_the_bus_answers_as_soon_as_the_line_is_back(protoc
         assert failures >= 12 and bus.stats.resyncs > 64  # more than the lengths a resync can use
         assert bus.clock.now_s() < 1.0
         assert bus.read(1, "Model Number") == MODEL[protocol]
+
+
+@pytest.mark.parametrize("protocol", [2, 1])
+def test_group_reads_discard_a_late_status_and_return_the_true_values(protocol: int) -> None:
+    with _bus(protocol) as (bus, dev):
+        bus.write(1, "Goal Position", 1111)
+        bus.write(2, "Goal Position", 2222)
+        LateReplies(dev, [0.0, 0.060])  # ID 2's status of the first attempt comes 60 ms late
+        got = bus.bulk_read([(1, "Goal Position"), (2, "Goal Position")])
+        assert got == {1: 1111, 2: 2222} and bus.stats.retries == 1 and bus.stats.stale_packets >= 1
+        if protocol == 2:
+            LateReplies(dev, [0.060])
+            assert bus.sync_read([1, 2], "Goal Position") == {1: 1111, 2: 2222}
