@@ -438,3 +438,22 @@ def test_group_reads_discard_a_late_status_and_return_the_true_values(protocol: 
         if protocol == 2:
             LateReplies(dev, [0.060])
             assert bus.sync_read([1, 2], "Goal Position") == {1: 1111, 2: 2222}
+
+
+@pytest.mark.parametrize("protocol", [2, 1])
+def test_the_gripper_state_after_a_late_one_byte_status_is_the_true_state(protocol: int) -> None:
+    """Issue #11's sequence: a 1-byte read times out, its status comes 60 ms late, and the next
+    block read (the gripper's state) took it: a 24-byte read returning 1 byte, an opening of -0.05 m."""
+    dev = make_bus(protocol=protocol, ids=[1], timing=True, return_delay_us=0)
+    with serve_in_process(dev) as url:
+        with DynamixelBus(url, protocol=protocol, baudrate=dev.baud, retries=0) as bus:
+            g = DynamixelGripper(bus)
+            LateReplies(dev, [0.060])
+            with pytest.raises(DeviceTimeout):
+                bus.read(1, "Torque Enable")
+            st = g.state()
+            servo = dev.servo(1)
+            ticks = servo.item("Present Position")
+            assert st.opening_frac == pytest.approx(g.calibration.frac_from_ticks(ticks))
+            assert st.temperature_c == servo.item("Present Temperature")
+            assert bus.stats.stale_packets == 1
