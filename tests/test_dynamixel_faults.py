@@ -457,3 +457,15 @@ def test_the_gripper_state_after_a_late_one_byte_status_is_the_true_state(protoc
             assert st.opening_frac == pytest.approx(g.calibration.frac_from_ticks(ticks))
             assert st.temperature_c == servo.item("Present Temperature")
             assert bus.stats.stale_packets == 1
+
+
+def test_a_late_fast_sync_read_status_is_never_the_next_ones_answer() -> None:
+    with _bus(2, retries=0) as (bus, dev):
+        bus.sync_write("Goal Position", {1: 1111, 2: 2222})
+        LateReplies(dev, [0.060])
+        with pytest.raises(DeviceTimeout):
+            bus.sync_read([1, 2], "Goal Position", fast=True)
+        bus.sync_write("Goal Position", {1: 1500, 2: 2500})
+        assert bus.sync_read([1, 2], "Goal Position", fast=True) == {1: 1500, 2: 2500}
+        assert bus.stats.stale_packets == 1 and bus.stats.resyncs == 2
+        assert bus.bulk_read([(1, "Model Number"), (2, "Goal Position")], fast=True) == {1: 311, 2: 2500}

@@ -194,3 +194,34 @@ def test_a_write_whose_data_holds_a_header_is_sent_stuffed() -> None:
         assert dev.servo(1).item("Homing Offset") == -131073
         assert bus.read(1, "Homing Offset") == -131073  # the status is stuffed too
     assert any(H("FF FF FD FD FF") in s for s in sent)
+
+
+def _fast_status(segments: list[tuple[int, int, bytes]]) -> bytes:
+    """A Fast Sync Read status as the Protocol 2.0 page builds it: [ERR ID DATA CRC] per servo, each
+    CRC over the packet so far, the last one the packet's."""
+    length = 1 + sum(len(d) + 4 for _, _, d in segments)
+    pkt = bytearray(H("FF FF FD 00 FE") + bytes([length & 0xFF, length >> 8, 0x55]))
+    for err, i, data in segments:
+        pkt += bytes([err, i]) + data
+        crc = wire.crc16(pkt)
+        pkt += bytes([crc & 0xFF, crc >> 8])
+    return bytes(pkt)
+
+
+def test_fast_read_status_is_split_per_servo_and_checked() -> None:
+    raw = _fast_status([(0, 1, H("A6 00 00 00")), (0, 3, H("1F 08 00 00"))])
+    [pkt] = wire.parse_status(2, raw)
+    req = wire.Request(2, wire.BROADCAST_ID, wire.FAST_SYNC_READ, H("84 00 04 00 01 03"),
+                       expect_params=wire.fast_status_params([4, 4]))
+    assert wire.mismatch(req, pkt) is None
+    assert wire.split_fast_status(pkt, [(1, 4), (3, 4)]) == {1: (0, H("A6 00 00 00")), 3: (0, H("1F 08 00 00"))}
+    with pytest.raises(ValueError, match="segment 0 is from ID 1, expected ID 3"):
+        wire.split_fast_status(pkt, [(3, 4), (1, 4)])
+    bad = bytearray(raw)
+    bad[13] ^= 0xFF  # ID 1's own CRC: the packet CRC is recomputed, the inner one is not
+    bad[-2:] = wire.crc16(bytes(bad[:-2])).to_bytes(2, "little")
+    with pytest.raises(ValueError, match="segment 0 .* fails its CRC"):
+        wire.split_fast_status(wire.parse_status(2, bytes(bad))[0], [(1, 4), (3, 4)])
+    # a fast status for other sizes is stale for this request
+    other = wire.parse_status(2, _fast_status([(0, 1, H("A6 00")), (0, 3, H("1F 08"))]))[0]
+    assert "expected 13" in wire.mismatch(req, other)

@@ -343,8 +343,10 @@ class DynamixelBus(Driver):
         finally:
             ser.timeout = 0
             self.stats.skipped_bytes += scanner.skipped
-        # Our status may still come, late: the next request to this ID resyncs first.
-        self._expect_late(req.dxl_id, n)
+        # Our status may still come, late: the next request to this ID resyncs first (a fast
+        # read's caller marks its servos instead: a broadcast ID cannot be resynced).
+        if req.dxl_id != wire.BROADCAST_ID:
+            self._expect_late(req.dxl_id, n)
         if corrupt or scanner.pending:
             partial = f" ({len(scanner.pending)} byte(s) of a cut-off packet)" if scanner.pending else ""
             raise LinkCorrupt(f"{what}: corrupt or cut-off status packet{partial}; "
@@ -411,19 +413,6 @@ class DynamixelBus(Driver):
         return bytes([address, length])
 
     # -- result handling -------------------------------------------------------------------------
-    def _check_comm(self, dxl_id: int, result: int, what: str) -> None:
-        """SDK result codes of the group helpers → typed errors."""
-        if result == sdk.COMM_SUCCESS:
-            return
-        dev = self.name(dxl_id)
-        if result == sdk.COMM_RX_TIMEOUT:
-            raise DeviceTimeout(f"{what}: no status packet within the SDK's packet timeout", device=dev)
-        if result == sdk.COMM_RX_CORRUPT:
-            raise LinkCorrupt(f"{what}: corrupt or cut-off status packet (CRC/checksum mismatch)", device=dev)
-        if result in (sdk.COMM_TX_FAIL, sdk.COMM_TX_ERROR, sdk.COMM_RX_FAIL):
-            raise NotConnected(f"{what}: {self.packet.getTxRxResult(result)}", device=dev)
-        raise RigError(f"{what}: {self.packet.getTxRxResult(result)} (result {result})", device=dev)
-
     def _check_status(self, dxl_id: int, error: int, what: str, *, fault_ok: bool) -> None:
         dev = self.name(dxl_id)
         if self.protocol == 2:
@@ -644,10 +633,12 @@ class DynamixelBus(Driver):
         ids = list(ids)
         if len(set(ids)) != len(ids):
             raise ValueError(f"sync read: IDs {ids} list one twice")
-        if fast:
-            return self._sdk_group_read(sdk.GroupSyncRead, ids, [(i, it) for i in ids], f"fast sync read {name}")
         params = bytes([it.address & 0xFF, it.address >> 8, it.size & 0xFF, it.size >> 8]) + bytes(ids)
-        raw = self._group_read(0x82, params, [(i, it.address, it.size) for i in ids], f"sync read {name}")
+        reqs = [(i, it.address, it.size) for i in ids]
+        if fast:
+            raw = self._fast_read(wire.FAST_SYNC_READ, params, reqs, f"fast sync read {name}")
+        else:
+            raw = self._group_read(0x82, params, reqs, f"sync read {name}")
         return {i: it.from_raw(int.from_bytes(raw[i], "little")) for i in ids}
 
     def bulk_read(self, requests: Iterable[tuple[int, str]], *, fast: bool = False) -> dict[int, int]:
@@ -656,41 +647,48 @@ class DynamixelBus(Driver):
         ids = [i for i, _ in reqs]
         if len(set(ids)) != len(ids):
             raise ValueError("bulk read: an ID is listed twice")
-        if fast and self.protocol == 2:
-            return self._sdk_group_read(sdk.GroupBulkRead, ids, reqs, "fast bulk read")
         if self.protocol == 2:
             params = b"".join(bytes([i, it.address & 0xFF, it.address >> 8, it.size & 0xFF, it.size >> 8])
                               for i, it in reqs)
         else:
             params = b"\x00" + b"".join(bytes([it.size, i, it.address]) for i, it in reqs)
-        raw = self._group_read(0x92, params, [(i, it.address, it.size) for i, it in reqs], "bulk read")
+        group = [(i, it.address, it.size) for i, it in reqs]
+        if fast and self.protocol == 2:
+            raw = self._fast_read(wire.FAST_BULK_READ, params, group, "fast bulk read")
+        else:
+            raw = self._group_read(0x92, params, group, "bulk read")
         return {i: it.from_raw(int.from_bytes(raw[i], "little")) for i, it in reqs}
 
-    def _sdk_group_read(self, kind: type, ids: list[int], reqs: list[tuple[int, ct.Item]], what: str
-                        ) -> dict[int, int]:
-        """Fast Sync/Bulk Read through the SDK's group helpers (one combined, CRC-checked packet)."""
-        def run() -> dict[int, int]:
+    def _fast_read(self, instruction: int, params: bytes, reqs: list[tuple[int, int, int]], what: str
+                   ) -> dict[int, bytes]:
+        """A Fast Sync/Bulk Read: one combined status from the broadcast ID, each servo's segment
+        checked (ID, order, its CRC) and its error handled as a read's."""
+        sizes = [n for _, _, n in reqs]
+        n_fast = wire.fast_status_params(sizes)
+        req = wire.Request(2, wire.BROADCAST_ID, instruction, params, expect_params=n_fast)
+
+        def run() -> dict[int, bytes]:
             port = self._live_port()
             self.stats.transactions += 1
+            for i, _, _ in reqs:
+                if i in self._in_flight:
+                    self._resync(port, i, what)
             self._flush(port)
-            if kind is sdk.GroupSyncRead:
-                it0 = reqs[0][1]
-                group = sdk.GroupSyncRead(port, self.packet, it0.address, it0.size)
-                for i in ids:
-                    group.addParam(i)
-                result = group.fastSyncRead()
-            else:
-                group = sdk.GroupBulkRead(port, self.packet)
-                for i, it in reqs:
-                    group.addParam(i, it.address, it.size)
-                result = group.fastBulkRead()
-            self._check_comm(ids[0] if ids else wire.BROADCAST_ID, result, what)
-            out = {}
-            for i, it in reqs:
-                if not group.isAvailable(i, it.address, it.size):
-                    raise LinkCorrupt(f"{what}: no data for ID {i}", device=self.name(i))
-                out[i] = it.from_raw(group.getData(i, it.address, it.size))
-            return out
+            sent = self._send(port, req, what)
+            try:
+                pkt = self._receive(port, req, sent, what, exact=True)
+                segments = wire.split_fast_status(pkt, [(i, n) for i, _, n in reqs])
+            except ValueError as exc:
+                for i, _, _ in reqs:
+                    self._expect_late(i, n_fast)
+                raise LinkCorrupt(f"{what}: {exc}", device=self.port_name) from None
+            except (DeviceTimeout, LinkCorrupt):
+                for i, _, _ in reqs:  # their segments may still come: resync each servo first (and
+                    self._expect_late(i, n_fast)  # let the scanner frame the late status whole)
+                raise
+            for i, (err, _) in segments.items():
+                self._check_status(i, err, f"{what}: ID {i}", fault_ok=True)
+            return {i: data for i, (_, data) in segments.items()}
 
         with self.lock:
             return self._retrying(lambda: self._guarded(what, run))

@@ -117,9 +117,14 @@ class Request:
     dxl_id: int
     instruction: int
     params: bytes = b""
+    #: the status parameter count when the instruction does not imply it (a Fast Sync/Bulk Read's
+    #: one combined status from the broadcast ID)
+    expect_params: int | None = None
 
     @property
     def expected_params(self) -> int | None:
+        if self.expect_params is not None:
+            return self.expect_params
         if self.dxl_id == BROADCAST_ID:
             return None
         if self.instruction == PING:
@@ -291,6 +296,42 @@ class StatusScanner:
             return Corrupt(raw, "error byte with the reserved bit 7 set")
         del b[:total]
         return StatusPacket(1, raw[2], raw[4], raw[5:-1], raw)
+
+
+FAST_SYNC_READ, FAST_BULK_READ = 0x8A, 0x9A
+
+
+def fast_status_params(sizes: list[int]) -> int:
+    """Parameter count of the combined status of a Fast Sync/Bulk Read of these data sizes:
+    ``[ERR ID DATA CRC]`` per servo, the first ERR in the error byte, the last CRC the packet's."""
+    return sum(n + 4 for n in sizes) - 3
+
+
+def split_fast_status(packet: StatusPacket, expected: list[tuple[int, int]]) -> dict[int, tuple[int, bytes]]:
+    """A Fast Sync/Bulk Read's combined status → {ID: (error, data)}, in the order asked.
+
+    Checks each servo's ID and the cumulative CRC each one appended (the packet's own CRC was
+    checked by the scanner); ``ValueError`` names the first problem."""
+    if packet.dxl_id != BROADCAST_ID:
+        raise ValueError(f"a fast read status comes from ID 0xFE, not {packet.dxl_id}")
+    if len(packet.params) != fast_status_params([n for _, n in expected]):
+        raise ValueError(f"{len(packet.params)} parameter byte(s), expected "
+                         f"{fast_status_params([n for _, n in expected])}")
+    raw = packet.raw
+    body = raw[8:-2]  # ERR1 ID1 DATA1 CRC1 ... ERRk IDk DATAk
+    out: dict[int, tuple[int, bytes]] = {}
+    pos = 0
+    for k, (dxl_id, n) in enumerate(expected):
+        err, sid = body[pos], body[pos + 1]
+        if sid != dxl_id:
+            raise ValueError(f"segment {k} is from ID {sid}, expected ID {dxl_id}")
+        data = body[pos + 2:pos + 2 + n]
+        end = 8 + pos + 2 + n
+        if k < len(expected) - 1 and crc16(raw[:end]) != (raw[end] | raw[end + 1] << 8):
+            raise ValueError(f"segment {k} (ID {dxl_id}) fails its CRC")
+        out[dxl_id] = (err, bytes(data))
+        pos += n + 4
+    return out
 
 
 def parse_status(protocol: int, data: bytes) -> list[StatusPacket | Corrupt | Foreign]:
