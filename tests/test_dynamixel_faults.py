@@ -469,3 +469,32 @@ def test_a_late_fast_sync_read_status_is_never_the_next_ones_answer() -> None:
         assert bus.sync_read([1, 2], "Goal Position", fast=True) == {1: 1500, 2: 2500}
         assert bus.stats.stale_packets == 1 and bus.stats.resyncs == 2
         assert bus.bulk_read([(1, "Model Number"), (2, "Goal Position")], fast=True) == {1: 311, 2: 2500}
+
+
+@pytest.mark.pty
+@pytest.mark.parametrize("protocol", [2, 1])
+def test_over_a_pty_relay_late_and_split_statuses_never_give_a_wrong_value(protocol: int) -> None:
+    """Real time, the real SDK sending, a relay holding statuses 60 ms and splitting others."""
+    from tactile_rig.mocks.faults import FaultInjector
+    from tactile_rig.mocks.relay import PtyRelay
+    from tactile_rig.testing.serve import serve_on_pty
+
+    dev = make_bus(protocol=protocol, ids=[1], timing=True, return_delay_us=0)
+    faults = FaultInjector.from_query("late=0.2&late_s=0.06&split=0.3&seed=1")
+    servo = dev.servo(1)
+    with serve_on_pty(dev) as server, PtyRelay(server.port, faults, baudrate=dev.baud) as relay:
+        with DynamixelBus(relay.port, protocol=protocol, baudrate=dev.baud) as bus:
+            returned = 0
+            for k in range(30):
+                try:
+                    if k % 3 == 0:
+                        bus.write(1, "Goal Position", 1000 + 37 * k)
+                        assert servo.item("Goal Position") == 1000 + 37 * k
+                    elif k % 3 == 1:
+                        assert bus.read(1, "Goal Position", verify=protocol == 1) == servo.item("Goal Position")
+                    else:
+                        assert bus.ping(1) == MODEL[protocol]
+                    returned += 1
+                except RigError:
+                    pass
+            assert returned >= 10 and faults.counts().get("late", 0) >= 1  # not vacuous
