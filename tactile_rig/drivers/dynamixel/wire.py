@@ -22,6 +22,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from tactile_rig.devices.dynamixel.error_codes import P1_COMMAND_MASK
+
 P2_HEADER = b"\xff\xff\xfd"
 P1_HEADER = b"\xff\xff"
 STATUS_INSTRUCTION = 0x55
@@ -37,7 +39,6 @@ MAX_P1_LENGTH = 250  # the SDK's RXPACKET_MAX_LEN
 P1_ERROR_RESERVED_BIT = 0x80
 #: error bits that reject the command (a status that may come without the read's data)
 P2_ERROR_NUMBER_MASK = 0x7F
-P1_COMMAND_MASK = 0x02 | 0x08 | 0x10 | 0x40  # angle limit, range, checksum, instruction
 
 
 def _crc_table() -> list[int]:
