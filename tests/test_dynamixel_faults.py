@@ -498,3 +498,21 @@ def test_over_a_pty_relay_late_and_split_statuses_never_give_a_wrong_value(proto
                 except RigError:
                     pass
             assert returned >= 10 and faults.counts().get("late", 0) >= 1  # not vacuous
+
+
+def test_the_latency_timer_knob_sets_how_late_a_status_may_be() -> None:
+    """A status 20 ms late is in time for an adapter at the FTDI default (16 ms: twice it is
+    allowed) and late for one set to 1 ms, where it is then discarded, never taken."""
+    with _bus(2, ids=[1], retries=0) as (bus, dev):
+        assert bus.latency_timer_ms == 16
+        LateReplies(dev, [0.020])
+        assert bus.read(1, "Model Number") == 311 and bus.stats.timeouts == 0
+    with _bus(2, ids=[1], retries=0, latency_timer_ms=1) as (bus, dev):
+        bus.write(1, "Goal Position", 3000)
+        LateReplies(dev, [0.020])
+        with pytest.raises(DeviceTimeout, match="1 ms allowed"):
+            bus.read(1, "Model Number")
+        bus.clock.sleep(0.05)
+        assert bus.read(1, "Goal Position") == 3000 and bus.stats.stale_bytes + bus.stats.stale_packets >= 1
+    with pytest.raises(ValueError, match="latency_timer_ms"):
+        DynamixelBus("rigsim://dynamixel", latency_timer_ms=-1)
