@@ -14,22 +14,21 @@ Two parts, each beside its baseline in the same run:
 * **speed**: Present Position reads per second over a pty, the bus beside the bare SDK.
 
 Usage: ``python benchmarks/bench_dynamixel_wire.py [--ops 300] [--reads 20000] [--sdk-reads 1000]
-[--speed-reads 3000] [--parts table,residual,speed] [--quick] [--save]``; ``--save`` writes the parts
-run into ``benchmarks/results/dynamixel_wire.json``.
+[--speed-reads 3000] [--parts table,residual,speed] [--quick] [--save | --out PATH]``; ``--save``
+writes the parts run into ``benchmarks/results/dynamixel_wire.json`` (keeping the other parts').
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
 import dynamixel_sdk as sdk
 import numpy as np
+from _output import add_save_args, parse_args, save_json, saved_results  # benchmarks/ is the script's folder
 
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.core.errors import RigError
@@ -297,8 +296,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--parts", default="table,residual,speed",
                     help="comma-separated parts to run (table, residual, speed); --save updates only those")
     ap.add_argument("--quick", action="store_true", help="a short smoke run")
-    ap.add_argument("--save", action="store_true", help="write benchmarks/results/dynamixel_wire.json")
-    args = ap.parse_args(argv)
+    add_save_args(ap, "dynamixel_wire.json")
+    args = parse_args(ap, argv)
     logging.basicConfig(level=logging.ERROR)  # the bus warns on every unplug
     if args.quick:
         args.ops, args.reads, args.sdk_reads, args.speed_reads = 40, 500, 50, 200
@@ -315,18 +314,16 @@ def main(argv: list[str] | None = None) -> int:
         results["bus_total"] = summary
     if "residual" in parts:
         results["p1_residual"] = residual(args)
-    if args.save:
-        out = Path(__file__).resolve().parent / "results" / "dynamixel_wire.json"
-        saved = json.loads(out.read_text()) if out.exists() else {}
-        saved.update(results)
-        commands = saved.get("commands") or ({k: saved["command"] for k in ("table", "residual")}
-                                             if "command" in saved else {})
-        for part in parts:
-            commands[part] = "python benchmarks/bench_dynamixel_wire.py " + " ".join(argv if argv is not None else sys.argv[1:])
-        saved["commands"] = commands
-        saved.pop("command", None)
-        out.write_text(json.dumps(saved, indent=1) + "\n")
-        print(f"wrote {out}")
+    # a partial rerun (--parts) keeps the committed figures of the other parts
+    saved = (saved_results("dynamixel_wire.json") or {}) if args.save else {}
+    saved.update(results)
+    commands = saved.get("commands") or ({k: saved["command"] for k in ("table", "residual")}
+                                         if "command" in saved else {})
+    for part in parts:
+        commands[part] = "python benchmarks/bench_dynamixel_wire.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    saved["commands"] = commands
+    saved.pop("command", None)
+    save_json(args, saved)
     return 0 if summary["untyped"] == 0 and summary["hangs"] == 0 and summary["wrong"] == 0 else 1
 
 
