@@ -349,6 +349,18 @@ def test_a_second_open_of_the_port_is_port_in_use() -> None:
             assert bus.ping(1) == 311  # the first user is undisturbed
         with DynamixelBus(server.port) as again:  # released on close
             assert again.ping(1) == 311
+            # and another process is refused as well, with the typed error naming the port
+            import subprocess
+            import sys
+
+            code = ("from tactile_rig.drivers.dynamixel import DynamixelBus\n"
+                    "from tactile_rig.core.errors import PortInUse\n"
+                    "try:\n    DynamixelBus(%r)\nexcept PortInUse as e:\n    print('PortInUse', e.port)\n" % server.port)
+            root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+            out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                                 env={**os.environ, "PYTHONPATH": root})
+            assert out.stdout.strip() == f"PortInUse {server.port}", out.stderr
+            assert again.ping(1) == 311
 
 
 def test_typed_errors_only_from_a_cut_off_and_flipped_link() -> None:
