@@ -9,8 +9,8 @@ Two parts, each beside its baseline in the same run:
   Protocol 1.0 reads use ``verify=True`` here; the baseline rows are the bare dynamixel-sdk
   (``PacketHandler.readTxRx`` / ``ping``) on the same faults, as issue #11 found it.
 * **P1 residual**: the rate of wrong values among Protocol 1.0 reads of Goal Position with 1-8
-  random bytes inserted at a random place inside 30 % of the statuses (line noise), without and with
-  read-verify, and the bare SDK's rate.
+  random bytes inserted at a random place inside 30 % of the statuses (line noise): the bare SDK,
+  the bus's raw bytes, the bus's range-checked item, and the item with read-verify.
 * **speed**: Present Position reads per second over a pty, the bus beside the bare SDK.
 
 Usage: ``python benchmarks/bench_dynamixel_wire.py [--ops 300] [--reads 20000] [--sdk-reads 1000]
@@ -201,48 +201,55 @@ def run_sdk(protocol: int, fault: str, n_ops: int, seed: int = 1) -> Row:
     return row
 
 
-def p1_residual(n_reads: int, noise: float, *, verify: bool | None, seed: int = 7) -> dict[str, Any]:
-    """Wrong values among P1 reads of Goal Position with line noise inside statuses (verify None: bare SDK)."""
+#: how the residual is read: the bare SDK, the bus's raw bytes (no range check: an item using every
+#: value of its bytes), a named item (Goal Position: values above 4095 are refused as damaged) and
+#: the named item with read-verify
+RESIDUAL_MODES = ("sdk", "raw", "read", "verify")
+
+
+def p1_residual(n_reads: int, noise: float, *, mode: str, seed: int = 7) -> dict[str, Any]:
+    """Wrong values among P1 reads of Goal Position with line noise inside statuses."""
     clock = VirtualClock()
     dev = make_bus(protocol=1, ids=[1], timing=True, return_delay_us=0)
-    name = f"bench-dxl-residual-{verify}-{time.monotonic_ns()}"
+    name = f"bench-dxl-residual-{mode}-{time.monotonic_ns()}"
     url = register_instance(name, dev, clock)
     _device_faults(dev, "noise", np.random.default_rng(seed + 1), p=noise)
     rng = np.random.default_rng(seed)
     servo = dev.servo(1)
+    item = servo.table["Goal Position"]
     wrong = ok = failed = 0
     t0 = time.perf_counter()
-    if verify is None:
+    if mode == "sdk":
         ph = UrlPortHandler(url, exclusive=False)
         ph.openPort()
         ph.setBaudRate(dev.baud)
         pk = sdk.PacketHandler(1.0)
-        addr = servo.table["Goal Position"].address
     else:
         bus = DynamixelBus(url, protocol=1, baudrate=dev.baud)
     for k in range(n_reads):
         if k % 50 == 0:  # a new true value now and then (written to the mock directly: no wire)
             servo._write_raw_item("Goal Position", int(rng.integers(0, 4096)))
         truth = servo.item("Goal Position")
-        if verify is None:
-            data, res, err = pk.read2ByteTxRx(ph, 1, addr)
-            if res != sdk.COMM_SUCCESS:
-                failed += 1
-                continue
-            got = data
-        else:
-            try:
-                got = bus.read(1, "Goal Position", verify=verify)
-            except RigError:
-                failed += 1
-                continue
+        try:
+            if mode == "sdk":
+                got, res, _ = pk.read2ByteTxRx(ph, 1, item.address)
+                if res != sdk.COMM_SUCCESS:
+                    failed += 1
+                    continue
+            elif mode == "raw":
+                got = int.from_bytes(bus.read_bytes(1, item.address, item.size), "little")
+            else:
+                got = bus.read(1, "Goal Position", verify=mode == "verify")
+        except RigError:
+            failed += 1
+            continue
         ok += 1
         wrong += int(got != truth)
         clock.sleep(0.001)
-    out = {"reads": n_reads, "noise_per_status": noise, "verify": verify, "returned": ok,
+    out = {"reads": n_reads, "noise_per_status": noise, "mode": mode, "returned": ok,
            "typed_failures": failed, "wrong": wrong, "wrong_per_returned": wrong / ok if ok else None,
            "wall_s": round(time.perf_counter() - t0, 2)}
-    if verify is not None:
+    if mode != "sdk":
         out["stats"] = bus.stats.to_dict()
         bus.close()
     unregister_instance(name)
@@ -351,11 +358,10 @@ def fault_table(n_ops: int) -> tuple[list[dict[str, Any]], dict[str, int]]:
 
 
 def residual(args: argparse.Namespace) -> list[dict[str, Any]]:
-    out = [p1_residual(args.reads, args.noise, verify=False),
-           p1_residual(args.reads, args.noise, verify=True),
-           p1_residual(args.sdk_reads, args.noise, verify=None)]
+    out = [p1_residual(args.sdk_reads if mode == "sdk" else args.reads, args.noise, mode=mode)
+           for mode in RESIDUAL_MODES]
     for r in out:
-        who = {False: "bus", True: "bus verify", None: "bare SDK"}[r["verify"]]
+        who = {"sdk": "bare SDK", "raw": "bus bytes", "read": "bus read", "verify": "bus verify"}[r["mode"]]
         rate = r["wrong_per_returned"]
         print(f"P1 residual, {who:10}: {r['wrong']} wrong of {r['returned']} returned ({r['reads']} reads, "
               f"{r['typed_failures']} typed failures), rate {rate if rate is None else f'{rate:.2e}'}", flush=True)

@@ -528,3 +528,24 @@ def test_the_latency_timer_knob_sets_how_late_a_status_may_be() -> None:
         assert bus.read(1, "Goal Position") == 3000 and bus.stats.stale_bytes + bus.stats.stale_packets >= 1
     with pytest.raises(ValueError, match="latency_timer_ms"):
         DynamixelBus("rigsim://dynamixel", latency_timer_ms=-1)
+
+
+def test_a_value_the_servo_never_stores_is_read_again() -> None:
+    """P1: a status damaged in two bytes so its checksum still holds, carrying a Goal Position of
+    0xF0xx (the firmware refuses anything above 4095): read again, the true value returned."""
+    with _bus(1, ids=[1]) as (bus, dev):
+        bus.write(1, "Goal Position", 1000)
+        orig, forged = dev.emit, []
+
+        def emit(data: bytes, t_s: float, *, delay_s: float = 0.0, reply: bool = True) -> float:
+            if not forged:
+                p = bytearray(data)
+                p[5], p[6] = (p[5] + 0xF0) & 0xFF, (p[6] - 0xF0) & 0xFF  # same 8-bit sum
+                forged.append(bytes(p))
+                data = bytes(p)
+            return orig(data, t_s, delay_s=delay_s, reply=reply)
+
+        dev.emit = emit
+        assert bus.read(1, "Goal Position") == 1000
+        assert bus.stats.implausible_values == 1
+        assert int.from_bytes(wire.parse_status(1, forged[0])[0].params, "little") > 4095

@@ -160,6 +160,7 @@ class BusStats:
     writes_confirmed_by_readback: int = 0  #: writes whose status was lost but whose value read back
     writes_repeated_after_readback: int = 0  #: writes read back as not applied, then sent again
     verify_mismatches: int = 0  #: read-verify pairs that disagreed
+    implausible_values: int = 0  #: reads of a writable item outside its range (damaged, read again)
     disconnects: int = 0
     reconnects: int = 0
 
@@ -547,11 +548,25 @@ class DynamixelBus(Driver):
 
     def read(self, dxl_id: int, name: str, *, verify: bool = False) -> int:
         """The value of control-table item ``name`` (signed items decoded); ``verify``: see
-        :meth:`read_bytes`."""
+        :meth:`read_bytes`.
+
+        A writable item's value must lie in its range (the firmware refuses writes outside it, so
+        a value beyond it is a damaged status that passed the checksum): it is read again, up to
+        ``retries`` times, then ``LinkCorrupt``.
+        """
         it = self.table[name]
-        raw = int.from_bytes(self.read_bytes(dxl_id, it.address, it.size, what=f"read {name}", verify=verify),
-                             "little")
-        return it.from_raw(raw)
+        checked = it.writable and (it.high - it.low + 1) < (1 << (8 * it.size))
+        for _ in range(self.retries + 1):
+            raw = int.from_bytes(self.read_bytes(dxl_id, it.address, it.size, what=f"read {name}", verify=verify),
+                                 "little")
+            value = it.from_raw(raw)
+            if not checked or it.low <= value <= it.high:
+                return value
+            self.stats.implausible_values += 1
+            log.info("%s: read %s: %d is outside [%d, %d]: a damaged status, read again", self.name(dxl_id), name,
+                     value, it.low, it.high)
+        raise LinkCorrupt(f"read {name}: {value} is outside [{it.low}, {it.high}], which the servo never stores "
+                          f"({self.retries + 1} reads): a damaged link", device=self.name(dxl_id))
 
     def write(self, dxl_id: int, name: str, value: int, *, fault_ok: bool = False) -> None:
         """Write item ``name``; values outside its range raise LimitError before anything is sent."""
