@@ -129,7 +129,7 @@ class DynamixelGripper(Driver):
         if self.protocol == 2:
             self.current_limit_a = self.bus.read(self.id, "Current Limit") * ct.P2_CURRENT_A_PER_UNIT
         else:
-            self.max_torque = self.bus.read(self.id, "Max Torque")
+            self.max_torque = self.bus.read(self.id, "Max Torque", verify=True)  # P1's checksum is weak
             self.current_limit_a = STALL_CURRENT_A * self.max_torque / 1023
         if self.bus.hardware_errors.get(self.id):
             self.lifecycle = Lifecycle.FAULT
@@ -144,7 +144,9 @@ class DynamixelGripper(Driver):
             self.effort = check_range("effort", effort, 0.0, 1.0)
         b, i = self.bus, self.id
         b.write(i, "Torque Enable", 0)
-        present = b.read(i, "Present Position")
+        # torque is off, so the position is still: on P1 (weak checksum) read it twice, as a wrong
+        # value here would be the goal the gripper jumps to
+        present = b.read(i, "Present Position", verify=self.protocol == 1)
         if self.protocol == 2:
             if b.read(i, "Operating Mode") != ct.MODE_CURRENT_POSITION:
                 b.write(i, "Operating Mode", ct.MODE_CURRENT_POSITION)
