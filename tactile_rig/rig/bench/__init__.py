@@ -26,7 +26,7 @@
     baud = 115200
     x_limits_mm = [-20.0, 20.0]
     y_limits_mm = [-20.0, 20.0]
-    theta_limits_deg = [-90.0, 90.0]
+    theta_limits_deg = [-180.0, 180.0]
 
     [camera]                       # any table named camera or camera_<name>
     port = "/dev/video0"           # or "run.mcap#/camera/left/image": a recording as the camera
