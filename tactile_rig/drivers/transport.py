@@ -32,16 +32,55 @@ def bus_lock(port: str) -> threading.RLock:
 
 
 def open_serial(port: str, *, baudrate: int, device: str, timeout_s: float | None = 0.0,
-                **kwargs: Any) -> serial.SerialBase:
-    """Open ``port`` (path or URL) with pyserial's ``serial_for_url``; errors become :class:`NotConnected`."""
+                log_bytes: bool | None = None, **kwargs: Any) -> serial.SerialBase:
+    """Open ``port`` (path or URL) with pyserial's ``serial_for_url``; errors become :class:`NotConnected`.
+
+    ``log_bytes`` (default: when the ``tactile_rig.transport`` logger is at DEBUG at open time)
+    returns the port wrapped in :class:`ByteLog`, so every byte any client of the port writes or
+    reads (the Dynamixel SDK's ``PortHandler`` included) is logged with ``device``.
+    """
     try:
-        return serial.serial_for_url(port, baudrate=baudrate, timeout=timeout_s, **kwargs)
+        ser = serial.serial_for_url(port, baudrate=baudrate, timeout=timeout_s, **kwargs)
     except (serial.SerialException, OSError, ValueError) as exc:
         raise NotConnected(
             f"cannot open port {port!r} at {baudrate} baud: {exc} "
             "(check the path, that the device is plugged in, and the permissions on the port)",
             device=device,
         ) from exc
+    if log_bytes if log_bytes is not None else log.isEnabledFor(logging.DEBUG):
+        return ByteLog(ser, device)  # type: ignore[return-value]
+    return ser
+
+
+class ByteLog:
+    """A pyserial port that logs every byte written and read (``DEVICE TX/RX hex``) at DEBUG on
+    ``tactile_rig.transport``; everything else is the port's own (attributes read and set through)."""
+
+    def __init__(self, ser: Any, device: str) -> None:
+        object.__setattr__(self, "_ser", ser)
+        object.__setattr__(self, "_device", device)
+
+    def write(self, data: bytes) -> int | None:
+        log.debug("%s TX %s", self._device, bytes(data).hex(" "))
+        return self._ser.write(data)
+
+    def read(self, size: int = 1) -> bytes:
+        data = self._ser.read(size)
+        if data:
+            log.debug("%s RX %s", self._device, bytes(data).hex(" "))
+        return data
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._ser, name)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        setattr(self._ser, name, value)
+
+    def __enter__(self) -> "ByteLog":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._ser.close()
 
 
 def port_clock(ser: Any) -> Clock:
@@ -69,7 +108,8 @@ class SerialTransport:
     ) -> None:
         if isinstance(port, str):
             self.port_name = port
-            self.serial = open_serial(port, baudrate=baudrate, device=device, **serial_kwargs)
+            # This class logs its own bytes (with the reads it makes), so the port is not wrapped.
+            self.serial = open_serial(port, baudrate=baudrate, device=device, log_bytes=False, **serial_kwargs)
         else:
             self.serial = port
             self.port_name = str(getattr(port, "portstr", None) or getattr(port, "port", "serial"))

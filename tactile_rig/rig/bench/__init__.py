@@ -29,7 +29,7 @@
     theta_limits_deg = [-180.0, 180.0]
 
     [camera]                       # any table named camera or camera_<name>
-    port = "/dev/video0"           # or "run.mcap#/camera/left/image": a recording as the camera
+    port = "/dev/video0"           # or "run.mcap#/camera_left/image": a recording as the camera
     sensor = "gelsight"            # gelsight | fingervision
     mm_per_px_x = 0.0634
     mm_per_px_y = 0.0634
