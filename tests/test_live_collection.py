@@ -182,3 +182,21 @@ def test_live_stirring_records_labelled_trials_and_fits(tmp_path):
     assert report["accuracy_holdout"] >= 0.75  # water and honey differ by three orders of viscosity
     with pytest.raises(ValueError, match="at least two different substances"):
         collect_stirring(rig, tmp_path / "y.mcap", camera="fv", substances=["water", "water"])
+
+
+def test_live_collection_starts_from_the_stored_baseline_and_attaches_it(tmp_path):
+    from tactile_rig.rig.calibration_sessions import fingervision_session
+
+    rig = _press_rig()
+    try:
+        fingervision_session(rig.devices["camera"], tmp_path / "fv", frames=5)
+        cal = camera_calibrations(None, calibration=tmp_path / "fv.json", defaults=False)
+        plan = PressPlan(peaks_n=(3.0, 6.0), ramp_s=0.4, hold_s=0.2, gap_s=0.2, rest_frames=4)
+        collect_force_map(rig, tmp_path / "s.mcap", camera="camera", plan=plan, calibrations=cal, record_frames=False)
+    finally:
+        rig.close()
+    rec = read_recording(tmp_path / "s.mcap")
+    rest = [m for m in rec.on("/perception/camera") if m.data["phase"] == "rest"]
+    assert len(rest) == 4 and all(np.linalg.norm(m.data["force_px"]) < 0.3 for m in rest)  # tracked from frame 1
+    assert {"calibration/fingervision/fv.json", "calibration/fingervision/fv.npz"} <= set(rec.attachments)
+    assert not [m for m in rec.messages if "image" in m.topic]  # record_frames=False

@@ -164,6 +164,8 @@ def collect_force_map(rig: Any, path: str | Path, *, camera: str, plan: PressPla
     peaks = sorted(float(p) for p in plan.peaks_n)
     s = _Session(rig, path, camera, "force-map", _tracker(calibrations, params), record_frames,
                  peaks_n=peaks, max_effort=plan.max_effort)
+    if calibrations is not None and "calibration" in calibrations.files:
+        s.rec.add_calibration(calibrations.sensor, path=calibrations.files["calibration"])
     try:
         guide.step("stand the scale between the fingers, its platform facing the FingerVision fingertip, "
                    "nothing touching it")
@@ -260,6 +262,8 @@ def collect_stirring(rig: Any, path: str | Path, *, camera: str, substances: Seq
         raise ValueError(f"substance collection: the bench has no camera [{camera}]")
     s = _Session(rig, path, camera, "substance", _tracker(calibrations, params), record_frames,
                  substances=names, per_substance=int(per_substance))
+    if calibrations is not None and "calibration" in calibrations.files:
+        s.rec.add_calibration(calibrations.sensor, path=calibrations.files["calibration"])
     clock, gripper = rig.clock, rig.devices.get("gripper")
     try:
         guide.step("put the stirring stick between the fingers")
