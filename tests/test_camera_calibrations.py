@@ -136,7 +136,8 @@ def test_calibrated_sensor_reads_newtons_for_the_controllers_and_the_recording(t
     assert np.linalg.norm(pressed.force_n) == pytest.approx(5.0, abs=1.0)
     assert np.linalg.norm(rest.force_n) < 0.7
     msgs = read_recording(tmp_path / "r.mcap").on("/perception/left")
-    assert len(msgs) == 1 + len(PRESS) and msgs[-1].data["force_map_n"] == pytest.approx(np.linalg.norm(pressed.force_n))
+    assert len(msgs) == 1 + len(PRESS)
+    assert msgs[-1].data["force_map_n"] == pytest.approx(np.linalg.norm(pressed.force_n))
 
 
 def test_track_uses_the_stored_baseline_and_reports_newtons(tmp_path, files, capsys):
@@ -177,3 +178,13 @@ def test_substance_predict_names_the_recorded_substances(tmp_path, files, capsys
     assert main(["substance", "predict", "--from-recording", str(rec), "--bench", str(bench), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["model"] == str(files["sub"])
     assert main(["substance", "predict", "--from-recording", str(rec), "--model", str(tmp_path / "no")]) == 2
+
+
+def test_a_baseline_of_another_frame_size_is_refused(tmp_path, files):
+    from tactile_rig.cli import main
+
+    cv2.imwrite(str(tmp_path / "small.png"), np.zeros((120, 160, 3), np.uint8))
+    assert main(["fingervision", "track", str(tmp_path / "small.png"), "--calibration", str(files["fv"])]) == 2
+    cal = load_fingervision_calibration(files["fv"])
+    with pytest.raises(CalibrationError, match="baseline is for 320x240 frames, this camera gives 160x120"):
+        cal.check_frame(np.zeros((120, 160, 3), np.uint8))

@@ -17,7 +17,7 @@ from tactile_rig.rig.bench import Bench, connect_bench, load_bench, mock_bench_p
 from tactile_rig.rig.calibration_sessions import Guide
 from tactile_rig.rig.camera_calibrations import CalibratedFingerVision, camera_calibrations
 from tactile_rig.rig.jig_accuracy import sim_camera_connector
-from tactile_rig.rig.learning import force_trials_from_recording, load_force_map, substance_session
+from tactile_rig.rig.learning import force_trials_from_recording, substance_session
 from tactile_rig.rig.live_collection import PressPlan, collect_force_map, collect_stirring, press_profile
 from tactile_rig.rig.recording import read_recording
 from tactile_rig.sim.render.fingervision import FingerVisionRenderer, contact_shear_field

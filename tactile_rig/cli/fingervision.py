@@ -154,6 +154,8 @@ def _track(args: argparse.Namespace) -> int:
     for i, (name, frame) in enumerate(iter_frames(args.frames)):
         if args.limit is not None and i >= args.limit:
             break
+        if i == 0 and cal.calibration is not None:
+            cal.calibration.check_frame(frame)
         if not learnt and fv.tracker is not None:
             fv.learn_object(frame, rects=[tuple(args.object_rect)])
             learnt = True
