@@ -77,6 +77,13 @@ def test_live_force_map_records_a_session_that_fits(live_map, capsys):
     assert [m.data["peak_force_n"] for m in rec.on("/command/session")] == [4.0, 8.0, 12.0]
     frames = [m for m in rec.messages if m.topic.endswith("compressed")]
     assert len(frames) > 100 and frames[0].image().shape == (240, 320, 3)
+    from mcap.reader import make_reader  # the independent reader opens it as Foxglove would
+
+    with open(live_map / "force_map.mcap", "rb") as fh:
+        reader = make_reader(fh)
+        counts = {ch.topic: n for ch_id, n in reader.get_summary().statistics.channel_message_counts.items()
+                  for ch in [reader.get_summary().channels[ch_id]]}
+    assert counts["/scale/force"] > 100 and counts["/camera/image/compressed"] == len(frames)
     trials = force_trials_from_recording(live_map / "force_map.mcap", camera="camera")
     # every trial's top reading is its commanded peak: the probe found the effort per newton
     for tr, peak in zip(trials, (4.0, 8.0, 12.0)):
