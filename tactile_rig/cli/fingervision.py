@@ -1,14 +1,18 @@
 """``tactile-rig fingervision track FRAMES_OR_VIDEO``: run the FingerVision processor over recorded frames.
 
-FRAMES may be a folder of images, a glob pattern or a video file. The first ``n_calib_frames`` frames
-(no contact) build the marker baseline. With ``--json`` one JSON object per frame is printed.
+FRAMES may be a folder of images, a glob pattern or a video file. Markers get their ids on the first
+frame (a lattice fit); the first ``n_calib_frames`` frames (no contact) refine their rest positions.
+With ``--json`` one JSON object per frame is printed.
+
+Exit codes: 0 done; 2 bad input (a missing file, a bad option, an undecodable image, frames of
+different sizes) or no marker lattice in the first ``n_calib_frames`` frames (black, white, flat,
+out-of-focus frames: ``MarkersNotFound``), one line on stderr.
 """
 
 from __future__ import annotations
 
 import argparse
 import glob
-import json
 import os
 import sys
 from collections.abc import Iterator
@@ -17,7 +21,14 @@ from typing import Any
 
 import numpy as np
 
+from tactile_rig.cli import bench_live
+from tactile_rig.cli.args import float_in, int_in
 from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.cli.loaders import load_config_mapping, read_frame
+from tactile_rig.core.files import check_file, check_image_dims, checked, quiet_opencv
+
+
+from tactile_rig.core.errors import MarkersNotFound
 from tactile_rig.perception.fingervision import FingerVision, FingerVisionParams
 from tactile_rig.rig.bench import load_bench
 from tactile_rig.rig.camera_calibrations import camera_calibrations, describe_files
@@ -29,13 +40,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("fingervision", help="FingerVision perception over recorded frames")
     fsub = p.add_subparsers(dest="fv_command", metavar="ACTION")
     t = fsub.add_parser("track", help="track markers, force/torque, object and slip, frame by frame")
-    t.add_argument("frames", help="folder of images, glob pattern (quote it) or video file")
+    t.add_argument("frames", nargs="?", help="folder of images, glob pattern (quote it) or video file "
+                   "(or --bench: live from the bench's camera)")
     t.add_argument("--config", help="TOML or JSON file of FingerVisionParams (sections detector, tracker, force, proximity)")
-    t.add_argument("--calib-frames", type=int, help="no-contact frames for the baseline (overrides the config)")
-    t.add_argument("--fps", type=float, help="frame rate, for timestamps t_s = index / fps (Kalman time step)")
-    t.add_argument("--object-rect", type=int, nargs=4, metavar=("X", "Y", "W", "H"),
+    t.add_argument("--calib-frames", type=int_in(1, 100_000), help="no-contact frames for the baseline (overrides the config)")
+    t.add_argument("--fps", type=float_in(0.0, 100_000.0, "frames/s", low_open=True), help="frame rate, for timestamps t_s = index / fps (Kalman time step)")
+    t.add_argument("--object-rect", type=int_in(0, 65535, "px"), nargs=4, metavar=("X", "Y", "W", "H"),
                    help="learn the object's colours from this rectangle (px) of the first frame after calibration")
-    t.add_argument("--limit", type=int, help="stop after this many frames")
+    t.add_argument("--limit", type=int_in(1, 10**9), help="stop after this many frames")
     t.add_argument("--calibration", help="marker baseline (calibrate fingervision) to start from; default: the "
                    "bench camera's, else calib/fingervision.json when present")
     t.add_argument("--force-map", help="force map for newtons (calibrate force-map); default: the bench camera's, "
@@ -43,6 +55,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--no-calibration", action="store_true",
                    help="load no stored file: build the baseline from the first frames, forces in px")
     add_json_flag(t)
+    bench_live.add_bench_camera_arguments(t)
     t.set_defaults(func=_track)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
@@ -52,22 +65,13 @@ def load_params(path: str | None, calib_frames: int | None = None):
 
     data: dict[str, Any] = {}
     if path:
-        file = Path(path)
-        if not file.is_file():
-            raise FileNotFoundError(f"--config: no such file {path!r}")
-        text = file.read_text(encoding="utf-8")
-        if file.suffix.lower() == ".json":
-            data = json.loads(text)
-        else:
-            import tomllib
-
-            try:
-                data = tomllib.loads(text)
-            except tomllib.TOMLDecodeError as exc:
-                raise ValueError(f"--config {path}: not valid TOML ({exc})") from exc
+        data = load_config_mapping(path, "FingerVision config")
     if calib_frames is not None:
         data = {**data, "n_calib_frames": calib_frames}
-    return FingerVisionParams.from_mapping(data)
+    if not path:
+        return FingerVisionParams.from_mapping(data)
+    with checked(path, "FingerVision config", "sections detector, tracker, force, proximity of FingerVisionParams"):
+        return FingerVisionParams.from_mapping(data)
 
 
 def iter_frames(source: str) -> Iterator[tuple[str, np.ndarray]]:
@@ -86,9 +90,13 @@ def iter_frames(source: str) -> Iterator[tuple[str, np.ndarray]]:
     elif path.is_file() and path.suffix.lower() in _IMAGE_EXT:
         files = [path]
     elif path.is_file():
-        cap = cv2.VideoCapture(str(path))
+        check_file(path, "video")
+        with quiet_opencv():
+            cap = cv2.VideoCapture(str(path))
         if not cap.isOpened():
             raise ValueError(f"{source}: not an image and OpenCV cannot open it as a video")
+        check_image_dims(path, "video frame", int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)) or 1,
+                         int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)) or 1)
         try:
             i = 0
             while True:
@@ -105,10 +113,7 @@ def iter_frames(source: str) -> Iterator[tuple[str, np.ndarray]]:
     else:
         raise FileNotFoundError(f"{source}: no such folder, video or matching files")
     for f in files:
-        frame = cv2.imread(str(f), cv2.IMREAD_COLOR)
-        if frame is None:
-            raise ValueError(f"{f}: cannot decode the image")
-        yield f.name, frame
+        yield f.name, read_frame(f)
 
 
 def _record(i: int, name: str, r) -> dict[str, Any]:
@@ -139,9 +144,16 @@ def _record(i: int, name: str, r) -> dict[str, Any]:
 
 
 def _track(args: argparse.Namespace) -> int:
+    if bench_live.wants_bench(args):
+        return bench_live.track(args, load_params(args.config, args.calib_frames))
+    bench_live.need_files(args, "frames")
 
-    if args.fps is not None and not args.fps > 0:
-        raise ValueError(f"--fps: expected > 0 frames/s, got {args.fps}")
+    if args.fps is not None and not (0 < args.fps < float("inf")):
+        raise ValueError(f"--fps: expected a finite rate > 0 frames/s, got {args.fps}")
+    if args.limit is not None and args.limit < 1:
+        raise ValueError(f"--limit: expected >= 1 frames, got {args.limit}")
+    if args.object_rect is not None and (args.object_rect[2] < 1 or args.object_rect[3] < 1):
+        raise ValueError(f"--object-rect: expected a width and height >= 1 px, got {args.object_rect[2:]}")
     fv = FingerVision(load_params(args.config, args.calib_frames))
     cal, mm_per_px = _calibrations(args)
     if cal.calibration is not None:
@@ -160,6 +172,13 @@ def _track(args: argparse.Namespace) -> int:
             fv.learn_object(frame, rects=[tuple(args.object_rect)])
             learnt = True
         r = fv.process(frame, None if args.fps is None else i / args.fps)
+        if fv.tracker is None and i + 1 >= fv.params.n_calib_frames and (
+                fv.params.init == "lattice" or i + 1 > fv.params.n_calib_frames):
+            raise MarkersNotFound(
+                f"{args.frames}: no marker lattice in the first {i + 1} frame(s) (frame {name}); expected dark "
+                f"dots on the skin: the frames are black, white, flat or out of focus", device="fingervision")
+        if fv.tracker is not None and fv.baseline is not None and not np.any(fv.baseline.valid):
+            raise MarkersNotFound(f"{args.frames}: the baseline frames hold no stable marker", device="fingervision")
         rec = _record(i, name, r)
         if fm is not None and not r.calibrating:
             f_n, tq, mag = fm.to_newtons(r.force_px, r.torque_px2)
@@ -179,6 +198,9 @@ def _track(args: argparse.Namespace) -> int:
                   f"torque_z {r.torque_px2[2]:+.1f} px2  {'SLIP' if r.slip else 'still'}  {obj}")
     if n == 0:
         raise ValueError(f"{args.frames}: no frames")
+    if fv.tracker is None:
+        raise MarkersNotFound(f"{args.frames}: no marker lattice in any of the {n} frame(s); expected dark dots "
+                              f"on the skin: the frames are black, white, flat or out of focus", device="fingervision")
     return 0
 
 

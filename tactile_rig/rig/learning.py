@@ -86,15 +86,6 @@ def _check_features(X: np.ndarray, n_features: int, who: str) -> np.ndarray:
     return x
 
 
-def robust_scale_params(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Median and interquartile range per column (a zero IQR becomes 1, as sklearn's RobustScaler)."""
-    center = np.median(X, axis=0)
-    q75, q25 = np.percentile(X, [75, 25], axis=0)
-    scale = q75 - q25
-    scale[scale == 0] = 1.0
-    return center, scale
-
-
 # -- force map --------------------------------------------------------------------------------
 @dataclass
 class ForceMapModel:

@@ -253,7 +253,8 @@ def _build_device(table: str, cls: type[DeviceConfig], values: dict[str, Any], b
         if key not in spec:
             problems.append((src.line(table, key), _unknown_key(table, key, sorted(spec)) + src.origin(table, key)))
             continue
-        hint = spec[key].type if isinstance(spec[key].type, str) else str(spec[key].type)
+        field_type = spec[key].type
+        hint = field_type if isinstance(field_type, str) else str(field_type)
         coerced, err = _check_value(hint, value)
         if err:
             problems.append((src.line(table, key), f"[{table}] {key}{src.origin(table, key)} {err}"))
