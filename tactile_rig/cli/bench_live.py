@@ -104,8 +104,9 @@ def _run(args: argparse.Namespace, step: Any, sensor: str, line: Any) -> int:
     return 0 if s.frames else 1
 
 
-def track(args: argparse.Namespace, params: Any) -> int:
-    """``fingervision track --bench``: live tracking from the bench's FingerVision camera."""
+def track(args: argparse.Namespace, params: Any, step: Any = None) -> int:
+    """``fingervision track --bench``: live tracking from the bench's FingerVision camera (``step``:
+    one that wraps a :class:`FingerVisionStep`, e.g. with the bench's calibrations)."""
 
     def line(r: dict[str, Any]) -> str:
         if r["calibrating"]:
@@ -114,7 +115,7 @@ def track(args: argparse.Namespace, params: Any) -> int:
         return (f"{r['marker_count']:3d} markers  force ({f[0]:+.3f}, {f[1]:+.3f}, {f[2]:+.3f}) {r['force_unit']}  "
                 f"{'contact' if r['contact'] else 'free'}  {'SLIP' if r['slip'] else 'still'}")
 
-    return _run(args, FingerVisionStep(params), "fingervision", line)
+    return _run(args, step or FingerVisionStep(params), "fingervision", line)
 
 
 def height(args: argparse.Namespace) -> int:

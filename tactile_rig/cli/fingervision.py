@@ -23,6 +23,7 @@ import numpy as np
 
 from tactile_rig.cli import bench_live
 from tactile_rig.cli.args import float_in, int_in
+from tactile_rig.cli.bench_args import bench_from_args
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.cli.loaders import load_config_mapping, read_frame
 from tactile_rig.core.files import check_file, check_image_dims, checked, quiet_opencv
@@ -31,7 +32,8 @@ from tactile_rig.core.files import check_file, check_image_dims, checked, quiet_
 from tactile_rig.core.errors import MarkersNotFound
 from tactile_rig.perception.fingervision import FingerVision, FingerVisionParams
 from tactile_rig.rig.bench import load_bench
-from tactile_rig.rig.camera_calibrations import camera_calibrations, describe_files
+from tactile_rig.rig.camera_calibrations import CalibratedStep, camera_calibrations, describe_files
+from tactile_rig.rig.live_perception import FingerVisionStep
 
 _IMAGE_EXT = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
 
@@ -145,7 +147,9 @@ def _record(i: int, name: str, r) -> dict[str, Any]:
 
 def _track(args: argparse.Namespace) -> int:
     if bench_live.wants_bench(args):
-        return bench_live.track(args, load_params(args.config, args.calib_frames))
+        params = load_params(args.config, args.calib_frames)
+        cal, mm_per_px = _calibrations(args)  # the bench camera's marker baseline and force map
+        return bench_live.track(args, params, CalibratedStep(FingerVisionStep(params), cal, mm_per_px=mm_per_px))
     bench_live.need_files(args, "frames")
 
     if args.fps is not None and not (0 < args.fps < float("inf")):
@@ -207,8 +211,12 @@ def _track(args: argparse.Namespace) -> int:
 def _calibrations(args: argparse.Namespace) -> tuple[Any, float | None]:
     """The marker baseline and force map ``track`` uses: named on the command line, else by the bench
     (``--bench``/``$TACTILE_RIG_BENCH``) for ``--camera``, else the sessions' default files."""
-    bench_path = getattr(args, "bench", None) or os.environ.get("TACTILE_RIG_BENCH")
-    bench = None if args.no_calibration or not bench_path else load_bench(bench_path, check_ports=False)
+    env_bench = os.environ.get("TACTILE_RIG_BENCH")
+    bench = None
+    if not args.no_calibration and bench_live.wants_bench(args):
+        bench = bench_from_args(args)
+    elif not args.no_calibration and env_bench:
+        bench = load_bench(env_bench, check_ports=False)
     camera = getattr(args, "camera", None)
     cal = camera_calibrations(bench, camera, calibration=None if args.no_calibration else args.calibration,
                               force_map=None if args.no_calibration else args.force_map,

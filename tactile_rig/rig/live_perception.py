@@ -4,7 +4,7 @@ with the frame rate measured as it runs and, optionally, everything on the live 
 :func:`run_live` owns the loop (open the camera, read each new frame, process, report, publish) and
 the rate meter; :class:`FingerVisionStep` and :class:`GelSightHeightStep` are the per-frame work.
 What a step returns is one JSON-able dict per frame; it is published on
-``/perception/<camera>/<step>`` with the frame on ``/camera/<camera>/compressed`` (the recording
+``/perception/<camera>/<step>`` with the frame on ``/<camera>/image/compressed`` (the recording
 schemas), so the live view and a recording of the same run look alike.
 """
 
@@ -131,7 +131,7 @@ def run_live(bench: Bench, camera: str | None, step: Callable[[np.ndarray, float
     """Run ``step`` on every new frame of the bench camera until ``duration_s`` or ``max_frames``
     (or Ctrl-C). ``on_frame`` gets each frame's dict with ``frame``, ``t_s``, ``fps`` and
     ``work_ms`` added. With ``live``, the frame and the dict are published (and
-    ``publish_image(image)``'s picture on ``/camera/<camera>_<step>/compressed`` when it returns one)."""
+    ``publish_image(image)``'s picture on ``/<camera>_<step>/image/compressed`` when it returns one)."""
     name = camera_name(bench, camera, sensor)
     if duration_s is not None and not duration_s > 0:
         raise ValueError(f"duration_s={duration_s!r} must be > 0 s")
