@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import glob
 import os
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -23,7 +22,6 @@ import numpy as np
 
 from tactile_rig.cli import bench_live
 from tactile_rig.cli.args import float_in, int_in
-from tactile_rig.cli.bench_args import bench_from_args
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.cli.loaders import load_config_mapping, read_frame
 from tactile_rig.core.files import check_file, check_image_dims, checked, quiet_opencv
@@ -32,8 +30,7 @@ from tactile_rig.core.files import check_file, check_image_dims, checked, quiet_
 from tactile_rig.core.errors import MarkersNotFound
 from tactile_rig.perception.fingervision import FingerVision, FingerVisionParams
 from tactile_rig.rig.bench import load_bench
-from tactile_rig.rig.camera_calibrations import CalibratedStep, camera_calibrations, describe_files
-from tactile_rig.rig.live_perception import FingerVisionStep
+from tactile_rig.rig.camera_calibrations import camera_calibrations, describe_files
 
 _IMAGE_EXT = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
 
@@ -147,9 +144,7 @@ def _record(i: int, name: str, r) -> dict[str, Any]:
 
 def _track(args: argparse.Namespace) -> int:
     if bench_live.wants_bench(args):
-        params = load_params(args.config, args.calib_frames)
-        cal, mm_per_px = _calibrations(args)  # the bench camera's marker baseline and force map
-        return bench_live.track(args, params, CalibratedStep(FingerVisionStep(params), cal, mm_per_px=mm_per_px))
+        return bench_live.track(args, load_params(args.config, args.calib_frames))
     bench_live.need_files(args, "frames")
 
     if args.fps is not None and not (0 < args.fps < float("inf")):
@@ -163,8 +158,8 @@ def _track(args: argparse.Namespace) -> int:
     if cal.calibration is not None:
         cal.calibration.apply(fv)  # the stored baseline: no frames spent rebuilding it
     fm = cal.force_map
-    if not args.json:
-        print(f"calibration: {describe_files(cal)}", file=sys.stderr)
+    if not args.json and cal.files:  # say which stored files the numbers come from (none: as before)
+        print(f"calibration: {describe_files(cal)}")
     learnt = args.object_rect is None
     n = 0
     for i, (name, frame) in enumerate(iter_frames(args.frames)):
@@ -209,14 +204,11 @@ def _track(args: argparse.Namespace) -> int:
 
 
 def _calibrations(args: argparse.Namespace) -> tuple[Any, float | None]:
-    """The marker baseline and force map ``track`` uses: named on the command line, else by the bench
-    (``--bench``/``$TACTILE_RIG_BENCH``) for ``--camera``, else the sessions' default files."""
+    """The marker baseline and force map ``track`` uses on files: named on the command line, else by
+    ``$TACTILE_RIG_BENCH`` for ``--camera``, else the sessions' default files (``--bench`` runs live:
+    :func:`tactile_rig.cli.bench_live.track` loads the bench camera's)."""
     env_bench = os.environ.get("TACTILE_RIG_BENCH")
-    bench = None
-    if not args.no_calibration and bench_live.wants_bench(args):
-        bench = bench_from_args(args)
-    elif not args.no_calibration and env_bench:
-        bench = load_bench(env_bench, check_ports=False)
+    bench = load_bench(env_bench, check_ports=False) if env_bench and not args.no_calibration else None
     camera = getattr(args, "camera", None)
     cal = camera_calibrations(bench, camera, calibration=None if args.no_calibration else args.calibration,
                               force_map=None if args.no_calibration else args.force_map,

@@ -41,7 +41,7 @@ from tactile_rig.rig.calibrations import version_of
 from tactile_rig.rig.learning import ForceMapModel, SubstanceModel, load_force_map, load_substance_model
 
 __all__ = ["FingerVisionCalibration", "CameraCalibrations", "CalibratedFingerVision", "camera_calibrations",
-           "CalibratedStep", "describe_files", "load_fingervision_calibration", "load_gelsight_calibration", "DEFAULT_FILES"]
+           "describe_files", "load_fingervision_calibration", "load_gelsight_calibration", "DEFAULT_FILES"]
 
 # Where the sessions write by default: used when no bench names a file.
 DEFAULT_FILES = {"fingervision": Path("calib/fingervision.json"), "gelsight": Path("calib/gelsight.npz"),
@@ -263,39 +263,6 @@ class CalibratedFingerVision:
                             slip_mm=d["slip_magnitude_px"] * (self.mm_per_px or 1.0),
                             object_area_px=d["object_area_px"], object_centroid_px=d["object_centroid_px"],
                             object_orientation_deg=d["object_orientation_deg"])
-
-
-class CalibratedStep:
-    """A live perception step (``step(image, t_s) -> dict`` with ``fv``, ``force`` and ``force_unit``,
-    e.g. :class:`~tactile_rig.rig.live_perception.FingerVisionStep`) that starts from the stored marker
-    baseline and reports ``force`` in newtons through the force map (``force_px`` keeps the pixels,
-    ``force_map_n`` is the map's magnitude)."""
-
-    def __init__(self, step: Any, calibrations: CameraCalibrations, *, mm_per_px: float | None = None) -> None:
-        self.step = step
-        self.name = getattr(step, "name", "fingervision")
-        self.calibrations = calibrations
-        self.mm_per_px = mm_per_px
-        self._checked = False
-        cal = calibrations.calibration
-        if isinstance(cal, FingerVisionCalibration):
-            cal.apply(step.fv)
-
-    def __call__(self, image: np.ndarray, t_s: float) -> dict[str, Any]:
-        cal = self.calibrations.calibration
-        if not self._checked and isinstance(cal, FingerVisionCalibration):
-            cal.check_frame(image)
-        self._checked = True
-        row = dict(self.step(image, t_s))
-        fm = self.calibrations.force_map
-        if fm is None or row.get("calibrating") or row.get("force") is None:
-            return row
-        f_n, tq, mag = fm.to_newtons(row["force"], row.get("torque") or (0.0, 0.0, 0.0))
-        row.update(force_px=row["force"], force=[round(float(v), 5) for v in f_n], force_unit="N",
-                   force_map_n=round(mag, 5),
-                   torque=[round(float(v) * (self.mm_per_px or 1.0), 4) for v in tq],
-                   torque_unit="N·mm" if self.mm_per_px else "N·px")
-        return row
 
 
 def describe_files(cal: CameraCalibrations) -> str:

@@ -4,7 +4,7 @@ with the frame rate measured as it runs and, optionally, everything on the live 
 :func:`run_live` owns the loop (open the camera, read each new frame, process, report, publish) and
 the rate meter; :class:`FingerVisionStep` and :class:`GelSightHeightStep` are the per-frame work.
 What a step returns is one JSON-able dict per frame; it is published on
-``/perception/<camera>/<step>`` with the frame on ``/<camera>/image/compressed`` (the recording
+``/perception/<camera>/<step>`` with the frame on ``/camera/<camera>/compressed`` (the recording
 schemas), so the live view and a recording of the same run look alike.
 """
 
@@ -24,6 +24,7 @@ from tactile_rig.perception.fingervision import FingerVision, FingerVisionParams
 from tactile_rig.perception.gelsight import GelSightCalibration, Reconstructor
 from tactile_rig.rig.bench import Bench
 from tactile_rig.rig.bench_camera import camera_name, open_camera
+from tactile_rig.rig.camera_calibrations import CameraCalibrations, FingerVisionCalibration
 
 RATE_WINDOW = 30  # frames the displayed rate is measured over
 
@@ -54,12 +55,20 @@ class RateMeter:
 class FingerVisionStep:
     """Marker tracking, force and torque, object and slip (:class:`FingerVision`) on each frame.
 
-    The first ``params.n_calib_frames`` frames build the marker baseline (the skin must be untouched)."""
+    With ``calibrations`` (the bench camera's, :func:`camera_calibrations`) the tracker starts from the
+    stored marker baseline and a force map turns the marker force (px) into newtons (``force_n``,
+    ``force_map_n``; the torque in N·mm with ``mm_per_px``). Without a stored baseline the first
+    ``params.n_calib_frames`` frames build it (the skin must be untouched)."""
 
     name = "fingervision"
 
-    def __init__(self, params: FingerVisionParams | None = None) -> None:
-        self.fv = FingerVision(params or FingerVisionParams())
+    def __init__(self, params: FingerVisionParams | None = None, calibrations: CameraCalibrations | None = None,
+                 *, mm_per_px: float | None = None) -> None:
+        cal = calibrations.calibration if calibrations is not None else None
+        self.fv = cal.processor(params) if isinstance(cal, FingerVisionCalibration) else FingerVision(
+            params or FingerVisionParams())
+        self.force_map = calibrations.force_map if calibrations is not None else None
+        self.mm_per_px = mm_per_px
 
     def __call__(self, image: np.ndarray, t_s: float) -> dict[str, Any]:
         r = self.fv.process(image, t_s)
@@ -67,14 +76,20 @@ class FingerVisionStep:
         disp = None
         if base is not None and not r.calibrating:
             disp = (np.asarray(r.marker_positions_px) - np.asarray(base.positions_px)).round(3).tolist()
-        return {"calibrating": r.calibrating, "marker_count": r.n_markers,
+        out: dict[str, Any] = {"calibrating": r.calibrating, "marker_count": r.n_markers,
                 "markers_px": np.asarray(r.marker_positions_px).round(3).tolist(),
                 "marker_displacements_px": disp, "marker_valid": np.asarray(r.marker_valid).tolist(),
-                "force": np.asarray(r.force_px).round(5).tolist(),
-                "force_unit": "px",  # newtons come from the bench's force map (camera_calibrations.CalibratedStep)
-                "torque": np.asarray(r.torque_px2).round(4).tolist(), "contact": r.contact, "slip": r.slip,
+                "force_px": np.asarray(r.force_px).round(5).tolist(),
+                "torque_px2": np.asarray(r.torque_px2).round(4).tolist(), "contact": r.contact, "slip": r.slip,
                 "slip_magnitude_px": r.slip_magnitude_px, "object_area_px": r.object_area_px,
                 "object_centroid_px": r.object_centroid_px, "timings_ms": r.timings_ms}
+        if self.force_map is not None and not r.calibrating:
+            f_n, tq_npx, magnitude_n = self.force_map.to_newtons(r.force_px, r.torque_px2)
+            out["force_n"] = np.round(f_n, 5).tolist()
+            out["force_map_n"] = round(float(magnitude_n), 5)
+            if self.mm_per_px is not None:
+                out["torque_nmm"] = np.round(tq_npx * self.mm_per_px, 5).tolist()
+        return out
 
 
 class GelSightHeightStep:
@@ -131,7 +146,7 @@ def run_live(bench: Bench, camera: str | None, step: Callable[[np.ndarray, float
     """Run ``step`` on every new frame of the bench camera until ``duration_s`` or ``max_frames``
     (or Ctrl-C). ``on_frame`` gets each frame's dict with ``frame``, ``t_s``, ``fps`` and
     ``work_ms`` added. With ``live``, the frame and the dict are published (and
-    ``publish_image(image)``'s picture on ``/<camera>_<step>/image/compressed`` when it returns one)."""
+    ``publish_image(image)``'s picture on ``/camera/<camera>_<step>/compressed`` when it returns one)."""
     name = camera_name(bench, camera, sensor)
     if duration_s is not None and not duration_s > 0:
         raise ValueError(f"duration_s={duration_s!r} must be > 0 s")
