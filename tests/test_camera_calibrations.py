@@ -188,3 +188,23 @@ def test_a_baseline_of_another_frame_size_is_refused(tmp_path, files):
     cal = load_fingervision_calibration(files["fv"])
     with pytest.raises(CalibrationError, match="baseline is for 320x240 frames, this camera gives 160x120"):
         cal.check_frame(np.zeros((120, 160, 3), np.uint8))
+
+
+def test_substance_predict_from_frames_tracks_them_with_the_stored_baseline(tmp_path, files, capsys):
+    from tactile_rig.cli import main
+
+    cam = _RenderedCamera()
+    frames = tmp_path / "stir"
+    frames.mkdir()
+    for i in range(24):  # 2.4 s at 10 frames/s: one 2 s window
+        cam.load = 0.1 + 0.05 * np.sin(i)
+        cv2.imwrite(str(frames / f"{i:03d}.png"), cam.frame())
+    # without a stored baseline the first 10 frames build one: 1.4 s tracked, short of a 2 s window
+    assert main(["substance", "predict", str(frames), "--fps", "10", "--model", str(files["sub"]), "--json"]) == 2
+    assert "shorter than one 2 s window" in capsys.readouterr().err
+    bench = _bench(tmp_path, files)
+    assert main(["substance", "predict", str(frames), "--fps", "10", "--bench", str(bench), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    (trial,) = out["trials"]
+    assert trial["windows"] == 1 and trial["substance"] in out["classes"]
+    assert main(["substance", "predict", str(frames), "--model", str(files["sub"])]) == 2  # no --fps
