@@ -16,8 +16,12 @@ TRIALS (never windows of a training trial). Saved the same way; :class:`Substanc
 with numpy only.
 
 Both sessions record to MCAP and learn from the recording, so the same fit runs on a bench's
-recording (``--from-recording``) as on the mocks. scikit-learn is the optional extra ``learn``;
-it is needed to fit, never to predict.
+recording (``--from-recording``) or a live guided collection (``collect``,
+:mod:`tactile_rig.rig.live_collection`) as on the mocks. Models are versioned
+(:mod:`tactile_rig.rig.calibrations`: ``force_map-vN.*`` with ``force_map.*`` linking to the newest).
+The consumers load them with :func:`load_force_map` (``ForceMapModel.to_newtons``: a fingertip's
+marker force in N) and :func:`load_substance_model` (:func:`predict_substance`). scikit-learn is
+the optional extra ``learn``; it is needed to fit, never to predict.
 """
 
 from __future__ import annotations
