@@ -208,3 +208,16 @@ def test_substance_predict_from_frames_tracks_them_with_the_stored_baseline(tmp_
     (trial,) = out["trials"]
     assert trial["windows"] == 1 and trial["substance"] in out["classes"]
     assert main(["substance", "predict", str(frames), "--model", str(files["sub"])]) == 2  # no --fps
+
+
+def test_a_bench_recording_attaches_the_cameras_models(tmp_path, files):
+    from tactile_rig.rig.bench_record import record_bench
+    from tactile_rig.rig.recording import read_recording
+
+    bench = load_bench(text=f'[camera_left]\nport = "rigsim://camera"\nsensor = "fingervision"\n'
+                            f'force_map = "{files["fm"]}"\nsubstance_model = "{files["sub"]}"\n')
+    record_bench(bench, 0.2, tmp_path / "r.mcap")
+    att = set(read_recording(tmp_path / "r.mcap").attachments)
+    assert {"calibration/camera_left.force_map/force_map.json", "calibration/camera_left.force_map/force_map.npz",
+            "calibration/camera_left.substance_model/substance.json",
+            "calibration/camera_left.substance_model/substance.npz"} <= att

@@ -20,6 +20,7 @@ from typing import Any, Callable
 from tactile_rig.core.errors import DeviceTimeout
 from tactile_rig.rig.bench import Bench, connect_bench
 from tactile_rig.rig.live import Tee
+from tactile_rig.rig.learning import model_json_path
 from tactile_rig.rig.recording import Recorder, camera_topic
 
 POLL_S = 0.005
@@ -55,6 +56,10 @@ def record_bench(bench: Bench, duration_s: float, out: str | Path | None, *, liv
             for name, cfg in bench.devices.items():
                 if cfg.calibration is not None and Path(cfg.calibration).is_file():
                     recorder.add_calibration(name, path=cfg.calibration)
+                for key, stem in (("force_map", "force_map"), ("substance_model", "substance")):
+                    model = getattr(cfg, key, None)  # a camera's learned models (json + npz)
+                    if model is not None and model_json_path(model, stem).is_file():
+                        recorder.add_calibration(f"{name}.{key}", path=model_json_path(model, stem))
         sink = Tee(recorder, live)
         if live is not None:
             live.use_clock(clock)

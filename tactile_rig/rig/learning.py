@@ -164,6 +164,12 @@ def _model_path(path: str | Path, name: str) -> Path:
     return p / name if p.is_dir() else p
 
 
+def model_json_path(path: str | Path, name: str) -> Path:
+    """The ``.json`` of a model named by a bench (its folder, stem, ``.json`` or ``.npz``); ``name`` is
+    the file name inside a session folder (``force_map``, ``substance``)."""
+    return _paths(_model_path(path, name))[1]
+
+
 def load_force_map(path: str | Path) -> ForceMapModel:
     """The force map a bench names (``calib/force_map``, ``.../force_map.json`` or ``.npz``; the
     stable name reads the newest version). Raises CalibrationError naming the file and the command."""
