@@ -7,6 +7,8 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import mcap  # noqa: F401  (extras installed by .[all,test]: absent = fail, not skip)
 import sklearn  # noqa: F401
@@ -207,3 +209,18 @@ def test_live_collection_starts_from_the_stored_baseline_and_attaches_it(tmp_pat
     assert len(rest) == 4 and all(np.linalg.norm(m.data["force_px"]) < 0.3 for m in rest)  # tracked from frame 1
     assert {"calibration/fingervision/fv.json", "calibration/fingervision/fv.npz"} <= set(rec.attachments)
     assert not [m for m in rec.messages if "image" in m.topic]  # record_frames=False
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.floats(0.0, 0.15), st.floats(2.0, 20.0))
+def test_scale_lag_is_found_from_the_pairing_itself(lag, peak):
+    """A scale that reports a press ``lag`` s late (its moving average, the line's arrival) is paired
+    with the frames ``lag`` later: the estimate lands within one 5 ms step."""
+    from tactile_rig.rig.learning import scale_lag_s
+
+    t_cam = np.arange(0.0, 6.0, 1 / 25)
+    press = lambda t: peak * np.array([press_profile(float(x % 3.0), 1.0, 0.5) for x in np.atleast_1d(t)])  # noqa: E731
+    force_px = np.column_stack([0.02 * press(t_cam), 0.3 * press(t_cam), np.full(t_cam.size, 1.0)])
+    t_scale = np.arange(0.0, 6.2, 1 / 80)
+    f_scale = press(t_scale - lag)
+    assert scale_lag_s(t_cam, force_px, t_scale, f_scale) == pytest.approx(lag, abs=0.0051)
