@@ -107,7 +107,7 @@ def test_jig_accuracy_on_the_rehearsal_bench_matches_the_mock_run(rehearsal, tmp
     assert summary["translation_mae_mm"] <= mock["translation_mae_mm"] + 0.05
     counts = _mcap_counts(out / "run.mcap")
     assert counts["/perception/jig_accuracy_point"] == 6
-    assert counts["/camera/camera_gelsight/compressed"] >= 9  # 3 map touches + 6 points
+    assert counts["/camera_gelsight/image/compressed"] >= 9  # 3 map touches + 6 points
 
 
 def _free_port() -> int:
@@ -133,11 +133,11 @@ def test_record_live_streams_what_it_records(rehearsal, tmp_path, capsys) -> Non
     counts = _mcap_counts(out)
     assert counts == summary["topics"]
     for topic in ("/scale/force", "/state/gripper", "/state/jig", "/jig/pose",
-                  "/camera/camera_gelsight/compressed", "/camera/camera_fingervision/compressed"):
+                  "/camera_gelsight/image/compressed", "/camera_fingervision/image/compressed"):
         assert counts.get(topic, 0) > 0, topic
-    assert client.advertised["/camera/camera_gelsight/compressed"] == "foxglove.CompressedImage"
+    assert client.advertised["/camera_gelsight/image/compressed"] == "foxglove.CompressedImage"
     assert client.advertised["/scale/force"] == "tactile_rig.ScaleReading"
-    for topic in ("/scale/force", "/camera/camera_fingervision/compressed", "/jig/pose"):
+    for topic in ("/scale/force", "/camera_fingervision/image/compressed", "/jig/pose"):
         got = client.on(topic)
         # The client subscribes once a channel is advertised: it may miss the first messages, never
         # more than were recorded, and those it gets come in order.
@@ -147,7 +147,7 @@ def test_record_live_streams_what_it_records(rehearsal, tmp_path, capsys) -> Non
         assert [m.log_time_ns for m in got] == sorted(m.log_time_ns for m in got)
     seqs = [m.data["seq"] for m in client.on("/scale/force")]
     assert all((b - a) % 65536 == 1 for a, b in zip(seqs, seqs[1:]))  # no sample lost or reordered
-    frame = client.on("/camera/camera_fingervision/compressed")[-1].data
+    frame = client.on("/camera_fingervision/image/compressed")[-1].data
     assert frame["format"] == "jpeg" and frame["frame_id"] == "camera_fingervision"
 
 
@@ -174,7 +174,7 @@ def test_fingervision_track_live_from_the_bench_camera(rehearsal, capsys) -> Non
     got = client.on("/perception/camera_fingervision/fingervision")
     assert 0 < len(got) <= 60
     assert [m.data["frame"] for m in got] == sorted(m.data["frame"] for m in got)
-    assert client.advertised["/camera/camera_fingervision/compressed"] == "foxglove.CompressedImage"
+    assert client.advertised["/camera_fingervision/image/compressed"] == "foxglove.CompressedImage"
 
 
 def test_gelsight_height_live_saves_the_last_map(rehearsal, tmp_path, capsys) -> None:

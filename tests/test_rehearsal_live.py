@@ -31,8 +31,8 @@ def test_the_live_view_sends_what_the_recording_stores(tmp_path) -> None:
     with LiveServer(port=0, clock=clock) as live:
         client = LiveClient(live.url).start()
         live.advertise("/scale/force", "tactile_rig.ScaleReading")
-        live.advertise("/camera/left/compressed", "foxglove.CompressedImage")
-        assert live.wait_for_subscriber(10.0, {"/scale/force", "/camera/left/compressed"})
+        live.advertise("/left/image/compressed", "foxglove.CompressedImage")
+        assert live.wait_for_subscriber(10.0, {"/scale/force", "/left/image/compressed"})
         rec = Recorder(tmp_path / "s.mcap", clock=clock)
         sink = Tee(rec, live)
         img = np.zeros((24, 32, 3), np.uint8)
@@ -50,10 +50,10 @@ def test_the_live_view_sends_what_the_recording_stores(tmp_path) -> None:
     got = client.on("/scale/force")
     assert [m.data["seq"] for m in got] == list(range(50))  # subscribed first: every message, in order
     assert [m.data for m in got] == [m.data for m in recorded.on("/scale/force")]
-    assert len(client.on("/camera/left/compressed")) == 10
+    assert len(client.on("/left/image/compressed")) == 10
     assert client.advertised == {"/scale/force": "tactile_rig.ScaleReading",
-                                 "/camera/left/compressed": "foxglove.CompressedImage"}
-    assert set(client.on("/camera/left/compressed")[0].data) == set(SCHEMAS["foxglove.CompressedImage"]["properties"]) | {"t_s"}
+                                 "/left/image/compressed": "foxglove.CompressedImage"}
+    assert set(client.on("/left/image/compressed")[0].data) == set(SCHEMAS["foxglove.CompressedImage"]["properties"]) | {"t_s"}
 
 
 def test_the_live_view_refuses_other_hosts_than_loopback() -> None:
@@ -96,4 +96,4 @@ def test_run_jig_accuracy_live_on_the_mocks(tmp_path, capsys) -> None:
     points = client.on("/perception/jig_accuracy_point")
     assert 0 < len(points) <= summary["n_points"] == 3
     assert [m.data["index"] for m in points] == sorted(m.data["index"] for m in points)
-    assert client.on("/jig/pose") and client.on("/camera/camera/compressed")
+    assert client.on("/jig/pose") and client.on("/camera/image/compressed")

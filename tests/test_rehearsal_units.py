@@ -105,9 +105,9 @@ def test_mcap_footage_keeps_the_recorded_times(tmp_path) -> None:
     f = load_footage(str(tmp_path / "r.mcap"))
     assert len(f.frames) == 5 and f.fps == pytest.approx(5.0)
     assert f.render(0.45).mean() == 100 and f.render(0.85).mean() == 200
-    assert load_footage(f"{tmp_path / 'r.mcap'}#/camera/left/compressed").fps == pytest.approx(5.0)
-    with pytest.raises(ValueError, match="image topics: /camera/left/compressed"):
-        load_footage(f"{tmp_path / 'r.mcap'}#/camera/right/compressed")
+    assert load_footage(f"{tmp_path / 'r.mcap'}#/left/image/compressed").fps == pytest.approx(5.0)
+    with pytest.raises(ValueError, match="image topics: /left/image/compressed"):
+        load_footage(f"{tmp_path / 'r.mcap'}#/right/image/compressed")
 
 
 def test_footage_that_is_not_there_or_not_video(tmp_path) -> None:
@@ -132,7 +132,7 @@ def test_the_bench_file_loads_as_a_bench(tmp_path) -> None:
 
 @pytest.mark.parametrize("text, expected", [
     ("fv=demo.mp4", ("fv", "demo.mp4", "fingervision")),
-    ("left=run.mcap#/camera/left/compressed@gelsight", ("left", "run.mcap#/camera/left/compressed", "gelsight")),
+    ("left=run.mcap#/left/image/compressed@gelsight", ("left", "run.mcap#/left/image/compressed", "gelsight")),
     ("fv=me@lab.avi", ("fv", "me@lab.avi", "fingervision")),
 ])
 def test_camera_options(text, expected) -> None:

@@ -42,6 +42,9 @@ def register(sub: Any) -> None:
                    help="JPEG quality of the GelSight stream, 1..100 (default 100; a camera's MJPG is nearer 90)")
     r.add_argument("--no-calibration", action="store_true",
                    help="do not make the GelSight calibration on the mocks (the bench then names none)")
+    r.add_argument("--press", action="store_true",
+                   help="serve the gripper, the scale and a FingerVision fingertip (camera_fingertip) from one "
+                        "process on one world, the fingertip pressing on the scale: for calibrate force-map")
     r.add_argument("--duration", type=float, metavar="S", help="stop after S seconds instead of at Ctrl-C")
     add_json_flag(r)
     r.set_defaults(func=_rehearse)
@@ -74,7 +77,7 @@ def _rehearse(args: argparse.Namespace) -> int:
     opts = RehearsalOptions(cameras={n: s for n, s, _ in cams}, camera_sensors={n: k for n, _, k in cams},
                             seed=args.seed, homing=args.homing, gelsight_fps=args.gelsight_fps,
                             gelsight_jpeg_quality=args.gelsight_jpeg_quality,
-                            calibration=not args.no_calibration)
+                            calibration=not args.no_calibration, press=args.press)
     stop = threading.Event()
 
     def _on_signal(signum: int, frame: object) -> None:

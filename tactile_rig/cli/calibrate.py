@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
-from tactile_rig.cli.calibrate_sessions import _connect, _guide, register_sessions
+from tactile_rig.cli.calibrate_sessions import connect_session_rig, register_sessions, session_guide
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.cli.replay import extras_as_errors
 from tactile_rig.rig.camera_calibrations import camera_calibrations
@@ -106,7 +106,8 @@ def _force_map(args: argparse.Namespace) -> int:
         raise ValueError(f"--trials {args.trials} must be >= 2 (one trial is held out)")
     if not args.max_force > 0:
         raise ValueError(f"--max-force {args.max_force} must be > 0 N")
-    collect, camera = None, args.camera
+    collect: Callable[[Path], Path] | None = None
+    camera = args.camera
     if live:
         missing = [d for d in ("gripper", "scale") if d not in bench.devices]
         if missing:
@@ -116,15 +117,7 @@ def _force_map(args: argparse.Namespace) -> int:
         plan = PressPlan(peaks_n=tuple(float(v) for v in increasing_peaks(args.trials, args.max_force)),
                          max_effort=args.max_effort, release_opening_m=args.release_opening_m, ramp_s=args.ramp,
                          hold_s=args.hold)
-
-        def collect(path: Path) -> Path:
-            rig = _connect(args, ["gripper", "scale", camera], scene=MOCK_PRESS_SCENE,
-                           connectors={"camera": sim_camera_connector("fingervision")})
-            try:
-                cal = camera_calibrations(rig.bench, camera, load=("calibration",), defaults=not bench.is_mock)
-                return collect_force_map(rig, path, camera=camera, plan=plan, calibrations=cal, guide=_guide(args))
-            finally:
-                rig.close()
+        collect = _press_collector(args, bench, camera, plan)
 
     report = force_map_session(Path(args.out), n_trials=args.trials, max_force_n=args.max_force, seed=args.seed,
                                recording=args.from_recording, holdout=args.holdout, alpha=args.alpha,
@@ -161,7 +154,8 @@ def _substance(args: argparse.Namespace) -> int:
     bench, live = _check_source(args, "substance")
     if args.per_substance < 2:
         raise ValueError(f"--per-substance {args.per_substance} must be >= 2 (train and test trials)")
-    collect, camera = None, args.camera
+    collect: Callable[[Path], Path] | None = None
+    camera = args.camera
     if live:
         if bench.is_mock:
             raise ValueError("substance --live: the mock bench has no stirring scene to stir in; drop --live "
@@ -170,17 +164,7 @@ def _substance(args: argparse.Namespace) -> int:
             raise ValueError("substance on a bench: name what will be stirred with --substances water,oil,honey")
         camera = _live_camera(args, bench)
         names = [s.strip() for s in args.substances.split(",") if s.strip()]
-
-        def collect(path: Path) -> Path:
-            devices = [camera] + (["gripper"] if "gripper" in bench.devices else [])
-            rig = _connect(args, devices)
-            try:
-                cal = camera_calibrations(rig.bench, camera, load=("calibration",))
-                return collect_stirring(rig, path, camera=camera, substances=names, per_substance=args.per_substance,
-                                        trial_s=args.trial_s, grip_effort=args.grip_effort, calibrations=cal,
-                                        guide=_guide(args))
-            finally:
-                rig.close()
+        collect = _stir_collector(args, bench, camera, names)
 
     report = substance_session(Path(args.out), per_substance=args.per_substance, seed=args.seed,
                                recording=args.from_recording, test_fraction=args.test_fraction,
@@ -194,3 +178,35 @@ def _substance(args: argparse.Namespace) -> int:
               f"{', '.join(report['classes'])}")
         print(f"model: {report['model']['npz']} + {report['model']['json']}")
     return 0
+
+
+def _press_collector(args: argparse.Namespace, bench: Any, camera: str, plan: PressPlan) -> Callable[[Path], Path]:
+    """``collect(path)`` for the force-map session: connect the devices, press, record, close."""
+
+    def collect(path: Path) -> Path:
+        rig = connect_session_rig(args, ["gripper", "scale", camera], scene=MOCK_PRESS_SCENE,
+                                  connectors={"camera": sim_camera_connector("fingervision")})
+        try:
+            cal = camera_calibrations(rig.bench, camera, load=("calibration",), defaults=not bench.is_mock)
+            return collect_force_map(rig, path, camera=camera, plan=plan, calibrations=cal,
+                                     guide=session_guide(args))
+        finally:
+            rig.close()
+
+    return collect
+
+
+def _stir_collector(args: argparse.Namespace, bench: Any, camera: str, names: list[str]) -> Callable[[Path], Path]:
+    """``collect(path)`` for the substance session: the operator stirs each named substance."""
+
+    def collect(path: Path) -> Path:
+        rig = connect_session_rig(args, [camera] + (["gripper"] if "gripper" in bench.devices else []))
+        try:
+            cal = camera_calibrations(rig.bench, camera, load=("calibration",))
+            return collect_stirring(rig, path, camera=camera, substances=names, per_substance=args.per_substance,
+                                    trial_s=args.trial_s, grip_effort=args.grip_effort, calibrations=cal,
+                                    guide=session_guide(args))
+        finally:
+            rig.close()
+
+    return collect

@@ -98,12 +98,12 @@ def register_sessions(csub: Any) -> None:
     f.set_defaults(func=_fingervision)
 
 
-def _guide(args: argparse.Namespace) -> Any:
+def session_guide(args: argparse.Namespace) -> Any:
     # Nobody needs to place a ball or a mass on a mock: the session scripts the simulated operator.
     return Guide(False if args.yes or args.mock else None, quiet=bool(args.json))
 
 
-def _connect(args: argparse.Namespace, names: list[str], *, scene: str | None = None,
+def connect_session_rig(args: argparse.Namespace, names: list[str], *, scene: str | None = None,
              connectors: dict[str, Callable[..., Any]] | None = None, bench_too: bool = False) -> Any:
     """Connect only ``names`` of the chosen bench (mocks: on ``scene``); ``connectors`` apply to
     mocks only unless ``bench_too``."""
@@ -152,13 +152,14 @@ def _gelsight(args: argparse.Namespace) -> int:
                          grid_y_mm=(args.grid_y[0], args.grid_y[1], int(args.grid_y[2])),
                          background_mm=tuple(args.background_mm), method=args.method)
     cam = _camera_name(args, "gelsight")
-    rig = _connect(args, ["jig", cam], scene=MOCK_PRESS_SCENE, connectors={"camera": sim_camera_connector("gelsight")})
+    rig = connect_session_rig(args, ["jig", cam], scene=MOCK_PRESS_SCENE,
+                              connectors={"camera": sim_camera_connector("gelsight")})
 
     def session(rig: Any) -> Any:
         prepare_jig(rig.jig)
         press_rig = DeviceJigRig(rig.jig, rig.devices[cam], rig.clock, world=rig.world, settle_s=0.05)
         return gelsight_session(press_rig, plan, float(rig.bench.devices[cam].mm_per_px_x), args.out,
-                                guide=_guide(args), force=args.force, bench=rig.bench, clock=rig.clock,
+                                guide=session_guide(args), force=args.force, bench=rig.bench, clock=rig.clock,
                                 camera=cam)
 
     return _run(args, rig, session, lambda r: (
@@ -167,10 +168,10 @@ def _gelsight(args: argparse.Namespace) -> int:
 
 
 def _scale(args: argparse.Namespace) -> int:
-    rig = _connect(args, ["scale"])
+    rig = connect_session_rig(args, ["scale"])
     place = _mock_mass_placer(rig) if rig.bench.is_mock else None
     return _run(args, rig, lambda rig: scale_session(
-        rig.scale, args.known_mass_g, args.out, place_mass=place, guide=_guide(args), samples=args.samples,
+        rig.scale, args.known_mass_g, args.out, place_mass=place, guide=session_guide(args), samples=args.samples,
         wait_timeout_s=args.wait_timeout, force=args.force, bench=rig.bench), lambda r: (
         f"scale: {r['cal_factor_counts_per_g']:.5g} counts/g; {args.known_mass_g:g} g reads "
         f"{r['loaded_mean_g']:.3f} g ({r['verify_error_g']:+.3f} g), empty noise {r['empty_noise_g']:.3f} g"))
@@ -195,19 +196,20 @@ def _gripper(args: argparse.Namespace) -> int:
 
         return DynamixelGripper(cfg.port, dxl_id=cfg.ids[0], protocol=cfg.protocol, baudrate=cfg.baud)
 
-    rig = _connect(args, ["gripper"], connectors={"gripper": connect_gripper}, bench_too=True)
+    rig = connect_session_rig(args, ["gripper"], connectors={"gripper": connect_gripper}, bench_too=True)
     return _run(args, rig, lambda rig: gripper_session(
         rig.gripper, args.out, effort=args.effort, max_opening_m=args.max_opening_m,
-        closing_sign=args.closing_sign, guide=_guide(args), force=args.force, bench=rig.bench), lambda r: (
+        closing_sign=args.closing_sign, guide=session_guide(args), force=args.force, bench=rig.bench), lambda r: (
         f"gripper: closed {r['closed_ticks']} ticks, open {r['open_ticks']} ticks "
         f"({r['span_ticks']} ticks for {r['max_opening_m']} m)"))
 
 
 def _fingervision(args: argparse.Namespace) -> int:
     cam = _camera_name(args, "fingervision")
-    rig = _connect(args, [cam], scene="fingervision_rest", connectors={"camera": sim_camera_connector("fingervision")})
+    rig = connect_session_rig(args, [cam], scene="fingervision_rest",
+                              connectors={"camera": sim_camera_connector("fingervision")})
     return _run(args, rig, lambda rig: fingervision_session(rig.devices[cam], args.out, frames=args.frames,
-                                                            guide=_guide(args), force=args.force,
+                                                            guide=session_guide(args), force=args.force,
                                                             bench=rig.bench), lambda r: (
         f"FingerVision: {r['valid_markers']}/{r['markers']} stable markers, median jitter "
         f"{'n/a' if r['median_marker_jitter_px'] is None else format(r['median_marker_jitter_px'], '.3f')} px"))

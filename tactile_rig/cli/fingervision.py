@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import glob
 import os
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -159,13 +158,15 @@ def _track(args: argparse.Namespace) -> int:
     if cal.calibration is not None:
         cal.calibration.apply(fv)  # the stored baseline: no frames spent rebuilding it
     fm = cal.force_map
-    if not args.json:
+    if not args.json and cal.files:  # say which stored files the numbers come from (none: as before)
         print(f"calibration: {describe_files(cal)}")
     learnt = args.object_rect is None
     n = 0
     for i, (name, frame) in enumerate(iter_frames(args.frames)):
         if args.limit is not None and i >= args.limit:
             break
+        if i == 0 and cal.calibration is not None:
+            cal.calibration.check_frame(frame)
         if not learnt and fv.tracker is not None:
             fv.learn_object(frame, rects=[tuple(args.object_rect)])
             learnt = True
@@ -203,10 +204,11 @@ def _track(args: argparse.Namespace) -> int:
 
 
 def _calibrations(args: argparse.Namespace) -> tuple[Any, float | None]:
-    """The marker baseline and force map ``track`` uses: named on the command line, else by the bench
-    (``--bench``/``$TACTILE_RIG_BENCH``) for ``--camera``, else the sessions' default files."""
-    bench_path = getattr(args, "bench", None) or os.environ.get("TACTILE_RIG_BENCH")
-    bench = None if args.no_calibration or not bench_path else load_bench(bench_path, check_ports=False)
+    """The marker baseline and force map ``track`` uses on files: named on the command line, else by
+    ``$TACTILE_RIG_BENCH`` for ``--camera``, else the sessions' default files (``--bench`` runs live:
+    :func:`tactile_rig.cli.bench_live.track` loads the bench camera's)."""
+    env_bench = os.environ.get("TACTILE_RIG_BENCH")
+    bench = load_bench(env_bench, check_ports=False) if env_bench and not args.no_calibration else None
     camera = getattr(args, "camera", None)
     cal = camera_calibrations(bench, camera, calibration=None if args.no_calibration else args.calibration,
                               force_map=None if args.no_calibration else args.force_map,

@@ -28,7 +28,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     common(st)
     st.set_defaults(func=_state)
 
-    go = gsub.add_parser("go", help="activate and move to an opening with an effort cap (torque stays on)")
+    go = gsub.add_parser("go", help="activate and move to an opening with an effort cap (torque stays on)",
+                         description="Outcome: reached (within the position tolerance and slower than 2 mm/s: "
+                                     "settled), stalled (on an object at the effort cap), timeout or fault.")
     common(go)
     go.add_argument("position", type=float, help="opening in metres (or 0-1 with --normalized)")
     go.add_argument("--effort", type=float, default=0.3, help="fraction of the current limit, 0-1 (default 0.3)")

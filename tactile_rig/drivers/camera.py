@@ -170,6 +170,11 @@ class FingertipCamera(Driver):
         elif isinstance(source, (str, int)):
             source = OpenCVSource(source)
         self.source = source
+        native = getattr(source, "native_format", None)
+        if config is None and callable(native):
+            # A source with a format of its own (a recording) is opened in it unless told otherwise.
+            nw, nh, nfps = native()
+            width, height, fps = width or nw, height or nh, fps or nfps
         config = config or CameraConfig()
         overrides = {k: v for k, v in (("fourcc", fourcc), ("width", width), ("height", height), ("fps", fps),
                                        ("controls", controls)) if v is not None}

@@ -5,7 +5,7 @@ Topics (the recording schemas of :mod:`tactile_rig.rig.recording`):
 * ``/scale/force`` (``tactile_rig.ScaleReading``): every sample the sketch sends, with grams, raw, seq;
 * ``/state/gripper`` (``tactile_rig.DeviceState``): the gripper's state every ``gripper_period_s``;
 * ``/state/jig`` and ``/jig/pose``: the GRBL status report and work pose every ``jig_period_s``;
-* ``/camera/<name>/compressed`` (``foxglove.CompressedImage``, JPEG): every new frame of every camera.
+* ``/<name>/image/compressed`` (``foxglove.CompressedImage``, JPEG): every new frame of every camera.
 
 One loop polls every device in turn (no thread per device): the scale driver queues its samples, the
 cameras capture on their own threads and keep the newest frame, so nothing waits on another device.
@@ -20,7 +20,8 @@ from typing import Any, Callable
 from tactile_rig.core.errors import DeviceTimeout
 from tactile_rig.rig.bench import Bench, connect_bench
 from tactile_rig.rig.live import Tee
-from tactile_rig.rig.recording import Recorder
+from tactile_rig.rig.learning import model_json_path
+from tactile_rig.rig.recording import Recorder, camera_topic
 
 POLL_S = 0.005
 
@@ -55,6 +56,10 @@ def record_bench(bench: Bench, duration_s: float, out: str | Path | None, *, liv
             for name, cfg in bench.devices.items():
                 if cfg.calibration is not None and Path(cfg.calibration).is_file():
                     recorder.add_calibration(name, path=cfg.calibration)
+                for key, stem in (("force_map", "force_map"), ("substance_model", "substance")):
+                    model = getattr(cfg, key, None)  # a camera's learned models (json + npz)
+                    if model is not None and model_json_path(model, stem).is_file():
+                        recorder.add_calibration(f"{name}.{key}", path=model_json_path(model, stem))
         sink = Tee(recorder, live)
         if live is not None:
             live.use_clock(clock)
@@ -98,7 +103,7 @@ def record_bench(bench: Bench, duration_s: float, out: str | Path | None, *, liv
                 last_seq[name] = fr.seq
                 first_frame.setdefault(name, (fr.t_host_s, fr.seq))
                 sink.write_frame(name, fr.image, t_s=fr.t_host_s, compress="jpeg" if jpeg else "png")
-                put(f"/camera/{name}/compressed")
+                put(camera_topic(name, compressed=True))
                 t_first, seq_first = first_frame[name]
                 if fr.t_host_s > t_first:
                     outcome.camera_fps[name] = round((fr.seq - seq_first) / (fr.t_host_s - t_first), 2)

@@ -135,8 +135,8 @@ class SessionRecording:
             return
         files = [Path(p) for p in paths if p is not None and Path(p).is_file()]
         for p in files:
-            self.rec.add_attachment(f"calibration/{name}/{p.name}", p.read_bytes(),
-                                    media_type="application/json" if p.suffix == ".json" else "application/octet-stream")
+            media = "application/json" if p.suffix == ".json" else "application/octet-stream"
+            self.rec.add_attachment(f"calibration/{name}/{p.name}", p.read_bytes(), media_type=media)
         self.rec.add_metadata(f"calibration.{name}", {"files": [str(p) for p in files], **(values or {})})
 
     def close(self) -> None:

@@ -67,6 +67,15 @@ class FingerVisionCalibration:
             fv.proximity.bg_median_v = self.bg_median_v
         return fv
 
+    def check_frame(self, image: np.ndarray) -> None:
+        """CalibrationError when ``image`` is not the size the baseline was made at (another camera
+        or another format: its markers would be matched to the wrong rest positions)."""
+        if self.frame_shape != (0, 0) and tuple(image.shape[:2]) != self.frame_shape:
+            h, w = self.frame_shape
+            raise CalibrationError(f"{self.path}: the marker baseline is for {w}x{h} frames, this camera "
+                                   f"gives {image.shape[1]}x{image.shape[0]}; re-run: "
+                                   "tactile-rig calibrate fingervision", device="fingervision")
+
     def processor(self, params: FingerVisionParams | None = None) -> FingerVision:
         return self.apply(FingerVision(params or FingerVisionParams()))
 
@@ -215,6 +224,8 @@ class CalibratedFingerVision:
 
     def process(self, image: np.ndarray, t_s: float | None = None) -> dict[str, Any]:
         """One frame → a JSON-able result: the FingerVision fields plus newtons when calibrated."""
+        if self.last is None and isinstance(self.calibrations.calibration, FingerVisionCalibration):
+            self.calibrations.calibration.check_frame(image)
         r = self.fv.process(image, t_s)
         out: dict[str, Any] = {"t_s": t_s, "calibrating": r.calibrating, "marker_count": r.n_markers,
                                "force_px": [float(v) for v in r.force_px],
@@ -248,7 +259,8 @@ class CalibratedFingerVision:
         return TouchReading(t_s=float(t) if t is not None else float("nan"),
                             force_n=tuple(force),  # type: ignore[arg-type]
                             torque_nmm=tuple(torque),  # type: ignore[arg-type]
-                            contact=d["contact"], slip=d["slip"], slip_mm=d["slip_magnitude_px"] * (self.mm_per_px or 1.0),
+                            contact=d["contact"], slip=d["slip"],
+                            slip_mm=d["slip_magnitude_px"] * (self.mm_per_px or 1.0),
                             object_area_px=d["object_area_px"], object_centroid_px=d["object_centroid_px"],
                             object_orientation_deg=d["object_orientation_deg"])
 

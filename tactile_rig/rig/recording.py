@@ -3,8 +3,8 @@
 Channels (all JSON-encoded, so Foxglove and :mod:`tactile_rig.rig.replay` read them without
 plugins)::
 
-    /camera/<name>/image        foxglove.RawImage (bgr8 / mono8)
-    /camera/<name>/compressed   foxglove.CompressedImage (png, jpeg)
+    /<camera>/image             foxglove.RawImage (bgr8 / mono8)
+    /<camera>/image/compressed  foxglove.CompressedImage (png, jpeg)   (the ROS image_transport names)
     /perception/<name>          tactile_rig.Perception   any JSON-able result of a perception step
     /state/<device>             tactile_rig.DeviceState  a device's state snapshot
     /command/<device>           tactile_rig.Command      what was sent to a device
@@ -42,7 +42,16 @@ from tactile_rig.core.errors import BadFile
 from tactile_rig.core.files import MAX_JSON_DEPTH, check_file, decode_image_bytes, json_depth
 from tactile_rig.core.jsonable import to_jsonable
 
-__all__ = ["Recorder", "Recording", "Message", "read_recording", "iter_messages", "SCHEMAS"]
+__all__ = ["Recorder", "Recording", "Message", "read_recording", "iter_messages", "SCHEMAS", "camera_topic"]
+
+
+def camera_topic(camera: str, *, compressed: bool = False) -> str:
+    """``/<camera>/image`` or ``/<camera>/image/compressed`` (a bench camera named ``camera_left``
+    records on ``/camera_left/image``); find image topics by schema, not by name."""
+    name = camera.strip("/")
+    if not name:
+        raise ValueError("camera name is empty; expected the bench table name, e.g. 'camera_left'")
+    return f"/{name}/image/compressed" if compressed else f"/{name}/image"
 
 _TIME = {"type": "object", "title": "time",
          "properties": {"sec": {"type": "integer", "minimum": 0},
@@ -212,7 +221,7 @@ class Recorder:
             raise ValueError(f"camera {camera!r}: frame must be uint8 HxW or HxWx3 BGR, got "
                              f"{img.dtype} {img.shape}")
         t = self.clock.now_s() if t_s is None else float(t_s)
-        topic = f"/camera/{camera}/image"
+        topic = camera_topic(camera)
         if compress is not None:
             import cv2
 
@@ -222,7 +231,7 @@ class Recorder:
             ok, buf = cv2.imencode(ext, img)
             if not ok:
                 raise ValueError(f"camera {camera!r}: OpenCV could not encode the frame as {compress}")
-            topic = f"/camera/{camera}/compressed"
+            topic = camera_topic(camera, compressed=True)
             msg = {"timestamp": _stamp(self.log_time_ns(t)), "frame_id": camera,
                    "format": "jpeg" if ext == ".jpg" else "png",
                    "data": base64.b64encode(buf.tobytes()).decode("ascii")}
@@ -276,13 +285,22 @@ class Recorder:
 
     def add_calibration(self, name: str, *, path: str | Path | None = None,
                         values: Mapping[str, Any] | None = None) -> None:
-        """A calibration: its values as metadata ``calibration.<name>`` and its file as an attachment."""
+        """A calibration: its values as metadata ``calibration.<name>`` and its files as attachments.
+
+        A calibration of two files (GelSight, FingerVision, the learned models: ``.json`` + ``.npz``)
+        is attached whole, whichever of the two ``path`` names."""
         meta: dict[str, Any] = dict(values or {})
         if path is not None:
             p = Path(path)
             meta.setdefault("path", str(p))
-            self.add_attachment(f"calibration/{name}/{p.name}", p.read_bytes(),
-                                media_type="application/json" if p.suffix == ".json" else "application/octet-stream")
+            files = [p]
+            if p.suffix in (".json", ".npz"):
+                twin = p.with_suffix(".npz" if p.suffix == ".json" else ".json")
+                if twin.is_file():
+                    files = sorted([p, twin], key=lambda f: f.suffix != ".json")
+            for f in files:
+                self.add_attachment(f"calibration/{name}/{f.name}", f.read_bytes(),
+                                    media_type="application/json" if f.suffix == ".json" else "application/octet-stream")
         self.add_metadata(f"calibration.{name}", meta)
 
     # -- flushing and closing ---------------------------------------------------------------

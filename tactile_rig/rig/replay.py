@@ -115,6 +115,15 @@ class RecordedFrameSource:
     def close(self) -> None:
         self._open = False
 
+    def native_format(self) -> tuple[int, int, float]:
+        """(width, height, fps) as recorded: the format a camera on this source opens in by default."""
+        if not self._messages:
+            raise ValueError(f"{self.name}: the recording holds no frames on {self.topic}")
+        first = self._messages[0].image()
+        span = self._messages[-1].t_s - self._messages[0].t_s
+        fps = (len(self._messages) - 1) / span if span > 0 else 30.0
+        return int(first.shape[1]), int(first.shape[0]), float(fps)
+
     def set_format(self, fourcc: str, width: int, height: int, fps: float) -> tuple[str, int, int, float]:
         """A recording has the format it was recorded in: report that one (the driver checks it)."""
         if not self._messages:

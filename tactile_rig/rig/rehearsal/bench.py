@@ -9,7 +9,11 @@ Devices (each its own process, real time):
 * ``scale``: the HX711 sketch's mock on a pty (``tactile-rig mock serve scale``), 57600 baud, 80 samples/s;
 * ``jig`` + ``camera_gelsight``: the GRBL mock on a pty and the GelSight camera rendering the object on
   its stage, served as MJPEG over HTTP (:mod:`.child` ``stage``: one process, one world);
-* ``camera_<name>`` for each recorded footage given (``cameras={"fingervision": "run.mcap#/camera/x"}``):
+* with ``press=True``, ``gripper``, ``scale`` and ``camera_fingertip`` instead come from one process
+  (:mod:`.child` ``press``: the MX-64 and scale mocks on their ptys and the FingerVision fingertip
+  over HTTP, on the ``force_map_press`` world), so the guided force-map collection runs on the
+  rehearsal bench: the gripper's squeeze is what the scale reads and the fingertip shows;
+* ``camera_<name>`` for each recorded footage given (``cameras={"fingervision": "run.mcap#/x/image/compressed"}``):
   the footage played at its recorded rate as MJPEG over HTTP (:mod:`.child` ``camera``); the source
   ``"rendered"`` is a FingerVision video the rehearsal writes first to ``OUT/footage/<name>.avi``.
 
@@ -54,6 +58,7 @@ class RehearsalOptions:
     calibration: bool = True
     scale_rate_sps: int = 80
     gelsight_jpeg_quality: int = 100
+    press: bool = False
 
     def __post_init__(self) -> None:
         for name, sensor in self.camera_sensors.items():
@@ -63,6 +68,8 @@ class RehearsalOptions:
             if not name.replace("_", "").isalnum() or name == "gelsight":
                 raise ValueError(f"camera name {name!r} must be letters, digits and _ (and not 'gelsight', "
                                  "the stage's camera)")
+        if self.press and "fingertip" in self.cameras:
+            raise ValueError("camera name 'fingertip' is the press's own camera (press=True); pick another name")
         if not 0 < self.gelsight_fps <= 60:
             raise ValueError(f"gelsight_fps={self.gelsight_fps!r} must be in (0, 60] frames per second")
         if not 1 <= self.gelsight_jpeg_quality <= 100:
@@ -96,6 +103,9 @@ class RehearsalBench:
                                                                        "--seed", str(o.seed)])),
             "stage": DeviceProcess("jig", child_argv("stage", stage_opts)),
         }
+        if o.press:  # gripper, scale and the fingertip on one world (see the module doc)
+            del procs["gripper"], procs["scale"]
+            procs["press"] = DeviceProcess("press", child_argv("press", ["--seed", str(o.seed)]))
         for name, source in o.cameras.items():
             if source == SYNTHETIC_FOOTAGE:
                 source = str(write_fingervision_footage(self.out / "footage" / f"{name}.avi", seed=o.seed))
@@ -117,8 +127,14 @@ class RehearsalBench:
 
     def _write(self, calibration: Path | None) -> None:
         o, links = self.options, self.out / "dev"
-        g, s, st = (self.processes[k].info for k in ("gripper", "scale", "stage"))
+        st = self.processes["stage"].info
         pids = {k: p.pid for k, p in self.processes.items()}
+        if o.press:
+            press = self.processes["press"].info
+            g, s = press["gripper"], press["scale"]
+            pids["gripper"] = pids["scale"] = pids["press"]
+        else:
+            g, s = self.processes["gripper"].info, self.processes["scale"].info
         self.devices = [
             RehearsalDevice("gripper", {"port": str(link_device(links, "gripper", g["port"])), "baud": 57600,
                                         "ids": [1], "protocol": 2, "current_limit_frac": 0.5},
@@ -128,7 +144,7 @@ class RehearsalBench:
                             f"HX711 sketch mock, pid {pids['scale']}, {s['port']}"),
             RehearsalDevice("jig", {"port": str(link_device(links, "jig", st["port"])), "baud": 115200,
                                     "x_limits_mm": [-20.0, 20.0], "y_limits_mm": [-20.0, 20.0],
-                                    "theta_limits_deg": [-90.0, 90.0]},
+                                    "theta_limits_deg": [-180.0, 180.0]},
                             f"GRBL 1.1h mock, pid {pids['stage']}, {st['port']}"),
         ]
         cam = st["camera"]
@@ -139,6 +155,12 @@ class RehearsalBench:
             keys["calibration"] = os.path.relpath(calibration, self.out)
         self.devices.append(RehearsalDevice("camera_gelsight", keys,
                                             f"GelSight rendering the jig's stage, pid {pids['stage']}"))
+        if o.press:
+            c = self.processes["press"].info["camera"]
+            self.devices.append(RehearsalDevice("camera_fingertip", {
+                "port": c["url"], "sensor": "fingervision", "width": c["width"], "height": c["height"],
+                "fps": float(c["fps"]), "fourcc": c["fourcc"]},
+                f"FingerVision fingertip pressing on the scale, pid {pids['press']}"))
         for name in o.cameras:
             c = self.processes[f"camera_{name}"].info
             self.devices.append(RehearsalDevice(f"camera_{name}", {

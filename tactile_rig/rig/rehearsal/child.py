@@ -6,6 +6,11 @@
     process because they share one world (on a real bench the object on the stage is what the
     fingertip camera sees).
 
+``python -m tactile_rig.rig.rehearsal.child press [--seed N] [--fps F]``
+    The force-map press (scene ``force_map_press``): the MX-64 mock and the scale sketch's mock on
+    their own ptys and the FingerVision fingertip over HTTP, on one world, because the gripper's
+    squeeze is what the scale reads and what the fingertip's markers show.
+
 ``python -m tactile_rig.rig.rehearsal.child camera --source FILE[#TOPIC] [--name NAME]``
     A camera playing recorded footage (:mod:`.frames`) at its recorded rate, as MJPEG over HTTP.
 
@@ -31,6 +36,7 @@ from tactile_rig.rig.rehearsal.frames import load_footage
 from tactile_rig.sim.scenes import load_scene
 
 STAGE_SCENE = "jig_accuracy"
+PRESS_SCENE = "force_map_press"
 GELSIGHT_FORMAT = ("MJPG", 320, 240)  # GelSight Mini's 320x240 mode, the mock bench's camera
 
 
@@ -76,6 +82,28 @@ def serve_stage(args: argparse.Namespace) -> int:
                                          f"camera failed: {cams.error}" if cams.error else None))
 
 
+def serve_press(args: argparse.Namespace) -> int:
+    """The gripper and the scale on ptys and the fingertip camera over HTTP, on one world (module doc)."""
+    clock = RealClock()
+    world = load_scene(PRESS_SCENE, clock=clock, seed=args.seed).world
+    gripper = create_device("dynamixel", Params({"protocol": "2", "ids": "1", "baud": "57600"},
+                                                source="rehearsal press"), clock=clock, world=world)
+    scale = create_device("scale", Params({"rate": "80", "seed": str(args.seed)}, source="rehearsal press"),
+                          clock=clock, world=world)
+    fourcc, width, height = GELSIGHT_FORMAT
+    cam = SimulatedCamera(world.require("fingervision", "the rehearsal's fingertip camera"), clock=clock,
+                          name="fingertip", fourcc=fourcc, width=width, height=height, fps=args.fps,
+                          modes={GELSIGHT_FORMAT: args.fps}, seed=args.seed)
+    with PtyServer(gripper, clock=clock, name="gripper") as gp, PtyServer(scale, clock=clock, name="scale") as sp, \
+            CameraServer(cam) as cams:
+        _emit({"device": "press", "scene": PRESS_SCENE, "gripper": {"port": gp.port, "baud": gripper.baud},
+               "scale": {"port": sp.port, "baud": scale.baud},
+               "camera": {"url": cams.url, "sensor": "fingervision", "fourcc": fourcc, "width": width,
+                          "height": height, "fps": args.fps}})
+        return _wait_for_signal(lambda: next((f"{n} failed: {e}" for n, e in (("gripper mock", gp.error),
+                                              ("scale mock", sp.error), ("camera", cams.error)) if e), None))
+
+
 def serve_camera(args: argparse.Namespace) -> int:
     """Recorded footage as a camera over HTTP."""
     footage = load_footage(args.source)
@@ -100,6 +128,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     st.add_argument("--fps", type=float, default=25.0)
     st.add_argument("--jpeg-quality", type=int, default=95)
     st.set_defaults(func=serve_stage)
+    pr = sub.add_parser("press")
+    pr.add_argument("--seed", type=int, default=0)
+    pr.add_argument("--fps", type=float, default=25.0)
+    pr.set_defaults(func=serve_press)
     cam = sub.add_parser("camera")
     cam.add_argument("--source", required=True)
     cam.add_argument("--name", default="camera")
