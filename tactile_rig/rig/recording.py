@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import base64
 import json
+import os
 import struct
 import threading
 import time
@@ -301,6 +302,27 @@ class Recorder:
             if not self._closed:
                 self._flush_locked()
 
+    def sync(self) -> None:
+        """Flush, then have the OS write the file to the disk (``fsync``): survives a power loss."""
+        with self._lock:
+            if not self._closed:
+                self._flush_locked()
+                os.fsync(self._file.fileno())
+
+    def replace(self, target: str | Path) -> None:
+        """Sync this file and atomically rename it to ``target`` (replacing any file there), then go
+        on recording into it. Write-then-rename: until the rename ``target`` is untouched; after it
+        ``target`` holds everything written so far."""
+        target = Path(target)
+        with self._lock:
+            if self._closed:
+                raise ValueError(f"recording {self.path} is closed")
+            self._flush_locked()
+            os.fsync(self._file.fileno())
+            os.replace(self.path, target)
+            _fsync_dir(target.parent)
+            self.path = target
+
     def _flush_loop(self) -> None:
         period = self.flush_interval_s / 2  # so data never waits longer than the interval
         while not self._stop.wait(period):
@@ -327,6 +349,20 @@ class Recorder:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _fsync_dir(folder: Path) -> None:
+    """Make a rename in ``folder`` durable (POSIX: fsync the directory); a no-op where unsupported."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:  # pragma: no cover - e.g. Windows
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # pragma: no cover
+        pass
+    finally:
+        os.close(fd)
 
 
 def _as_dict(obj: Any) -> dict[str, Any]:
