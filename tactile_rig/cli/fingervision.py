@@ -16,7 +16,7 @@ import numpy as np
 
 from tactile_rig.cli.args import float_in, int_in
 from tactile_rig.cli.common import add_json_flag, print_json
-from tactile_rig.cli.loaders import load_config_mapping, read_frame
+from tactile_rig.rig.loaders import load_config_mapping, read_frame
 from tactile_rig.core.files import check_file, check_image_dims, checked, quiet_opencv
 from tactile_rig.perception.fingervision import FingerVision, FingerVisionParams
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from tactile_rig.cli.args import float_in, int_in, output_dir, output_file
 from tactile_rig.cli.common import add_json_flag, print_json
-from tactile_rig.cli.loaders import (
+from tactile_rig.rig.loaders import (
     load_gelsight_calibration,
     load_height_mm,
     load_press_folder,

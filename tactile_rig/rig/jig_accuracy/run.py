@@ -12,6 +12,7 @@ from typing import Any, Callable
 import numpy as np
 
 from tactile_rig.core.errors import CalibrationError
+from tactile_rig.core.files import load_json
 from tactile_rig.core.geometry import Pose
 from tactile_rig.rig.jig_accuracy.localizer import (
     JigRig,
@@ -111,7 +112,7 @@ def run_jig_accuracy(rig: JigRig, localizer: TouchLocalizer, cfg: JigAccuracyCon
     if by_index and map_path.exists():
         localizer.load_map(map_path)
         if (store.out / "map.json").exists():
-            map_rows = json.loads((store.out / "map.json").read_text(encoding="utf-8"))
+            map_rows = load_json(store.out / "map.json", "map report", expect=list)
     else:
         map_rows = build_map(rig, localizer, cfg)
         localizer.save_map(map_path)

@@ -9,7 +9,6 @@ from pathlib import Path
 from typing import Any
 
 from tactile_rig.core.errors import BadFile, CalibrationError
-from tactile_rig.perception.gelsight.calibration import GelSightCalibration
 from tactile_rig.rig.calibration_sessions import BallPressPlan, gelsight_session
 from tactile_rig.rig.jig_accuracy.devices import (
     MOCK_PRESS_SCENE,
@@ -25,6 +24,7 @@ from tactile_rig.rig.jig_accuracy.report import write_report
 from tactile_rig.rig.jig_accuracy.results import PointResult
 from tactile_rig.rig.jig_accuracy.run import PointCallback, RunOutcome, run_jig_accuracy
 from tactile_rig.rig.jig_accuracy.store import RunStore
+from tactile_rig.rig.loaders import load_gelsight_calibration
 from tactile_rig.rig.recording import Recorder, iter_messages
 
 
@@ -166,7 +166,7 @@ def execute_jig_accuracy(cfg: JigAccuracyConfig, out_dir: str | Path, *, bench: 
                                    device="jig_accuracy")
     if cal_path is None:
         cal_path = mock_gelsight_calibration(out / "calibration" / "gelsight", seed=cfg.seed, guide=guide)
-    cal = GelSightCalibration.load(cal_path)
+    cal = load_gelsight_calibration(cal_path)
     cal_id = {"path": str(Path(cal_path).resolve().with_suffix(".json")), "sha256": calibration_digest(cal_path)}
     previous = store.read_points() if store.read_meta() is not None else []
     start_s = (max(r.t_s for r in previous) + 1.0) if previous else 0.0

@@ -1,4 +1,4 @@
-"""The CLI's checked loaders for the project's own file formats (GelSight calibration, tactile map,
+"""Checked loaders for the project's own file formats (GelSight calibration, tactile map,
 press folders, height maps, FingerVision configs, gripper calibrations).
 
 Each one checks the file with :mod:`tactile_rig.core.files` (size, dtype, shape, finiteness,
