@@ -31,7 +31,7 @@ from tactile_rig.core.errors import BadFile, MissingFile
 __all__ = [
     "MAX_FILE_BYTES", "MAX_ARRAY_ELEMENTS", "MAX_IMAGE_SIDE_PX", "MAX_IMAGE_PIXELS", "MAX_JSON_DEPTH",
     "REAL_KINDS", "check_file", "check_array", "read_npy_header", "load_npy", "load_npz", "loads_json",
-    "load_json", "load_toml", "image_size", "check_image_dims", "read_image", "decode_image_bytes", "checked", "guarded", "quiet_opencv", "json_depth",
+    "load_json", "load_toml", "image_size", "check_image_dims", "read_image", "decode_image_bytes", "checked", "guarded", "toml_depth", "quiet_opencv", "json_depth",
 ]
 
 MAX_FILE_BYTES = 1 << 30          # 1 GiB: no file the CLI reads is legitimately larger
@@ -281,6 +281,11 @@ def _nesting(data: bytes, strings: re.Pattern[bytes]) -> int:
 def json_depth(data: bytes | str) -> int:
     """The bracket nesting depth of a JSON text (0 for a scalar)."""
     return _nesting(data.encode() if isinstance(data, str) else bytes(data), _JSON_STRING)
+
+
+def toml_depth(text: bytes | str) -> int:
+    """The bracket nesting depth of a TOML text (strings and comments stripped)."""
+    return _nesting(text.encode() if isinstance(text, str) else bytes(text), _TOML_STRING)
 
 
 def _refuse_constant(name: str) -> Any:
