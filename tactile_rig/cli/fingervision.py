@@ -16,8 +16,8 @@ import numpy as np
 
 from tactile_rig.cli.args import float_in, int_in
 from tactile_rig.cli.common import add_json_flag, print_json
-from tactile_rig.rig.loaders import load_config_mapping, read_frame
-from tactile_rig.core.files import check_file, check_image_dims, checked, quiet_opencv
+from tactile_rig.rig.loaders import load_fingervision_params, read_frame
+from tactile_rig.core.files import check_file, check_image_dims, quiet_opencv
 from tactile_rig.perception.fingervision import FingerVision, FingerVisionParams
 
 _IMAGE_EXT = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
@@ -42,15 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def load_params(path: str | None, calib_frames: int | None = None):
     """FingerVisionParams from a TOML/JSON file (or the defaults)."""
 
-    data: dict[str, Any] = {}
-    if path:
-        data = load_config_mapping(path, "FingerVision config")
-    if calib_frames is not None:
-        data = {**data, "n_calib_frames": calib_frames}
-    if not path:
-        return FingerVisionParams.from_mapping(data)
-    with checked(path, "FingerVision config", "sections detector, tracker, force, proximity of FingerVisionParams"):
-        return FingerVisionParams.from_mapping(data)
+    return load_fingervision_params(path, calib_frames)
 
 
 def iter_frames(source: str) -> Iterator[tuple[str, np.ndarray]]:

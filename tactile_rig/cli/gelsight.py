@@ -151,7 +151,7 @@ def _add_reg_knobs(p: argparse.ArgumentParser) -> None:
     add_json_flag(p)
 
 
-MM_PER_PX = float_in(0.0, 100.0, "mm/px", low_open=True)
+MM_PER_PX = float_in(1e-4, 10.0, "mm/px")  # 0.1 µm .. 10 mm a pixel: beyond either, a typo
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -8,9 +8,9 @@ from pathlib import Path
 
 from tactile_rig.cli.common import print_json
 from tactile_rig.control.protocols import GripperOutcome
-from tactile_rig.core.files import checked, load_json
 from tactile_rig.devices.dynamixel.error_codes import decode_hardware_error
 from tactile_rig.drivers.dynamixel.gripper import DynamixelGripper, GripperCalibration
+from tactile_rig.rig.loaders import load_gripper_calibration
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -55,9 +55,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _open(args: argparse.Namespace, **kw):
     cal = None
     if args.calibration:
-        data = load_json(args.calibration, "gripper calibration")
-        with checked(args.calibration, "gripper calibration", "closed_ticks, open_ticks, max_opening_m"):
-            cal = GripperCalibration.from_dict(data.get("calibration", data))
+        cal = load_gripper_calibration(args.calibration)
     return DynamixelGripper(args.port, dxl_id=args.dxl_id, protocol=args.protocol, baudrate=args.baud,
                             calibration=cal, **kw)
 

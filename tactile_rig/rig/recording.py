@@ -510,6 +510,9 @@ def _records(path: Path, result: Recording) -> Iterator[tuple[Any, str]]:
                     OverflowError, IndexError) as exc:
                 declared_end = _declared_end(p, pos, size)
                 cut_off = declared_end is None or declared_end > size
+                if cut_off and not complete and n_records == 0:
+                    raise BadFile(p, f"recording holds no complete record ({size} bytes: cut off right after it "
+                                  "was opened)", "an MCAP recording with at least its header") from None
                 if cut_off and not complete:
                     result.truncated = True
                     result.error = f"cut off at byte {pos} of {size} ({type(exc).__name__}{': ' + str(exc) if str(exc) else ''})"
@@ -540,6 +543,9 @@ def _records(path: Path, result: Recording) -> Iterator[tuple[Any, str]]:
             # The data section ends at DataEnd (its CRC checked above); the summary after it only
             # repeats the data section's schemas and channels, so it is not read.
             if isinstance(rec, (DataEnd, Footer)):
+                if not complete:
+                    result.truncated = True
+                    result.error = "cut off in the summary after the data section (every message is intact)"
                 return
 
 
