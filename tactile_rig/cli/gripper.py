@@ -6,6 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
+from tactile_rig.cli.args import output_file
 from tactile_rig.cli.common import print_json
 from tactile_rig.control.protocols import GripperOutcome
 from tactile_rig.devices.dynamixel.error_codes import decode_hardware_error
@@ -43,7 +44,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     cal.add_argument("--effort", type=float, default=0.2, help="effort used to find the stops (default 0.2)")
     cal.add_argument("--max-opening-m", type=float, help="measured opening at the open stop, metres")
     cal.add_argument("--closing-sign", type=int, choices=[-1, 1], default=-1, help="tick direction that closes")
-    cal.add_argument("--save", type=Path, help="write the calibration to this JSON file")
+    cal.add_argument("--save", type=lambda t: Path(output_file(".json")(t)),
+                     help="write the calibration to this JSON file (its folder must exist)")
     cal.set_defaults(func=_calibrate)
 
     rb = gsub.add_parser("reboot", help="reboot the servo (clears a latched overload/overheating error)")

@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from tactile_rig.cli.args import output_dir
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.rig.jig_accuracy import (
@@ -38,7 +39,7 @@ def register(subparsers: Any) -> None:
     add_bench_arguments(p)
     p.add_argument("--sweep", choices=["rotation", "translation", "both"], default="both",
                    help="which sweep(s) to run (default: both)")
-    p.add_argument("--out", metavar="DIR",
+    p.add_argument("--out", metavar="DIR", type=output_dir,
                    help=f"output folder: points.jsonl, summary.json, run.mcap, figures, report.md (default: "
                         f"{DEFAULT_OUT_ROOT}/<mock|bench>-<sweep>-<config fingerprint>, so the same command resumes)")
     p.add_argument("--seed", type=int, default=0, help="seed of the mock world (default 0)")

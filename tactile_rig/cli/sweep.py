@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from tactile_rig.cli.args import output_dir
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.rig.progress import Progress
 from tactile_rig.rig.sweep import _scalar, grid, make_executor, parse_axis, run_sweep
@@ -21,7 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="a swept axis: name=1,2,3 or name=start:stop:step (stop inclusive); repeat")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="a parameter fixed for every point; repeat")
-    p.add_argument("--out", default="sweep-out", help="output folder (default ./sweep-out)")
+    p.add_argument("--out", default="sweep-out", type=output_dir, help="output folder (default ./sweep-out)")
     p.add_argument("--executor", choices=["process", "thread", "dask"], default="process")
     p.add_argument("--workers", type=int, help="number of workers (default: the CPU count)")
     p.add_argument("--address", help="Dask scheduler address (tcp://host:8786) for --executor dask")
