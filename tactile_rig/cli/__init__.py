@@ -21,6 +21,7 @@ from tactile_rig.cli.common import EXIT_ERROR, EXIT_FAILED, EXIT_FAULT, EXIT_INT
 # Command groups, in the order they appear in --help.
 COMMAND_MODULES: tuple[str, ...] = (
     "mock",
+    "bench",
     "devices",
     "gripper",
     "scale",
@@ -29,7 +30,10 @@ COMMAND_MODULES: tuple[str, ...] = (
     "fingervision",
     "scene",
     "run",
+    "record",
+    "camera",
     "calibrate",
+    "substance",
     "replay",
     "sweep",
     "trade",
