@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tactile_rig.cli import main
+from tactile_rig.cli import build_parser, main
 from tactile_rig.cli.args import float_in, int_in, output_dir, output_file
 from tactile_rig.cli.common import EXIT_INTERNAL, run_handler
 from tactile_rig.core.errors import BadFile, DeviceFault
@@ -91,3 +91,34 @@ def test_gelsight_map_does_not_create_folders(tmp_path: Path, capsys) -> None:
         main(["gelsight", "map", str(h), "--mm-per-px", "0.0634", "-o", str(target)])
     assert info.value.code == 2 and not (tmp_path / "a").exists()
     assert "does not exist" in capsys.readouterr().err
+
+
+PARSER = build_parser()
+
+
+def numeric_options() -> list[tuple[list[str], str]]:
+    """Every option of every command whose argparse type is a number: (command path, option)."""
+    out: list[tuple[list[str], str]] = []
+
+    def walk(parser: argparse.ArgumentParser, path: list[str]) -> None:
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sub in action.choices.items():
+                    walk(sub, [*path, name])
+            elif action.option_strings and action.type is not None and action.nargs in (None, 1) \
+                    and getattr(action.type, "__name__", "") not in ("output file", "output_dir", "input_path", "<lambda>"):
+                out.append((path, action.option_strings[-1]))
+
+    walk(PARSER, [])
+    return out
+
+
+def test_every_numeric_option_refuses_nan_and_inf(capsys) -> None:
+    options = numeric_options()
+    assert len(options) > 40
+    for path, opt in options:
+        for value in ("nan", "inf", "1e300"):
+            with pytest.raises(SystemExit) as info:
+                PARSER.parse_args([*path, opt, value])
+            err = capsys.readouterr().err
+            assert info.value.code == 2 and err.count("\n") == 1, (path, opt, value, err)
