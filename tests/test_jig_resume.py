@@ -134,3 +134,54 @@ def test_a_crash_at_any_step_of_a_resume_loses_nothing(tmp_path, monkeypatch) ->
         break
     assert crash_at > 60  # every write of the copy was a crash point
     assert _messages(path) == kept
+
+
+RESUMER = """
+import sys
+from pathlib import Path
+from tactile_rig.core.clock import VirtualClock
+from tactile_rig.rig.jig_accuracy.session import open_run_recording
+print("ready", flush=True)
+rec = open_run_recording(Path(sys.argv[1]), VirtualClock(1e4), resume=True, finished=int(sys.argv[2]))
+print("renamed", flush=True)
+clock = rec.clock
+for i in range(100000):
+    clock.advance(0.01)
+    rec.write_command("jig", "move_to", x_mm=float(i))
+"""
+
+
+@pytest.mark.parametrize("delay_s", [0.0, 0.02, 0.05, 0.1, 0.2, 0.4, 0.8])
+def test_sigkill_at_any_moment_of_a_resume_loses_nothing(tmp_path, delay_s: float) -> None:
+    """A real resume process SIGKILLed ``delay_s`` after its imports (during the copy of the earlier
+    attempt, the rename, or the new attempt's writes): run.mcap still holds every kept message."""
+    import os  # noqa: PLC0415 - stdlib, this test only
+    import signal  # noqa: PLC0415
+    import subprocess  # noqa: PLC0415
+    import sys  # noqa: PLC0415
+    import time  # noqa: PLC0415
+
+    path = tmp_path / "run.mcap"
+    clock = VirtualClock()
+    with Recorder(path, clock=clock) as rec:
+        for i in range(1500):
+            clock.advance(0.01)
+            rec.write_command("jig", "move_to", x_mm=float(i), pad="x" * 200)
+            rec.write_perception("jig_accuracy_point", {"index": i})
+    before = _messages(path)
+    proc = subprocess.Popen([sys.executable, "-c", RESUMER, str(tmp_path), "1500"], stdout=subprocess.PIPE,
+                            env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+    assert proc.stdout.readline() == b"ready\n"
+    time.sleep(delay_s)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=30)
+    proc.stdout.close()
+    after = _messages_any(path)
+    assert after[: len(before)] == before  # the earlier attempt whole, whatever the new one managed
+
+
+def _messages_any(path: Path) -> list[tuple]:
+    """Like _messages, but a recording cut off by the kill is fine (read up to its last flush)."""
+    rec = read_recording(path)
+    return [(m.topic, json.dumps({k: v for k, v in m.data.items() if k not in VOLATILE}, sort_keys=True))
+            for m in rec.messages]
