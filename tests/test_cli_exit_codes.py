@@ -96,6 +96,11 @@ def test_gelsight_map_does_not_create_folders(tmp_path: Path, capsys) -> None:
 PARSER = build_parser()
 
 
+def _numeric(t: object) -> bool:
+    name = getattr(t, "__name__", "")
+    return name in ("finite number", "integer", "seed") or name.startswith(("integer in", "number in"))
+
+
 def numeric_options() -> list[tuple[list[str], str]]:
     """Every option of every command whose argparse type is a number: (command path, option)."""
     out: list[tuple[list[str], str]] = []
@@ -105,8 +110,7 @@ def numeric_options() -> list[tuple[list[str], str]]:
             if isinstance(action, argparse._SubParsersAction):
                 for name, sub in action.choices.items():
                     walk(sub, [*path, name])
-            elif action.option_strings and action.type is not None and action.nargs in (None, 1) \
-                    and getattr(action.type, "__name__", "") not in ("output file", "output_dir", "input_path", "<lambda>"):
+            elif action.option_strings and action.nargs in (None, 1) and _numeric(action.type):
                 out.append((path, action.option_strings[-1]))
 
     walk(PARSER, [])

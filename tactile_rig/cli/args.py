@@ -129,3 +129,25 @@ any_int.__name__ = "integer"
 
 SEED = int_in(0, 2**32 - 1)  # NumPy seeds are non-negative
 SEED.__name__ = "seed"
+
+
+def output_dir_or(default: str) -> Callable[[str], str]:
+    """:func:`output_dir`, except that the command's own ``default`` (e.g. ``calib/force_map``) may
+    create its missing parents: only a path the user typed must have an existing parent."""
+
+    def parse(text: str) -> str:
+        return text if text == default else output_dir(text)
+
+    parse.__name__ = "output folder"
+    return parse
+
+
+def output_file_or(default: str | None, *suffixes: str) -> Callable[[str], str]:
+    """:func:`output_file` for a path the user typed; the command's own ``default`` passes."""
+    check = output_file(*suffixes)
+
+    def parse(text: str) -> str:
+        return text if default is not None and text == default else check(text)
+
+    parse.__name__ = "output file"
+    return parse

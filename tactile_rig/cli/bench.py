@@ -12,7 +12,7 @@ import sys
 import threading
 from typing import Any
 
-from tactile_rig.cli.args import SEED, any_int, finite_float
+from tactile_rig.cli.args import SEED, any_int, finite_float, output_dir
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.rig.bench_check import check_bench, format_check_table
@@ -29,7 +29,7 @@ def register(sub: Any) -> None:
                         description="Start the gripper, scale and jig mocks each in its own process on its own "
                         "pty, the GelSight camera rendering the jig's stage and each --camera's footage as MJPEG "
                         "over HTTP on 127.0.0.1, write OUT/bench.toml naming them, and serve until Ctrl-C.")
-    r.add_argument("--out", default="rehearsal", metavar="DIR",
+    r.add_argument("--out", default="rehearsal", metavar="DIR", type=output_dir,
                    help="folder for bench.toml, the device links (dev/) and the calibration (default: rehearsal)")
     r.add_argument("--camera", action="append", default=[], metavar="NAME=SOURCE[@SENSOR]",
                    help="a camera playing recorded footage at its recorded rate: a video file, a folder of "

@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from tactile_rig.cli.args import SEED, any_int, finite_float
+from tactile_rig.cli.args import SEED, any_int, finite_float, output_dir_or
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.calibrate_sessions import _connect, _guide, register_sessions
 from tactile_rig.cli.common import add_json_flag, print_json
@@ -90,7 +90,7 @@ def _register_force_map(csub: argparse._SubParsersAction) -> None:
     p.add_argument("--holdout", type=any_int, help="trial held out for the MSE (default: the middle one)")
     p.add_argument("--alpha", type=finite_float, default=0.02, help="ridge penalty λ (default 0.02, as the thesis)")
     p.add_argument("--gamma", type=finite_float, default=None, help="RBF gamma on robust-scaled features (default 0.05)")
-    p.add_argument("--out", default="calib/force_map", help="output folder (default calib/force_map)")
+    p.add_argument("--out", default="calib/force_map", type=output_dir_or("calib/force_map"), help="output folder (default calib/force_map)")
     p.add_argument("--max-effort", type=finite_float, default=0.5,
                    help="live: effort cap, fraction of the current limit (default 0.5)")
     p.add_argument("--release-opening-m", type=finite_float, default=0.06,
@@ -150,7 +150,7 @@ def _register_substance(csub: argparse._SubParsersAction) -> None:
     p.add_argument("--per-substance", type=any_int, default=12, help="mock trials per substance (default 12)")
     p.add_argument("--window", type=finite_float, default=2.0, help="feature window in s (default 2)")
     p.add_argument("--test-fraction", type=finite_float, default=0.25, help="trials held out per substance (default 0.25)")
-    p.add_argument("--out", default="calib/substance", help="output folder (default calib/substance)")
+    p.add_argument("--out", default="calib/substance", type=output_dir_or("calib/substance"), help="output folder (default calib/substance)")
     p.add_argument("--substances", help="live: comma-separated substances to stir, e.g. water,oil,honey")
     p.add_argument("--trial-s", type=finite_float, default=10.0, help="live: seconds of stirring per trial (default 10)")
     p.add_argument("--grip-effort", type=finite_float, default=0.3, help="live: effort holding the stick (default 0.3)")

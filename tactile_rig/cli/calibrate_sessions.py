@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 from typing import Any, Callable
 
-from tactile_rig.cli.args import SEED, any_int, finite_float
+from tactile_rig.cli.args import SEED, any_int, finite_float, output_file_or
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.core.clock import VirtualClock
@@ -46,7 +46,7 @@ def register_sessions(csub: Any) -> None:
 
     def common(p: argparse.ArgumentParser, out: str) -> None:
         add_bench_arguments(p)
-        p.add_argument("--out", default=out, help=f"calibration to write: version N goes to <name>-vN.*, "
+        p.add_argument("--out", default=out, type=output_file_or(out), help=f"calibration to write: version N goes to <name>-vN.*, "
                                                   f"<name>.* links to the newest (default {out})")
         p.add_argument("--force", action="store_true",
                        help="overwrite the newest version (or the named -vN file) instead of adding a version")
