@@ -6,7 +6,8 @@ The files come from :mod:`tactile_rig.testing.bad_files` (deterministic from ``-
 ``tactile_rig.cli.main(argv)`` in this process (no subprocess: fast), with stdout and stderr captured,
 the process's file descriptor 2 included (a C library's warning counts as a line too). The table, per
 kind: cases, exit codes, tracebacks, stderr lines > 1, and the goal: every case exit 2 with one line.
-The baseline in the same run is the same loop on the valid companion files (they must not exit 2).
+The baseline in the same run is the same command on a valid file of each kind (exit 0, or 1 for a
+refused registration; never 2), with its time next to the mean time to refuse a malformed one.
 ``--save`` writes ``benchmarks/results/bad_files.json``.
 """
 
@@ -28,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from tactile_rig.cli import main  # noqa: E402
-from tactile_rig.testing.bad_files import KINDS, BadCase, generate  # noqa: E402
+from tactile_rig.testing.bad_files import KINDS, BadCase, generate, good_case  # noqa: E402
 
 
 @contextlib.contextmanager
@@ -91,6 +92,7 @@ def main_bench() -> int:
     a = ap.parse_args()
     kinds = a.kinds.split(",") if a.kinds else list(KINDS)
     rows: list[dict] = []
+    baseline: list[dict] = []
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="bad_files-") as tmp:
         scratch = Path(tmp)
@@ -100,6 +102,9 @@ def main_bench() -> int:
                 cases = cases[::5]
             for c in cases:
                 rows.append(run_case(c, scratch))
+            good = good_case(kind, scratch, seed=a.seed)
+            if good is not None:
+                baseline.append(run_case(good, scratch))
     wall = time.perf_counter() - t0
     table = summarize(rows)
     print(f"{'kind':<20} {'cases':>5} {'goal':>5} {'!=2':>4} {'tb':>3} {'lines!=1':>8}  exit codes")
@@ -110,6 +115,10 @@ def main_bench() -> int:
     goal = sum(k["goal_met"] for k in table.values())
     print(f"total: {goal}/{total} cases exit 2 with one line; {sum(k['tracebacks'] for k in table.values())} "
           f"tracebacks; {wall:.1f} s")
+    print("baseline (valid files, same commands): " + ", ".join(
+        f"{b['kind']} exit {b['exit']} in {b['wall_s'] * 1000:.0f} ms" for b in baseline))
+    mean_ms = 1000 * sum(r["wall_s"] for r in rows) / max(1, len(rows))
+    print(f"mean time to refuse a malformed input: {mean_ms:.0f} ms")
     for r in rows:
         if not (r["exit"] == 2 and r["stderr_lines"] == 1 and not r["traceback"]):
             print(f"  MISS {r['kind']}/{r['name']}: exit {r['exit']}, {r['stderr_lines']} lines: {r['first_line'][:160]}")
@@ -119,6 +128,9 @@ def main_bench() -> int:
         res.write_text(json.dumps({"benchmark": "bad_files", "seed": a.seed, "quick": a.quick,
                                    "python": platform.python_version(), "machine": platform.machine(),
                                    "wall_s": round(wall, 2), "total": total, "goal_met": goal, "by_kind": table,
+                                   "mean_refusal_ms": round(mean_ms, 1),
+                                   "baseline_valid": [{k: b[k] for k in ("kind", "exit", "wall_s", "first_line")}
+                                                      for b in baseline],
                                    "misses": [r for r in rows if not (r["exit"] == 2 and r["stderr_lines"] == 1
                                                                       and not r["traceback"])]},
                                   indent=1) + "\n")

@@ -9,7 +9,7 @@ import pytest
 import mcap  # noqa: F401  (the record extra is part of the test install)
 
 from tactile_rig.cli import main
-from tactile_rig.testing.bad_files import KINDS, generate
+from tactile_rig.testing.bad_files import KINDS, generate, good_case
 
 EVERY = 9  # every 9th case of each kind: ~10 a kind, a few seconds in all
 
@@ -37,3 +37,13 @@ def test_malformed_files_exit_2_with_one_line(cases, kind: str, capfd) -> None:
         lines = [ln for ln in err.splitlines() if ln.strip()]
         assert code == 2, f"{case.name}: exit {code}: {err}"
         assert len(lines) == 1 and "Traceback" not in err, f"{case.name}: {err}"
+
+
+@pytest.mark.parametrize("kind", list(KINDS))
+def test_the_same_command_accepts_a_valid_file(tmp_path, kind: str, capfd) -> None:
+    """The refusals above are of the files, not of the commands: a valid file is not exit 2."""
+    case = good_case(kind, tmp_path, seed=0)
+    if case is None:
+        pytest.skip(f"{kind}: the valid run is a long session (covered by its own tests)")
+    code = main(list(case.argv))
+    assert code in (0, 1), capfd.readouterr().err

@@ -27,7 +27,9 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["KINDS", "BadCase", "generate", "generate_all"]
+from tactile_rig.sim.render.fingervision import FingerVisionRenderer
+
+__all__ = ["KINDS", "BadCase", "generate", "generate_all", "good_case"]
 
 MM_PER_PX = "0.0634"
 
@@ -541,6 +543,55 @@ def generate(kind: str, out_dir: str | Path, *, seed: int = 0) -> list[BadCase]:
         for o in (work / "x" / "y" / "h.npy", good_png):
             add(f"height -o {o}", good_png, ["gelsight", "height", str(out / "nocal"), str(good_png), "-o", str(o)])
     return cases
+
+
+def good_case(kind: str, out_dir: str | Path, *, seed: int = 0) -> BadCase | None:
+    """The baseline of ``kind``: the same command on a valid file (exit 0, or 1 for a refused
+    registration, never 2); None where the valid run is a long session (bench, press folder)."""
+    out = Path(out_dir) / kind / "good"
+    out.mkdir(parents=True, exist_ok=True)
+    nrng = np.random.default_rng(seed)
+    h = out / "h.npy"
+    np.save(h, good_height_mm(np.random.default_rng(seed + 1)))
+    png = out / "f.png"
+    png.write_bytes(_png(good_image(np.random.default_rng(seed + 2))))
+    if kind == "npy":
+        return BadCase(kind, "valid", str(h), ("gelsight", "register", str(h), str(h), "--mm-per-px", MM_PER_PX))
+    if kind == "tactile-map":
+        m = out / "map.npz"
+        m.write_bytes(_write_npz(_map_members(nrng)))
+        return BadCase(kind, "valid", str(m), ("gelsight", "localize", str(m), str(h)))
+    fv = out / "fv.png"
+    fv.write_bytes(_png(FingerVisionRenderer(seed=seed).render()[0]))  # a rest frame with its markers
+    if kind == "image":
+        return BadCase(kind, "valid", str(fv), ("fingervision", "track", str(fv)))
+    if kind == "fv-config":
+        c = out / "fv.json"
+        c.write_text(json.dumps({"n_calib_frames": 1}))
+        return BadCase(kind, "valid", str(c), ("fingervision", "track", str(fv), "--config", str(c)))
+    if kind == "mcap":
+        m = out / "good.mcap"
+        m.write_bytes(_good_mcap(nrng))
+        return BadCase(kind, "valid", str(m), ("replay", str(m)))
+    if kind == "gripper-calibration":
+        c = out / "gripper.json"
+        c.write_text(json.dumps({"closed_ticks": 1024, "open_ticks": 3072, "max_opening_m": 0.1}))
+        return BadCase(kind, "valid", str(c), ("gripper", "state", "--port", "rigsim://dynamixel?ids=1",
+                                               "--calibration", str(c)))
+    if kind == "calibration":
+        base = out / "cal"
+        base.with_suffix(".json").write_text(json.dumps({
+            "format": "tactile_rig.gelsight.calibration", "version": 1, "model": "lut", "mm_per_px_x": 0.0634,
+            "mm_per_px_y": 0.0634, "ball_radius_mm": 2.0, "sensor": "gelsight"}))
+        bg = good_image(np.random.default_rng(seed + 2))
+        base.with_suffix(".npz").write_bytes(_write_npz({f"{k}.npy": _npy_bytes(v) for k, v in {
+            "background": bg, "model_hyper": np.array([8.0, 128.0]), "model_table": np.zeros((8, 8, 8, 2), np.float32),
+            "model_filled": np.ones((8, 8, 8), bool)}.items()}))
+        return BadCase(kind, "valid", str(base), ("gelsight", "height", str(base), str(png), "-o", str(out / "h_out.npy")))
+    if kind == "arguments":
+        return BadCase(kind, "valid", str(h), ("gelsight", "register", str(h), str(h), "--mm-per-px", MM_PER_PX,
+                                               "--ransac-iters", "256"))
+    return None
 
 
 def generate_all(out_dir: str | Path, *, seed: int = 0, kinds: list[str] | None = None) -> list[BadCase]:
