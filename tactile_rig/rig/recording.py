@@ -43,7 +43,7 @@ from tactile_rig.core.errors import BadFile
 from tactile_rig.core.files import MAX_JSON_DEPTH, check_file, decode_image_bytes, json_depth
 from tactile_rig.core.jsonable import to_jsonable
 
-__all__ = ["Recorder", "Recording", "Message", "read_recording", "iter_messages", "SCHEMAS"]
+__all__ = ["Recorder", "Recording", "Message", "read_recording", "iter_messages", "SCHEMAS", "MAX_RECORDING_BYTES"]
 
 _TIME = {"type": "object", "title": "time",
          "properties": {"sec": {"type": "integer", "minimum": 0},
@@ -157,6 +157,10 @@ class Recorder:
         self.add_metadata("recording", {"clock": "virtual" if self.clock.is_virtual else "monotonic",
                                       "t0_s": repr(self._t0_s), "epoch_offset_ns": str(self._epoch_ns),
                                       "flush_interval_s": repr(self.flush_interval_s)})
+        # Readable from the moment it exists: the magic and header reach the OS now, so a reader never
+        # sees the zero-byte file that read_recording refuses.
+        with self._lock:
+            self._file.flush()
 
     # -- low level --------------------------------------------------------------------------
     def _channel(self, topic: str, schema: str) -> int:
@@ -459,6 +463,7 @@ class Recording:
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 MAX_RECORD_BYTES = 1 << 30  # no record this rig writes comes near it; a flipped length field does
+MAX_RECORDING_BYTES = 1 << 40  # recordings are streamed chunk by chunk: hours of raw frames are fine
 
 
 def _where(kind: str, index: int, offset: int) -> str:
@@ -477,7 +482,7 @@ def _records(path: Path, result: Recording) -> Iterator[tuple[Any, str]]:
     from mcap.records import Chunk, DataEnd, Footer
     from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 
-    p = check_file(path, "recording")
+    p = check_file(path, "recording", max_bytes=MAX_RECORDING_BYTES)
     size = p.stat().st_size
     with open(p, "rb") as f:
         head = f.read(8)
@@ -603,7 +608,7 @@ def iter_messages(path: str | Path, *, topics: set[str] | None = None,
 
 def read_recording(path: str | Path, *, topics: set[str] | None = None) -> Recording:
     """Read a whole recording (tolerating a truncated tail). ``topics`` keeps only those topics."""
-    p = check_file(path, "recording")
+    p = check_file(path, "recording", max_bytes=MAX_RECORDING_BYTES)
     out = Recording(p)
     out.messages = list(iter_messages(p, topics=topics, into=out))
     return out
