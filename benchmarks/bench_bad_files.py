@@ -8,7 +8,7 @@ the process's file descriptor 2 included (a C library's warning counts as a line
 kind: cases, exit codes, tracebacks, stderr lines > 1, and the goal: every case exit 2 with one line.
 The baseline in the same run is the same command on a valid file of each kind (exit 0, or 1 for a
 refused registration; never 2), with its time next to the mean time to refuse a malformed one.
-``--save`` writes ``benchmarks/results/bad_files.json``.
+``--save`` writes ``benchmarks/results/bad_files.json`` (full runs only; ``--out PATH`` anywhere).
 """
 
 from __future__ import annotations
@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
-import json
 import os
 import platform
 import sys
@@ -27,6 +26,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from _output import add_save_args, parse_args, save_json  # noqa: E402
 
 from tactile_rig.cli import main  # noqa: E402
 from tactile_rig.testing.bad_files import KINDS, BadCase, generate, good_case  # noqa: E402
@@ -88,21 +90,21 @@ def main_bench() -> int:
     ap.add_argument("--quick", action="store_true", help="every 5th case only")
     ap.add_argument("--kinds", help="comma-separated kinds (default: all): " + ", ".join(KINDS))
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--save", action="store_true", help="write benchmarks/results/bad_files.json")
-    a = ap.parse_args()
-    kinds = a.kinds.split(",") if a.kinds else list(KINDS)
+    add_save_args(ap, "bad_files.json")
+    args = parse_args(ap)
+    kinds = args.kinds.split(",") if args.kinds else list(KINDS)
     rows: list[dict] = []
     baseline: list[dict] = []
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="bad_files-") as tmp:
         scratch = Path(tmp)
         for kind in kinds:
-            cases = generate(kind, scratch, seed=a.seed)
-            if a.quick:
+            cases = generate(kind, scratch, seed=args.seed)
+            if args.quick:
                 cases = cases[::5]
             for c in cases:
                 rows.append(run_case(c, scratch))
-            good = good_case(kind, scratch, seed=a.seed)
+            good = good_case(kind, scratch, seed=args.seed)
             if good is not None:
                 baseline.append(run_case(good, scratch))
     wall = time.perf_counter() - t0
@@ -122,19 +124,12 @@ def main_bench() -> int:
     for r in rows:
         if not (r["exit"] == 2 and r["stderr_lines"] == 1 and not r["traceback"]):
             print(f"  MISS {r['kind']}/{r['name']}: exit {r['exit']}, {r['stderr_lines']} lines: {r['first_line'][:160]}")
-    if a.save:
-        res = ROOT / "benchmarks" / "results" / "bad_files.json"
-        res.parent.mkdir(parents=True, exist_ok=True)
-        res.write_text(json.dumps({"benchmark": "bad_files", "seed": a.seed, "quick": a.quick,
-                                   "python": platform.python_version(), "machine": platform.machine(),
-                                   "wall_s": round(wall, 2), "total": total, "goal_met": goal, "by_kind": table,
-                                   "mean_refusal_ms": round(mean_ms, 1),
-                                   "baseline_valid": [{k: b[k] for k in ("kind", "exit", "wall_s", "first_line")}
-                                                      for b in baseline],
-                                   "misses": [r for r in rows if not (r["exit"] == 2 and r["stderr_lines"] == 1
-                                                                      and not r["traceback"])]},
-                                  indent=1) + "\n")
-        print(f"saved {res}")
+    save_json(args, {"benchmark": "bad_files", "seed": args.seed, "quick": args.quick,
+                  "python": platform.python_version(), "machine": platform.machine(),
+                  "wall_s": round(wall, 2), "total": total, "goal_met": goal, "by_kind": table,
+                  "mean_refusal_ms": round(mean_ms, 1),
+                  "baseline_valid": [{k: b[k] for k in ("kind", "exit", "wall_s", "first_line")} for b in baseline],
+                  "misses": [r for r in rows if not (r["exit"] == 2 and r["stderr_lines"] == 1 and not r["traceback"])]})
     return 0
 
 
