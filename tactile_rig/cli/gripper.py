@@ -10,7 +10,7 @@ from tactile_rig.cli.args import any_int, finite_float, output_file
 from tactile_rig.cli.common import print_json
 from tactile_rig.control.protocols import GripperOutcome
 from tactile_rig.devices.dynamixel.error_codes import decode_hardware_error
-from tactile_rig.drivers.dynamixel.gripper import DynamixelGripper, GripperCalibration
+from tactile_rig.drivers.dynamixel.gripper import DynamixelGripper
 from tactile_rig.rig.loaders import load_gripper_calibration
 
 
