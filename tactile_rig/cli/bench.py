@@ -12,6 +12,7 @@ import sys
 import threading
 from typing import Any
 
+from tactile_rig.cli.args import SEED, any_int, finite_float, output_dir
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.rig.bench_check import check_bench, format_check_table
@@ -28,24 +29,24 @@ def register(sub: Any) -> None:
                         description="Start the gripper, scale and jig mocks each in its own process on its own "
                         "pty, the GelSight camera rendering the jig's stage and each --camera's footage as MJPEG "
                         "over HTTP on 127.0.0.1, write OUT/bench.toml naming them, and serve until Ctrl-C.")
-    r.add_argument("--out", default="rehearsal", metavar="DIR",
+    r.add_argument("--out", default="rehearsal", metavar="DIR", type=output_dir,
                    help="folder for bench.toml, the device links (dev/) and the calibration (default: rehearsal)")
     r.add_argument("--camera", action="append", default=[], metavar="NAME=SOURCE[@SENSOR]",
                    help="a camera playing recorded footage at its recorded rate: a video file, a folder of "
                         "images, FILE.mcap[#TOPIC], or 'rendered' (a FingerVision press video the rehearsal "
                         "writes); SENSOR fingervision (default) or gelsight; repeat for several")
-    r.add_argument("--seed", type=int, default=0, help="seed of the mocks' noise (default 0)")
+    r.add_argument("--seed", type=SEED, default=0, help="seed of the mocks' noise (default 0)")
     r.add_argument("--homing", action="store_true",
                    help="GRBL homing enabled: the jig boots locked and $H takes ~20 s, as on a real jig")
-    r.add_argument("--gelsight-fps", type=float, default=25.0, help="frame rate of the GelSight camera (default 25)")
-    r.add_argument("--gelsight-jpeg-quality", type=int, default=100, metavar="Q",
+    r.add_argument("--gelsight-fps", type=finite_float, default=25.0, help="frame rate of the GelSight camera (default 25)")
+    r.add_argument("--gelsight-jpeg-quality", type=any_int, default=100, metavar="Q",
                    help="JPEG quality of the GelSight stream, 1..100 (default 100; a camera's MJPG is nearer 90)")
     r.add_argument("--no-calibration", action="store_true",
                    help="do not make the GelSight calibration on the mocks (the bench then names none)")
     r.add_argument("--press", action="store_true",
                    help="serve the gripper, the scale and a FingerVision fingertip (camera_fingertip) from one "
                         "process on one world, the fingertip pressing on the scale: for calibrate force-map")
-    r.add_argument("--duration", type=float, metavar="S", help="stop after S seconds instead of at Ctrl-C")
+    r.add_argument("--duration", type=finite_float, metavar="S", help="stop after S seconds instead of at Ctrl-C")
     add_json_flag(r)
     r.set_defaults(func=_rehearse)
 

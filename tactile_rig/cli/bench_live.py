@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from tactile_rig.cli.args import any_int, finite_float
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.common import print_json
 from tactile_rig.rig.camera_calibrations import camera_calibrations, describe_files
@@ -37,9 +38,9 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--live", action="store_true",
                         help=f"serve the session live over the Foxglove WebSocket protocol on 127.0.0.1 "
                              f"(ws://127.0.0.1:{DEFAULT_LIVE_PORT} in Foxglove; needs tactile-rig[live])")
-    parser.add_argument("--live-port", type=int, default=DEFAULT_LIVE_PORT, metavar="PORT",
+    parser.add_argument("--live-port", type=any_int, default=DEFAULT_LIVE_PORT, metavar="PORT",
                         help=f"port of the live view (default {DEFAULT_LIVE_PORT}; 0: any free port, printed)")
-    parser.add_argument("--live-wait", type=float, default=0.0, metavar="S",
+    parser.add_argument("--live-wait", type=finite_float, default=0.0, metavar="S",
                         help="with --live: wait up to S s for a viewer to subscribe before starting (default 0)")
 
 
@@ -72,8 +73,8 @@ def add_bench_camera_arguments(parser: argparse.ArgumentParser) -> None:
     """What a perception command needs to run live from a bench camera."""
     add_bench_arguments(parser)
     parser.add_argument("--camera", metavar="NAME", help="which camera of the bench (default: the first of the sensor)")
-    parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: at Ctrl-C)")
-    parser.add_argument("--frames-max", dest="frames_max", type=int, metavar="N", help="stop after N frames")
+    parser.add_argument("--duration", type=finite_float, metavar="S", help="stop after S seconds (default: at Ctrl-C)")
+    parser.add_argument("--frames-max", dest="frames_max", type=any_int, metavar="N", help="stop after N frames")
     add_live_arguments(parser)
 
 

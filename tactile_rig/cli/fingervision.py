@@ -23,12 +23,10 @@ import numpy as np
 from tactile_rig.cli import bench_live
 from tactile_rig.cli.args import float_in, int_in
 from tactile_rig.cli.common import add_json_flag, print_json
-from tactile_rig.cli.loaders import load_config_mapping, read_frame
-from tactile_rig.core.files import check_file, check_image_dims, checked, quiet_opencv
-
-
+from tactile_rig.rig.loaders import load_fingervision_params, read_frame
+from tactile_rig.core.files import check_file, check_image_dims, quiet_opencv
 from tactile_rig.core.errors import MarkersNotFound
-from tactile_rig.perception.fingervision import FingerVision, FingerVisionParams
+from tactile_rig.perception.fingervision import FingerVision
 from tactile_rig.rig.bench import load_bench
 from tactile_rig.rig.camera_calibrations import camera_calibrations, describe_files
 
@@ -62,15 +60,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def load_params(path: str | None, calib_frames: int | None = None):
     """FingerVisionParams from a TOML/JSON file (or the defaults)."""
 
-    data: dict[str, Any] = {}
-    if path:
-        data = load_config_mapping(path, "FingerVision config")
-    if calib_frames is not None:
-        data = {**data, "n_calib_frames": calib_frames}
-    if not path:
-        return FingerVisionParams.from_mapping(data)
-    with checked(path, "FingerVision config", "sections detector, tracker, force, proximity of FingerVisionParams"):
-        return FingerVisionParams.from_mapping(data)
+    return load_fingervision_params(path, calib_frames)
 
 
 def iter_frames(source: str) -> Iterator[tuple[str, np.ndarray]]:

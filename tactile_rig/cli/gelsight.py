@@ -16,7 +16,7 @@ import numpy as np
 from tactile_rig.cli import bench_live
 from tactile_rig.cli.args import float_in, int_in, output_dir, output_file
 from tactile_rig.cli.common import add_json_flag, print_json
-from tactile_rig.cli.loaders import (
+from tactile_rig.rig.loaders import (
     load_gelsight_calibration,
     load_height_mm,
     load_press_folder,
@@ -187,7 +187,7 @@ def _add_reg_knobs(p: argparse.ArgumentParser) -> None:
     add_json_flag(p)
 
 
-MM_PER_PX = float_in(0.0, 100.0, "mm/px", low_open=True)
+MM_PER_PX = float_in(1e-4, 10.0, "mm/px")  # 0.1 µm .. 10 mm a pixel: beyond either, a typo
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

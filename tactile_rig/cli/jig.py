@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import os
 
+from tactile_rig.cli.args import any_int, finite_float
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.common import print_json
 from tactile_rig.drivers.jig import Jig
@@ -26,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     def common(sp: argparse.ArgumentParser) -> None:
         sp.add_argument("--port", help="device path or URL (/dev/ttyUSB0, rigsim://jig); default: the bench's [jig]")
         add_bench_arguments(sp)
-        sp.add_argument("--baud", type=int, help="baud rate (default: the bench's, else 115200)")
+        sp.add_argument("--baud", type=any_int, help="baud rate (default: the bench's, else 115200)")
         sp.add_argument("--theta-axis", default="Z", choices=["Z", "A"],
                         help="GRBL channel that drives theta: Z on stock GRBL 1.1, A on grblHAL (default Z)")
         sp.add_argument("--json", action="store_true", help="print JSON")
@@ -37,16 +38,16 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     ho = jsub.add_parser("home", help="run the homing cycle ($H)")
     common(ho)
-    ho.add_argument("--timeout", type=float, default=60.0, help="seconds allowed for homing (default 60)")
+    ho.add_argument("--timeout", type=finite_float, default=60.0, help="seconds allowed for homing (default 60)")
     ho.set_defaults(func=_home)
 
     mv = jsub.add_parser("move", help="move to a pose in work coordinates and wait until Idle")
     common(mv)
-    mv.add_argument("--x", dest="x_mm", type=float, help="x in mm")
-    mv.add_argument("--y", dest="y_mm", type=float, help="y in mm")
-    mv.add_argument("--theta", dest="theta_deg", type=float, help="theta in degrees")
-    mv.add_argument("--feed", type=float, help="feed in mm/min (default: rapid, each axis at its max rate)")
-    mv.add_argument("--timeout", type=float, default=60.0, help="seconds allowed for the move (default 60)")
+    mv.add_argument("--x", dest="x_mm", type=finite_float, help="x in mm")
+    mv.add_argument("--y", dest="y_mm", type=finite_float, help="y in mm")
+    mv.add_argument("--theta", dest="theta_deg", type=finite_float, help="theta in degrees")
+    mv.add_argument("--feed", type=finite_float, help="feed in mm/min (default: rapid, each axis at its max rate)")
+    mv.add_argument("--timeout", type=finite_float, default=60.0, help="seconds allowed for the move (default 60)")
     mv.add_argument("--unlock", action="store_true", help="clear an alarm lock ($X) first")
     mv.add_argument("--home", action="store_true", help="run the homing cycle ($H) first")
     mv.set_defaults(func=_move)

@@ -43,6 +43,7 @@ import numpy as np
 
 from tactile_rig.core.clock import Deadline, utc_now
 from tactile_rig.core.errors import CalibrationError, DeviceTimeout, check_range
+from tactile_rig.core.files import load_json
 from tactile_rig.core.geometry import Pose
 from tactile_rig.core.jsonable import to_jsonable
 from tactile_rig.perception.fingervision import (
@@ -232,11 +233,11 @@ def read_calibration(path: str | Path, kind: str) -> dict[str, Any]:
     """The values of a JSON calibration of ``kind``; raises CalibrationError naming the problem."""
     p = Path(path)
     try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
+        doc = load_json(p, f"{kind} calibration", expect=None)
     except FileNotFoundError:
         raise CalibrationError(f"calibration file {p} does not exist; make it with: tactile-rig calibrate {kind}",
                                device=kind) from None
-    except (OSError, json.JSONDecodeError) as exc:
+    except (OSError, ValueError) as exc:
         raise CalibrationError(f"{p} is not a readable calibration ({exc})", device=kind) from None
     if not isinstance(doc, dict) or doc.get("format") != CALIBRATION_FORMAT or doc.get("kind") != kind:
         got = (doc.get("format"), doc.get("kind")) if isinstance(doc, dict) else (type(doc).__name__, None)

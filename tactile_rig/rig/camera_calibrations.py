@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from tactile_rig.core.errors import CalibrationError, DeviceTimeout
+from tactile_rig.core.files import load_npz
 from tactile_rig.core.types import TouchReading
 from tactile_rig.perception.fingervision import FingerVision, FingerVisionParams, MarkerBaseline
 from tactile_rig.perception.gelsight.calibration import GelSightCalibration
@@ -96,9 +97,10 @@ def load_fingervision_calibration(path: str | Path) -> FingerVisionCalibration:
         raise CalibrationError(f"FingerVision calibration arrays {npz} are missing ({js} names them); re-run: "
                                "tactile-rig calibrate fingervision", device="fingervision")
     try:
-        with np.load(npz, allow_pickle=False) as z:
-            pos, sizes, valid = z["positions_px"], z["sizes_px"], z["valid"]
-            bg = z["bg_hist"] if "bg_hist" in z.files else np.zeros(0)
+        z = load_npz(npz, "FingerVision calibration arrays", required=("positions_px", "sizes_px", "valid"),
+                     default={"kinds": "biuf", "min_size": 0})
+        pos, sizes, valid = z["positions_px"], z["sizes_px"], z["valid"]
+        bg = z["bg_hist"] if "bg_hist" in z else np.zeros(0)
     except (OSError, ValueError, KeyError) as exc:
         raise CalibrationError(f"{npz} is not a FingerVision calibration ({exc})", device="fingervision") from None
     n = int(np.asarray(pos).reshape(-1, 2).shape[0])

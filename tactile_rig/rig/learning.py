@@ -36,6 +36,7 @@ import numpy as np
 
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.core.errors import CalibrationError
+from tactile_rig.core.files import checked, load_json, load_npz
 from tactile_rig.core.jsonable import to_jsonable
 from tactile_rig.rig.calibrations import plan_version, publish
 from tactile_rig.rig.recording import Recorder, read_recording
@@ -150,7 +151,8 @@ class ForceMapModel:
         if not npz.is_file():
             raise CalibrationError(f"force map arrays {npz} are missing (the .json is there); "
                                    "re-run: tactile-rig calibrate force-map", device="force-map")
-        with np.load(npz, allow_pickle=False) as z:
+        with checked(npz, "force map", "a model written by 'tactile-rig calibrate force-map'"):
+            z = load_npz(npz, "force map arrays")
             model = cls(center=z["center"], scale=z["scale"], x_fit=z["x_fit"], dual_coef=z["dual_coef"],
                         gamma=float(z["gamma"]), alpha=float(z["alpha"]),
                         feature_names=tuple(meta.get("features", FORCE_FEATURES)))
@@ -197,7 +199,7 @@ def _load_meta(js: Path, fmt: str) -> dict[str, Any]:
     if not js.is_file():
         raise CalibrationError(f"model file {js} does not exist", device=fmt)
     try:
-        meta = json.loads(js.read_text(encoding="utf-8"))
+        meta = load_json(js, "model file")
     except ValueError as exc:
         raise CalibrationError(f"model file {js} is not valid JSON: {exc}", device=fmt) from None
     if meta.get("format") != fmt:
@@ -514,7 +516,8 @@ class SubstanceModel:
         if not npz.is_file():
             raise CalibrationError(f"substance model arrays {npz} are missing (the .json is there)",
                                    device="substance")
-        with np.load(npz, allow_pickle=False) as z:
+        with checked(npz, "substance model", "a model written by 'tactile-rig calibrate substance'"):
+            z = load_npz(npz, "substance model arrays")
             n = int(meta["layers"])
             model = cls(center=z["center"], scale=z["scale"], weights=[z[f"W{i}"] for i in range(n)],
                         biases=[z[f"b{i}"] for i in range(n)], classes=list(meta["classes"]),

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import base64
 import json
+import os
 import struct
 import threading
 import time
@@ -42,7 +43,7 @@ from tactile_rig.core.errors import BadFile
 from tactile_rig.core.files import MAX_JSON_DEPTH, check_file, decode_image_bytes, json_depth
 from tactile_rig.core.jsonable import to_jsonable
 
-__all__ = ["Recorder", "Recording", "Message", "read_recording", "iter_messages", "SCHEMAS", "camera_topic"]
+__all__ = ["Recorder", "Recording", "Message", "read_recording", "iter_messages", "SCHEMAS", "camera_topic", "MAX_RECORDING_BYTES"]
 
 
 def camera_topic(camera: str, *, compressed: bool = False) -> str:
@@ -165,6 +166,10 @@ class Recorder:
         self.add_metadata("recording", {"clock": "virtual" if self.clock.is_virtual else "monotonic",
                                       "t0_s": repr(self._t0_s), "epoch_offset_ns": str(self._epoch_ns),
                                       "flush_interval_s": repr(self.flush_interval_s)})
+        # Readable from the moment it exists: the magic and header reach the OS now, so a reader never
+        # sees the zero-byte file that read_recording refuses.
+        with self._lock:
+            self._file.flush()
 
     # -- low level --------------------------------------------------------------------------
     def _channel(self, topic: str, schema: str) -> int:
@@ -319,6 +324,27 @@ class Recorder:
             if not self._closed:
                 self._flush_locked()
 
+    def sync(self) -> None:
+        """Flush, then have the OS write the file to the disk (``fsync``): survives a power loss."""
+        with self._lock:
+            if not self._closed:
+                self._flush_locked()
+                os.fsync(self._file.fileno())
+
+    def replace(self, target: str | Path) -> None:
+        """Sync this file and atomically rename it to ``target`` (replacing any file there), then go
+        on recording into it. Write-then-rename: until the rename ``target`` is untouched; after it
+        ``target`` holds everything written so far."""
+        target = Path(target)
+        with self._lock:
+            if self._closed:
+                raise ValueError(f"recording {self.path} is closed")
+            self._flush_locked()
+            os.fsync(self._file.fileno())
+            os.replace(self.path, target)
+            _fsync_dir(target.parent)
+            self.path = target
+
     def _flush_loop(self) -> None:
         period = self.flush_interval_s / 2  # so data never waits longer than the interval
         while not self._stop.wait(period):
@@ -345,6 +371,20 @@ class Recorder:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _fsync_dir(folder: Path) -> None:
+    """Make a rename in ``folder`` durable (POSIX: fsync the directory); a no-op where unsupported."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:  # pragma: no cover - e.g. Windows
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # pragma: no cover
+        pass
+    finally:
+        os.close(fd)
 
 
 def _as_dict(obj: Any) -> dict[str, Any]:
@@ -441,6 +481,7 @@ class Recording:
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 MAX_RECORD_BYTES = 1 << 30  # no record this rig writes comes near it; a flipped length field does
+MAX_RECORDING_BYTES = 1 << 40  # recordings are streamed chunk by chunk: hours of raw frames are fine
 
 
 def _where(kind: str, index: int, offset: int) -> str:
@@ -459,7 +500,7 @@ def _records(path: Path, result: Recording) -> Iterator[tuple[Any, str]]:
     from mcap.records import Chunk, DataEnd, Footer
     from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 
-    p = check_file(path, "recording")
+    p = check_file(path, "recording", max_bytes=MAX_RECORDING_BYTES)
     size = p.stat().st_size
     with open(p, "rb") as f:
         head = f.read(8)
@@ -492,6 +533,9 @@ def _records(path: Path, result: Recording) -> Iterator[tuple[Any, str]]:
                     OverflowError, IndexError) as exc:
                 declared_end = _declared_end(p, pos, size)
                 cut_off = declared_end is None or declared_end > size
+                if cut_off and not complete and n_records == 0:
+                    raise BadFile(p, f"recording holds no complete record ({size} bytes: cut off right after it "
+                                  "was opened)", "an MCAP recording with at least its header") from None
                 if cut_off and not complete:
                     result.truncated = True
                     result.error = f"cut off at byte {pos} of {size} ({type(exc).__name__}{': ' + str(exc) if str(exc) else ''})"
@@ -522,6 +566,9 @@ def _records(path: Path, result: Recording) -> Iterator[tuple[Any, str]]:
             # The data section ends at DataEnd (its CRC checked above); the summary after it only
             # repeats the data section's schemas and channels, so it is not read.
             if isinstance(rec, (DataEnd, Footer)):
+                if not complete:
+                    result.truncated = True
+                    result.error = "cut off in the summary after the data section (every message is intact)"
                 return
 
 
@@ -579,7 +626,7 @@ def iter_messages(path: str | Path, *, topics: set[str] | None = None,
 
 def read_recording(path: str | Path, *, topics: set[str] | None = None) -> Recording:
     """Read a whole recording (tolerating a truncated tail). ``topics`` keeps only those topics."""
-    p = check_file(path, "recording")
+    p = check_file(path, "recording", max_bytes=MAX_RECORDING_BYTES)
     out = Recording(p)
     out.messages = list(iter_messages(p, topics=topics, into=out))
     return out

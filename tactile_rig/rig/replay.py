@@ -18,6 +18,7 @@ from tactile_rig.core.errors import NotConnected
 from tactile_rig.core.files import check_file
 from tactile_rig.drivers.camera import RawFrame
 from tactile_rig.rig.recording import (
+    MAX_RECORDING_BYTES,
     Message,
     Recording,
     decode_image,
@@ -30,7 +31,7 @@ IMAGE_SCHEMAS = ("foxglove.RawImage", "foxglove.CompressedImage")
 
 def summarize(path: str | Path) -> dict[str, Any]:
     """Per topic: message count, schema, first/last time (s); plus metadata names, attachments, truncation."""
-    rec = Recording(check_file(path, "recording"))
+    rec = Recording(check_file(path, "recording", max_bytes=MAX_RECORDING_BYTES))
     topics: dict[str, dict[str, Any]] = {}
     for m in iter_messages(path, into=rec):
         t = topics.setdefault(m.topic, {"count": 0, "schema": m.schema, "first_t_s": m.t_s, "last_t_s": m.t_s})

@@ -9,13 +9,13 @@ The loader (:mod:`.load`) finds it by ``kind`` and types each TOML value from th
 from __future__ import annotations
 
 import difflib
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, ClassVar
 
 from tactile_rig.core.errors import CalibrationError, LimitError
+from tactile_rig.core.files import load_json
 from tactile_rig.drivers.camera import FingertipCamera
 from tactile_rig.drivers.dynamixel.gripper import DynamixelGripper, GripperCalibration
 from tactile_rig.drivers.jig import Jig
@@ -139,9 +139,9 @@ class GripperConfig(DeviceConfig):
         cal = None
         if self.calibration is not None:
             try:
-                d = json.loads(self.calibration.read_text(encoding="utf-8"))
+                d = load_json(self.calibration, "gripper calibration", expect=None)
                 cal = GripperCalibration.from_dict(d.get("calibration", d) if isinstance(d, dict) else d)
-            except (OSError, ValueError, TypeError, KeyError, AttributeError) as exc:
+            except (OSError, ValueError, TypeError, KeyError, AttributeError, RecursionError) as exc:
                 raise CalibrationError(f"gripper calibration {self.calibration} is unreadable: {exc}; re-make it "
                                        f"with: {self.calibration_command}", device=self.name) from None
         return DynamixelGripper(self.port, dxl_id=self.ids[0], protocol=self.protocol, baudrate=self.baud,

@@ -43,6 +43,10 @@ class JigRig(Protocol):
         """JSON-able description (kind ``mock`` or ``bench``, devices, scene) for run.json."""
         ...
 
+    # Optional: ``begin_step(step)`` is called before the map is built (step 0) and before each
+    # point (step index + 1); a mock reseeds its noise from (seed, step) there, so every point sees
+    # the same noise whatever came before it and a resumed run equals an uninterrupted one.
+
 
 @dataclass
 class TouchLocalization:
