@@ -33,7 +33,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     t = fsub.add_parser("track", help="track markers, force/torque, object and slip, frame by frame")
     t.add_argument("frames", help="folder of images, glob pattern (quote it) or video file")
     t.add_argument("--config", help="TOML or JSON file of FingerVisionParams (sections detector, tracker, force, proximity)")
-    t.add_argument("--calib-frames", type=int, help="no-contact frames for the baseline (overrides the config)")
+    t.add_argument("--calib-frames", type=int,
+                   help="no-contact frames refining the markers' rest positions (ids exist from the first frame); "
+                        "with --init frames, the baseline frames (overrides the config; default 10)")
+    t.add_argument("--init", choices=("lattice", "frames"),
+                   help="lattice (default): marker ids from the first frame; frames: the older scheme, ids only "
+                        "after --calib-frames baseline frames (overrides the config)")
     t.add_argument("--fps", type=float, help="frame rate, for timestamps t_s = index / fps (Kalman time step)")
     t.add_argument("--object-rect", type=int, nargs=4, metavar=("X", "Y", "W", "H"),
                    help="learn the object's colours from this rectangle (px) of the first frame after calibration")
@@ -43,8 +48,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
-def load_params(path: str | None, calib_frames: int | None = None):
-    """FingerVisionParams from a TOML/JSON file (or the defaults)."""
+def load_params(path: str | None, calib_frames: int | None = None, init: str | None = None) -> FingerVisionParams:
+    """FingerVisionParams from a TOML/JSON file (or the defaults), with the command line's overrides."""
 
     data: dict[str, Any] = {}
     if path:
@@ -63,6 +68,8 @@ def load_params(path: str | None, calib_frames: int | None = None):
                 raise ValueError(f"--config {path}: not valid TOML ({exc})") from exc
     if calib_frames is not None:
         data = {**data, "n_calib_frames": calib_frames}
+    if init is not None:
+        data = {**data, "init": init}
     return FingerVisionParams.from_mapping(data)
 
 
@@ -142,7 +149,7 @@ def _track(args: argparse.Namespace) -> int:
         raise ValueError(f"--limit: expected >= 1 frames, got {args.limit}")
     if args.object_rect is not None and (args.object_rect[2] < 1 or args.object_rect[3] < 1):
         raise ValueError(f"--object-rect: expected a width and height >= 1 px, got {args.object_rect[2:]}")
-    fv = FingerVision(load_params(args.config, args.calib_frames))
+    fv = FingerVision(load_params(args.config, args.calib_frames, args.init))
     learnt = args.object_rect is None
     n = 0
     for i, (name, frame) in enumerate(iter_frames(args.frames)):
@@ -164,7 +171,9 @@ def _track(args: argparse.Namespace) -> int:
         if args.json:
             print_json(rec)
         else:
-            state = "calibrating" if r.calibrating else f"{r.n_markers:3d} markers"
+            n_ids = int(np.count_nonzero(r.marker_ids >= 0))
+            state = (f"{r.n_markers:3d} markers" if not r.calibrating else
+                     f"{r.n_markers:3d} markers, refining" if n_ids else "calibrating")
             f = r.force_px
             obj = "no object" if r.object_centroid_px is None else (
                 f"object {r.object_area_px:.0f} px2 at ({r.object_centroid_px[0]:.1f}, {r.object_centroid_px[1]:.1f})"
