@@ -292,7 +292,7 @@ class FingerVision:
                     t_s, True, z.astype(np.int64), np.zeros((0, 2)), z, z.astype(bool), z.astype(bool),
                     np.zeros(3), np.zeros(3), 0.0, None, None, False, 0.0, None, False, times)
             return FingerVisionResult(
-                t_s, True, st.ids, st.positions_px, st.sizes_px, st.valid & st.found, st.found,
+                t_s, True, st.ids, st.positions_px, st.sizes_px, st.valid, st.found,
                 np.zeros(3), np.zeros(3), 0.0, None, None, False, 0.0, None, False, times)
         if self.tracker is None:
             det = self._add_calibration_frame(frame_bgr, value, bg, contrast)
