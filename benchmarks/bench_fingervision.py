@@ -24,6 +24,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from _output import add_save_args, parse_args, save_json  # noqa: E402  (benchmarks/ is the script's folder)
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
@@ -284,16 +286,15 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="fewer frames and angles")
     ap.add_argument("--speed-only", action="store_true",
                     help="re-measure speed only (e.g. on an idle machine); with --save, update the saved results")
-    ap.add_argument("--save", action="store_true", help="write benchmarks/results/fingervision.json")
-    args = ap.parse_args()
-    out_dir = ROOT / "benchmarks" / "results"
-    saved = out_dir / "fingervision.json"
+    add_save_args(ap, "fingervision.json")
+    args = parse_args(ap)
+    saved = ROOT / "benchmarks" / "results" / "fingervision.json"
     if args.speed_only:
         speed = bench_speed(args.quick)
-        if args.save and saved.is_file():
+        if saved.is_file():  # update the speed figures of the saved full run, keep its accuracy figures
             res = json.loads(saved.read_text())
             res["speed_320x240_one_core"] = speed
-            saved.write_text(json.dumps(res, indent=1, default=float))
+            save_json(args, res, default=float)
         _print_speed(speed)
         return 0
     res = {"opencv": cv2.__version__, "quick": args.quick}
@@ -305,9 +306,7 @@ def main() -> int:
         res["mock_renderer"] = bench_mock_renderer()
     except Exception as exc:  # the renderer belongs to another module; report, do not fail
         res["mock_renderer"] = {"error": repr(exc)}
-    if args.save:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        saved.write_text(json.dumps(res, indent=1, default=float))
+    save_json(args, res, default=float)
     _print(res)
     return 0
 
