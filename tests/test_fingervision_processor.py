@@ -138,10 +138,11 @@ def test_cli_glob_video_and_errors(tmp_path, capsys) -> None:
 def test_cli_init_flag_selects_the_old_baseline_scheme(tmp_path, capsys) -> None:
     for k in range(4):
         cv2.imwrite(str(tmp_path / f"f{k}.png"), render(REST, seed=k))
-    assert main(["fingervision", "track", str(tmp_path), "--calib-frames", "2", "--json"]) == 0
+    assert main(["fingervision", "track", str(tmp_path), "--calib-frames", "2", "--no-calibration", "--json"]) == 0
     lattice_ = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
     assert all(d["marker_count"] == len(REST) and all(m["id"] >= 0 for m in d["markers"]) for d in lattice_)
-    assert main(["fingervision", "track", str(tmp_path), "--calib-frames", "2", "--init", "frames", "--json"]) == 0
+    assert main(["fingervision", "track", str(tmp_path), "--calib-frames", "2", "--init", "frames", "--no-calibration",
+                 "--json"]) == 0
     frames_ = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
     assert [all(m["id"] < 0 for m in d["markers"]) for d in frames_] == [True, True, False, False]
     with pytest.raises(SystemExit) as exc:  # argparse's usage error

@@ -71,7 +71,7 @@ class FingerVisionStep:
                 "markers_px": np.asarray(r.marker_positions_px).round(3).tolist(),
                 "marker_displacements_px": disp, "marker_valid": np.asarray(r.marker_valid).tolist(),
                 "force": np.asarray(r.force_px).round(5).tolist(),
-                "force_unit": "N" if self.fv.params.force.newton_per_px is not None else "px",
+                "force_unit": "px",  # perception reports px; a force map converts to N
                 "torque": np.asarray(r.torque_px2).round(4).tolist(), "contact": r.contact, "slip": r.slip,
                 "slip_magnitude_px": r.slip_magnitude_px, "object_area_px": r.object_area_px,
                 "object_centroid_px": r.object_centroid_px, "timings_ms": r.timings_ms}
