@@ -16,8 +16,8 @@ Extras: precision and recall on each, id switches, the rendered marker centre er
 proximity vision's object centroid (px) and orientation (deg) errors on a rendered object.
 
 Speed: frames per CPU-second of :meth:`FingerVision.process` after initialisation on the real frames
-(rendered ones without the shared folder), on one OpenCV thread, every setting timed round by round
-in the same run (CPU time, not wall time: on a shared machine it is the figure that holds still).
+(rendered ones without the shared folder), on one OpenCV thread: 1 / the median CPU time of a call,
+the settings taking turns call by call in the same run (see :func:`cpu_rates_per_s`).
 """
 
 from __future__ import annotations
@@ -246,30 +246,27 @@ def settings() -> list[tuple[dict[str, Any], FingerVisionParams]]:
     return rows
 
 
-def cpu_rates_per_s(fns: dict[int, Callable[[], Any]], *, rounds: int, min_cpu_s: float) -> dict[int, float]:
-    """Calls per CPU-second of each callable on one OpenCV thread: the best of ``rounds`` interleaved rounds.
+def cpu_rates_per_s(fns: dict[int, Callable[[], Any]], *, calls: int) -> dict[int, float]:
+    """Calls per CPU-second of each callable on one OpenCV thread: 1 / the median CPU time of one call.
 
-    CPU time of this process (``time.process_time``), not wall time: on a shared machine the wall
-    time of identical work wobbles by 2x with the other jobs, its CPU time by a few per cent.
+    The settings take turns call by call (A, B, C, A, B, C, ..., the order rotating), so a load change
+    on a shared machine lands on all of them alike, and the median drops the calls it hit hardest.
+    CPU time of this process (``time.process_time``), not wall time: identical work then agrees within
+    a few per cent where wall time wobbles by 2x.
     """
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
     try:
-        best = {k: 0.0 for k in fns}
         keys = list(fns)
         for fn in fns.values():
             fn()
-        for r in range(rounds):
-            for k in keys[r % len(keys):] + keys[: r % len(keys)]:  # rotate the order each round
-                n, t0 = 0, time.process_time()
-                while True:
-                    fns[k]()
-                    n += 1
-                    dt = time.process_time() - t0
-                    if n >= 3 and dt >= min_cpu_s:
-                        break
-                best[k] = max(best[k], n / dt)
-        return best
+        per: dict[int, list[float]] = {k: [] for k in keys}
+        for r in range(calls):
+            for k in keys[r % len(keys):] + keys[: r % len(keys)]:
+                t0 = time.process_time()
+                fns[k]()
+                per[k].append(time.process_time() - t0)
+        return {k: 1.0 / max(float(np.median(v)), 1e-9) for k, v in per.items()}
     finally:
         cv2.setNumThreads(threads)
 
@@ -297,7 +294,7 @@ def measure(*, quick: bool = False, seed: int = 0) -> TradeTable:
 
         return run
 
-    fps = cpu_rates_per_s({i: step(i) for i in procs}, rounds=3 if quick else 5, min_cpu_s=0.3 if quick else 0.8)
+    fps = cpu_rates_per_s({i: step(i) for i in procs}, calls=120 if quick else 400)
     rows: list[TradeRow] = []
     for i, (label, p) in enumerate(rows_in):
         rs = score_real(p, real) if real else None
@@ -320,9 +317,6 @@ def measure(*, quick: bool = False, seed: int = 0) -> TradeTable:
     table = TradeTable(
         topic=TOPIC, speed_name="frames per CPU-s", error_name="tracking error % (fn+fp+id switches)/markers", data=data,
         rows=rows,
-        # rows doing identical per-frame work (refine_frames vs the default) differ by up to ~7 % in CPU
-        # time on the shared 2-core machine: a 5 % tolerance would let that noise decide the front
-        speed_tolerance=0.10,
         knobs={"kernel_px": "background closing diameter (default 15)", "kernel": "disc (default) or square",
                "refine_frames": "lattice init: frames refining the rest positions (default 10)",
                "init/baseline_frames": "old scheme: ids only after N baseline frames",
