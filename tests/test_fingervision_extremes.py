@@ -214,3 +214,17 @@ def test_tracker_timestamps_are_checked_and_gaps_bounded() -> None:
         tr.update(c, float("nan"))
     st_ = tr.update(np.full_like(c, np.nan))
     assert not st_.found.any() and np.isfinite(st_.positions_px).all()
+
+
+def test_calibration_session_on_black_frames_is_a_typed_error(tmp_path) -> None:
+    """The rig's calibration session (``tactile-rig calibrate fingervision``) on a camera seeing black."""
+    from tactile_rig.rig.calibration_sessions import fingervision_session
+
+    class Black:
+        def read(self, timeout_s: float = 1.0) -> np.ndarray:
+            return np.zeros((H, W, 3), np.uint8)
+
+    with pytest.raises(MarkersNotFound):
+        fingervision_session(Black(), tmp_path / "fv", frames=3)
+    written = {p.suffix for p in tmp_path.iterdir()}
+    assert not written & {".json", ".npz"}, "no calibration is written (the session's recording may stay)"
