@@ -190,17 +190,22 @@ def _check_setting(p: Path, name: str, value: Any, d: Any) -> None:
             _check_setting(p, f"{name}[{i}]", v, dv)
 
 
-def load_fingervision_params(path: str | Path | None, calib_frames: int | None = None) -> FingerVisionParams:
-    """FingerVisionParams from a TOML/JSON file (or the defaults), every value checked first."""
+def load_fingervision_params(path: str | Path | None, calib_frames: int | None = None,
+                             init: str | None = None) -> FingerVisionParams:
+    """FingerVisionParams from a TOML/JSON file (or the defaults), every value checked first; the
+    command line's ``calib_frames`` and ``init`` override the file's."""
     data: dict[str, Any] = {}
     if path:
         data = load_config_mapping(path, "FingerVision config")
         check_settings(data, FingerVisionParams(), path)
     if calib_frames is not None:
         data = {**data, "n_calib_frames": calib_frames}
+    if init is not None:
+        data = {**data, "init": init}
     if not path:
         return FingerVisionParams.from_mapping(data)
-    with files.checked(path, "FingerVision config", "sections detector, tracker, force, proximity of FingerVisionParams"):
+    with files.checked(path, "FingerVision config",
+                       "sections detector, tracker, force, proximity, lattice of FingerVisionParams"):
         return FingerVisionParams.from_mapping(data)
 
 

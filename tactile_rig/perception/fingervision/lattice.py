@@ -51,8 +51,11 @@ class LatticeParams:
     """A filled marker's diameter, relative to the median diameter of the lattice's detections."""
     fill_half_px: int = 6
     """Half size of the fill measurement window (px)."""
-    fill_max_mean_contrast: float = 0.55
-    """A filled marker's window must be mostly background: print fills its window with contrast."""
+    fill_max_ring_fraction: float = 0.45
+    """A filled marker is an island: at most this fraction of the ring around it (1.5-2.5 radii) may
+    have half its peak contrast (print around a dark spot fills the ring)."""
+    fill_max_value: int = 120
+    """A filled marker's centre pixel must be at most this dark (HSV value, 0..255): ink, not a shadow."""
     max_nodes: int = 400
     """Safety bound on the number of nodes (a lattice never has more markers than this)."""
 
@@ -285,13 +288,13 @@ def _measure(contrast: np.ndarray, value: np.ndarray | None, p: np.ndarray, step
              params: LatticeParams) -> tuple[np.ndarray, float] | None:
     """A marker measured at predicted position ``p`` in the contrast map, or None when none is there."""
     half = int(params.fill_half_px)
-    q, s, peak = refine_centroids(contrast, p[None, :], half, 0.5, iterations=3)
-    q, s, peak = q[0], float(s[0]), float(peak[0])
+    qs, sizes, peaks = refine_centroids(contrast, p[None, :], half, 0.5, iterations=3)
+    q, s, peak = qs[0], float(sizes[0]), float(peaks[0])
     if not (np.isfinite(q).all() and peak >= params.fill_min_peak):
         return None
     if np.hypot(*(q - p)) > params.tolerance * step:
         return None
-    lo, hi = params.fill_size_ratio
+    lo, hi = float(params.fill_size_ratio[0]), float(params.fill_size_ratio[1])
     if not lo * median_size <= s <= hi * median_size:
         return None
     h, w = contrast.shape[:2]
@@ -305,8 +308,8 @@ def _measure(contrast: np.ndarray, value: np.ndarray | None, p: np.ndarray, step
     yy, xx = np.mgrid[y0:y1, x0:x1]
     rr = np.hypot(xx - q[0], yy - q[1])
     ring = (rr >= 1.5 * r) & (rr <= 2.5 * r)
-    if np.any(ring) and float(np.mean(contrast[y0:y1, x0:x1][ring] > 0.5 * peak)) > 1.0 - params.fill_max_mean_contrast:
+    if np.any(ring) and float(np.mean(contrast[y0:y1, x0:x1][ring] > 0.5 * peak)) > params.fill_max_ring_fraction:
         return None
-    if value is not None and int(value[y, x]) > 120:
+    if value is not None and int(value[y, x]) > params.fill_max_value:
         return None
     return q, s

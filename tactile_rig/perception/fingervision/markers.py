@@ -215,6 +215,7 @@ def refine_centroids(
     rel_threshold: float = 0.5,
     iterations: int = 2,
     disc_margin_px: float | None = 1.0,
+    max_radius_px: np.ndarray | float | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Sub-pixel centroids by thresholded moments of the contrast in a window around each centre.
 
@@ -223,7 +224,9 @@ def refine_centroids(
     and silences the texture around it. The size is the diameter of the disc whose area equals the
     peak-normalised contrast mass above a quarter of the peak. After the first pass only a disc of
     the half-maximum radius + ``disc_margin_px`` around the last centroid counts (None: the whole
-    window). A window with no contrast keeps its centre and reports peak 0.
+    window), at most ``max_radius_px`` (per centre or one value: the tracker passes the marker's known
+    radius plus a margin, so print next to a marker cannot widen the disc). A window with no contrast
+    keeps its centre and reports peak 0.
     """
     centres = np.asarray(centres_xy, dtype=np.float64).reshape(-1, 2)
     n = centres.shape[0]
@@ -259,6 +262,8 @@ def refine_centroids(
         if disc_margin_px is not None:
             half_max_r = np.sqrt(np.count_nonzero(wt > 0, axis=(1, 2)) / np.pi)
             radius = half_max_r + disc_margin_px
+            if max_radius_px is not None:
+                radius = np.minimum(radius, max_radius_px)
     return pos, np.where(peak > 0, size, 0.0), peak
 
 

@@ -158,9 +158,9 @@ class FingerVision:
         self._shape: tuple[int, ...] | None = None
         # running sums of the measured positions/sizes while the baseline refines (lattice init)
         self._refine_left = 0
-        self._sum_pos: np.ndarray | None = None
-        self._sum_size: np.ndarray | None = None
-        self._n_seen: np.ndarray | None = None
+        self._sum_pos = np.zeros((0, 2))
+        self._sum_size = np.zeros(0)
+        self._n_seen = np.zeros(0, np.int64)
 
     # -- calibration -----------------------------------------------------------------------------
     def calibrate(self, frames_bgr: list[np.ndarray]) -> MarkerBaseline:
@@ -227,7 +227,9 @@ class FingerVision:
             self.set_baseline(MarkerBaseline(lat.positions_px.copy(), lat.sizes_px.copy(), np.ones(n, bool)))
             self._refine_left = refine_frames
             self._sum_pos, self._sum_size, self._n_seen = np.zeros((n, 2)), np.zeros(n), np.zeros(n, np.int64)
-        st = self.tracker.update(contrast, t_s)
+        tracker = self.tracker
+        assert tracker is not None
+        st = tracker.update(contrast, t_s)
         if self._refine_left > 0:
             if len(self._bg_frames) < self.params.n_background_frames:
                 self._bg_frames.append(frame)
@@ -244,7 +246,7 @@ class FingerVision:
         """Rest positions := mean measured positions of the refinement frames; the ids stay."""
         base = self.baseline if self.baseline is not None else MarkerBaseline(
             np.zeros((0, 2)), np.zeros(0), np.zeros(0, bool))
-        if self._n_seen is not None and len(base):
+        if len(self._n_seen) == len(base) and len(base) and self.tracker is not None:
             seen = self._n_seen > 0
             pos = base.positions_px.copy()
             size = base.sizes_px.copy()
@@ -257,7 +259,7 @@ class FingerVision:
         if self._bg_frames:
             self.proximity.set_background(self._bg_frames)
         self._refine_left = 0
-        self._sum_pos = self._sum_size = self._n_seen = None
+        self._sum_pos, self._sum_size, self._n_seen = np.zeros((0, 2)), np.zeros(0), np.zeros(0, np.int64)
         self._bg_frames = []
         return base
 
@@ -290,7 +292,7 @@ class FingerVision:
                     t_s, True, z.astype(np.int64), np.zeros((0, 2)), z, z.astype(bool), z.astype(bool),
                     np.zeros(3), np.zeros(3), 0.0, None, None, False, 0.0, None, False, times)
             return FingerVisionResult(
-                t_s, True, st.ids, st.positions_px, st.sizes_px, st.valid & st.found, st.found,
+                t_s, True, st.ids, st.positions_px, st.sizes_px, st.valid, st.found,
                 np.zeros(3), np.zeros(3), 0.0, None, None, False, 0.0, None, False, times)
         if self.tracker is None:
             det = self._add_calibration_frame(frame_bgr, value, bg, contrast)

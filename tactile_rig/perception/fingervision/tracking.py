@@ -37,6 +37,9 @@ class TrackerParams:
     """Half size of the re-detection window around the rest position of a lost marker."""
     rel_threshold: float = 0.5
     """Fraction of the window's peak contrast below which pixels do not count in the centroid."""
+    disc_margin_px: float | None = 1.0
+    """After the first centroid pass only a disc of the marker's radius + this counts (print next to a
+    marker cannot pull it); None: the half-maximum disc of the window, however wide."""
     min_peak_contrast: float = 0.3
     """A window whose peak contrast is lower holds no marker (contrast map units, 0..1)."""
     max_jump_px: float = 5.0
@@ -243,7 +246,8 @@ class MarkerTracker:
         for half, sel in ((p.window_half_px, active), (p.lost_window_half_px, self.lost)):
             if np.any(sel):
                 meas[sel], size[sel], peak[sel] = refine_centroids(
-                    contrast, predicted[sel], half, p.rel_threshold
+                    contrast, predicted[sel], half, p.rel_threshold,
+                    max_radius_px=None if p.disc_margin_px is None else self.sizes_px[sel] / 2 + p.disc_margin_px,
                 )
         h, w = contrast.shape[:2]
         ref_pos = np.where(self.lost[:, None], self.baseline.positions_px, predicted)
