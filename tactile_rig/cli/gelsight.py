@@ -131,6 +131,7 @@ _REG_FLAGS: tuple[tuple[str, type, str], ...] = (
     ("min_overlap", float, "overlap (fraction of A's steep pixels) below this is refused"),
     ("max_sigma_rot_deg", float, "refuse when the dense fit pins rotation worse than this (1 sigma, deg)"),
     ("max_sigma_px", float, "refuse when the dense fit pins translation worse than this (1 sigma, px)"),
+    ("min_rotation_pinning", float, "refuse rotation-symmetric content (rotation vs translation information)"),
     ("detect_short_px", int, "keypoints are found on the map resized to this short side (px)"),
     ("orb_features", int, "ORB keypoints per touch-sized image"),
 )

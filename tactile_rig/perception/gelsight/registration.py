@@ -90,7 +90,13 @@ class RegistrationParams:
     refusal of the keypoint answer; min_confidence: the paper's c below this is refused (the tactile
     map accepts at 0.98); min_ncc: the dense check on the overlap; dense_fallback: try Fourier–Mellin
     when keypoints fail; refine: Gauss–Newton polish on dense_samples steep pixels (sub-pixel);
-    max_sigma_rot_deg / max_sigma_px: refuse when the dense fit cannot pin rotation/translation.
+    max_sigma_rot_deg / max_sigma_px: refuse when the dense fit cannot pin rotation/translation
+    (1-sigma from the Gauss-Newton information and the residual); min_rotation_pinning: refuse
+    rotation-symmetric content (rotation information over translation information x radius^2: a
+    lone smooth dome reads 0.01-0.02, one real press with gel texture 0.14-0.2, texture ~1);
+    dense_highpass_px: the polish compares heights minus their low-pass of this sigma (0: plain
+    heights), which removes the press-depth and gel-blur differences of independent re-touches;
+    dense_gain: the polish also fits a height gain between the touches (a deeper press).
     """
 
     detector: str = "orb"
@@ -107,14 +113,17 @@ class RegistrationParams:
     inlier_px: float = 2.0
     min_inliers: int = 8
     min_confidence: float = 0.9
-    min_ncc: float = 0.6
+    min_ncc: float = 0.9
     min_overlap: float = 0.2
     dense_fallback: bool = True
     refine: bool = True
     dense_samples: int = 2000
     refine_iters: int = 5
-    max_sigma_rot_deg: float = 0.1
-    max_sigma_px: float = 0.1
+    max_sigma_rot_deg: float = 0.25
+    max_sigma_px: float = 0.25
+    min_rotation_pinning: float = 0.05
+    dense_highpass_px: float = 0.0
+    dense_gain: bool = False
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -188,6 +197,17 @@ def _blur(z: np.ndarray, sigma: float) -> np.ndarray:
     return cv2.blur(cv2.blur(z, (k, k)), (k, k))
 
 
+def _lowpass(z: np.ndarray, sigma_px: float, valid: np.ndarray | None) -> np.ndarray:
+    """Box-Gaussian low-pass; over ``valid`` only (normalised convolution) when given, so the zeros
+    outside a tactile map's coverage do not leak into its edge."""
+    if valid is None:
+        return _blur(z, sigma_px)
+    w = valid.astype(np.float32)
+    num = _blur(z * w, sigma_px)
+    den = _blur(w, sigma_px)
+    return num / np.maximum(den, 1e-3)
+
+
 def render_u8(height_mm: np.ndarray, band_px: tuple[float, float] = (0.0, 4.0),
               valid: np.ndarray | None = None) -> np.ndarray:
     """8-bit image for keypoints: band-passed height (difference of blurs) plus a little of the
@@ -243,6 +263,11 @@ def extract_features(height_mm: np.ndarray, params: RegistrationParams = Registr
     resize factor (default from this map's own shape; pass the touch's for a large map)."""
     z = _check_height(height_mm, "height_mm")
     smooth = cv2.GaussianBlur(z, (0, 0), 1.0)
+    if params.dense_highpass_px > 0:
+        # The dense polish compares high-passed heights: an independent re-touch pressed deeper or
+        # through a softer gel differs from the map mostly at low spatial frequencies (the bowl of
+        # the press, the integrator's offsets), which would bias the alignment by pixels.
+        smooth = cv2.subtract(smooth, _lowpass(z, params.dense_highpass_px, valid))
     # The checked map and its range ride along, so register() need not re-check a cached reference.
     feats = Features(smooth=smooth, height=z, ptp_mm=_ptp(z))
     if dense:
@@ -482,12 +507,13 @@ class DenseFit:
     overlap: float = 0.0
     sigma_rot_deg: float = float("inf")
     sigma_px: float = float("inf")
+    rotation_pinning: float = 0.0
 
 
 def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, iters: int = 5,
-                 noise_mm: float = 2e-3) -> DenseFit:
+                 noise_mm: float = 2e-3, gain_fit: bool = False) -> DenseFit:
     """Gauss–Newton polish of a B->A rigid transform on A's steep pixels (rotation, translation and
-    a height offset between the touches)."""
+    a height offset between the touches; with ``gain_fit`` also a height gain in [0.5, 2])."""
     xy, za = fa.sample_xy, fa.sample_z
     if xy is None or za is None or len(xy) < 8:
         return DenseFit(matrix_px)
@@ -497,7 +523,7 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
     inv = cv2.invertAffineTransform(matrix_px)  # A px -> B px
     th = float(np.arctan2(inv[1, 0], inv[0, 0]))
     t = inv[:, 2].astype(np.float64).copy()
-    bias = 0.0
+    bias, gain = 0.0, 1.0
     x, y = xy[:, 0].astype(np.float64), xy[:, 1].astype(np.float64)
     start = (th, t.copy())
     for _ in range(iters):
@@ -512,13 +538,16 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
         else:
             zo = za
         zb, bx, by = _sample(zgb, u, v).T
-        j = np.empty((n_ok, 4))
+        npar = 5 if gain_fit else 4
+        j = np.empty((n_ok, npar))
         # d(u, v)/d(theta) = (-(v - t_y), u - t_x): no second rotation of the samples.
-        j[:, 0] = by * (u - t[0]) - bx * (v - t[1])
-        j[:, 1], j[:, 2], j[:, 3] = bx, by, 1.0
-        r = zb + bias - zo
+        j[:, 0] = gain * (by * (u - t[0]) - bx * (v - t[1]))
+        j[:, 1], j[:, 2], j[:, 3] = gain * bx, gain * by, 1.0
+        if gain_fit:
+            j[:, 4] = zb
+        r = gain * zb + bias - zo
         hess = j.T @ j
-        hess[np.diag_indices(4)] *= 1.0 + 1e-6
+        hess[np.diag_indices(npar)] *= 1.0 + 1e-6
         try:
             d = -np.linalg.solve(hess, j.T @ r)
         except np.linalg.LinAlgError:
@@ -526,6 +555,9 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
         th += d[0]
         t += d[1:3]
         bias += d[3]
+        if gain_fit:
+            # A re-touch pressed deeper shows its relief a little higher: a bounded height gain.
+            gain = float(np.clip(gain + d[4], 0.5, 2.0))
         if abs(d[0]) < 1e-6 and abs(d[1]) + abs(d[2]) < 1e-4:
             break
     # GN can wander on flat content: a large move away from the coarse answer is not trusted.
@@ -547,13 +579,23 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
     xo, yo = x[ok], y[ok]
     # Rotate about the samples' centroid so the angle's information is not mixed with translation.
     xo, yo = xo - xo.mean(), yo - yo.mean()
-    j = np.stack([bx * (-s_ * xo - c * yo) + by * (c * xo - s_ * yo), bx, by, np.ones_like(bx)], 1)
-    resid = b_ - a_
+    j = np.stack([gain * (bx * (-s_ * xo - c * yo) + by * (c * xo - s_ * yo)), gain * bx, gain * by,
+                  np.ones_like(bx)], 1)
+    resid = gain * b_ - a_
     var = max(float(resid @ resid) / max(len(resid) - 4, 1), noise_mm ** 2)
     try:
-        cov = var * np.linalg.inv(j.T @ j)
+        inv_info = np.linalg.inv(j.T @ j)
+        cov = var * inv_info
         fit.sigma_rot_deg = float(np.degrees(np.sqrt(max(cov[0, 0], 0.0))))
         fit.sigma_px = float(np.sqrt(max(cov[1, 1], 0.0) + max(cov[2, 2], 0.0)))
+        # How much the content pins rotation compared with translation, whatever the noise: the
+        # rotation information (after translation and offset are solved) over the translation
+        # information times the samples' squared radius. ~0 for a rotation-symmetric dome, O(0.1-1)
+        # for texture. Unlike sigma it does not shrink on a noise-free (resampled) map.
+        r2 = float(np.mean(xo * xo + yo * yo))
+        info_rot = 1.0 / max(inv_info[0, 0], 1e-300)
+        info_t = 0.5 * (1.0 / max(inv_info[1, 1], 1e-300) + 1.0 / max(inv_info[2, 2], 1e-300))
+        fit.rotation_pinning = float(np.sqrt(info_rot / max(info_t * r2, 1e-300)))
     except np.linalg.LinAlgError:
         pass
     return fit
@@ -585,6 +627,12 @@ def _dense_fourier_mellin(height_a: np.ndarray, height_b: np.ndarray) -> tuple[n
         if ncc > best[1]:
             best = (m, ncc)
     return best[0], best[1]  # type: ignore[return-value]
+
+
+def _pinned(fit: DenseFit, params: RegistrationParams) -> bool:
+    """The dense fit pins the pose: small 1-sigma errors and content that is not rotation-symmetric."""
+    return (fit.sigma_rot_deg <= params.max_sigma_rot_deg and fit.sigma_px <= params.max_sigma_px
+            and fit.rotation_pinning >= params.min_rotation_pinning)
 
 
 def _result(ok: bool, m_px: np.ndarray | None, shape_a: tuple[int, int], shape_b: tuple[int, int],
@@ -654,9 +702,10 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
         if m is not None and n_inl >= params.min_inliers:
             conf = homography_confidence(pb[mask], pa[mask])
             if conf >= params.min_confidence:
-                fit = dense_refine(fa, fb.smooth, m, params.refine_iters if params.refine else 0)  # type: ignore[arg-type]
+                fit = dense_refine(fa, fb.smooth, m, params.refine_iters if params.refine else 0,  # type: ignore[arg-type]
+                               gain_fit=params.dense_gain)
                 if fit.ncc >= params.min_ncc and fit.overlap >= params.min_overlap:
-                    if fit.sigma_rot_deg <= params.max_sigma_rot_deg and fit.sigma_px <= params.max_sigma_px:
+                    if _pinned(fit, params):
                         return _result(True, fit.matrix_px, *shapes, scale, conf, n_inl, method, None,  # type: ignore[arg-type]
                                        len(pa), fit.ncc)
                     keypoint_reason = INSUFFICIENT_TEXTURE
@@ -670,10 +719,11 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
     if params.dense_fallback and a.shape == b.shape:
         m, ncc = _dense_fourier_mellin(a, b)
         if m is not None and ncc >= params.min_ncc:
-            fit = dense_refine(fa, fb.smooth, m, params.refine_iters if params.refine else 0)  # type: ignore[arg-type]
+            fit = dense_refine(fa, fb.smooth, m, params.refine_iters if params.refine else 0,  # type: ignore[arg-type]
+                               gain_fit=params.dense_gain)
             ncc = fit.ncc
             if (fit.ncc >= max(params.min_ncc, 0.8) and fit.overlap >= params.min_overlap
-                    and fit.sigma_rot_deg <= params.max_sigma_rot_deg and fit.sigma_px <= params.max_sigma_px):
+                    and _pinned(fit, params)):
                 return _result(True, fit.matrix_px, *shapes, scale, 1.0, 0, "dense_fourier_mellin", None,  # type: ignore[arg-type]
                                len(pa), fit.ncc)
         method += "+dense"

@@ -20,6 +20,7 @@ from tactile_rig.perception.gelsight.registration import (
     RegistrationParams,
     RegistrationResult,
     _check_height,
+    _pinned,
     _result,
     dense_refine,
     detect_scale,
@@ -156,8 +157,7 @@ class TactileMap:
         fa = self._map_features()
         fb = extract_features(z, self.params, dense=False)
         fit = dense_refine(fa, fb.smooth, self._mm_to_px(hint_mm, z.shape), self.params.refine_iters)  # type: ignore[arg-type]
-        ok = (fit.ncc >= self.params.min_ncc and fit.overlap >= self.params.min_overlap
-              and fit.sigma_rot_deg <= self.params.max_sigma_rot_deg and fit.sigma_px <= self.params.max_sigma_px)
+        ok = fit.ncc >= self.params.min_ncc and fit.overlap >= self.params.min_overlap and _pinned(fit, self.params)
         assert self.total is not None
         if not ok:
             return _result(False, None, self.total.shape, z.shape, (self.mm_per_px,) * 2, 0.0, 0, "hint",  # type: ignore[arg-type]
