@@ -21,6 +21,7 @@ from tactile_rig.rig.trade.table import TradeRow, TradeTable
 
 # Topic name -> module; topics import heavy pieces (renderers, scene models), so load on demand.
 TOPICS: dict[str, str] = {}
+TOPICS.update(gelsight="tactile_rig.rig.trade.gelsight", registration="tactile_rig.rig.trade.registration")
 
 
 def topic_module(name: str) -> ModuleType:
