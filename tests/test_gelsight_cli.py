@@ -88,3 +88,12 @@ def test_errors_are_one_line_exit_2(tmp_path, capsys, presses) -> None:
     assert main(["gelsight", "calibrate", str(tmp_path), "--mm-per-px", MM, "--ball-radius-mm", "2",
                  "-o", str(tmp_path / "c")]) == 2
     assert "labels.csv" in capsys.readouterr().err
+
+
+def test_height_files_are_the_bytes_np_save_writes(tmp_path) -> None:
+    from tactile_rig.cli.gelsight import _npy_writer
+
+    z = np.random.default_rng(0).normal(size=(24, 32)).astype(np.float32)
+    _npy_writer(z.shape, np.float32)(tmp_path / "ours.npy", z)
+    np.save(tmp_path / "ref.npy", z)
+    assert (tmp_path / "ours.npy").read_bytes() == (tmp_path / "ref.npy").read_bytes()

@@ -87,20 +87,39 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _npy_writer(shape: tuple[int, ...], dtype: np.dtype):
+    """A writer of .npy files for arrays of one shape and dtype: the header (np.save's format) is
+    built once, then each file is the header plus the array's bytes (no per-file formatting)."""
+    import io
+
+    buf = io.BytesIO()
+    np.lib.format.write_array_header_1_0(buf, {"descr": np.lib.format.dtype_to_descr(np.dtype(dtype)),
+                                               "fortran_order": False, "shape": tuple(shape)})
+    header = buf.getvalue()
+
+    def write(path: Path, arr: np.ndarray) -> None:
+        with open(path, "wb") as fh:
+            fh.write(header)
+            fh.write(np.ascontiguousarray(arr, dtype).data)
+
+    return write
+
+
 def _cmd_height(args: argparse.Namespace) -> int:
     rec = _reconstructor(args.calib, args.background, args.solver)
     out = Path(args.output)
     written = []
+    write = _npy_writer(rec.calibration.shape, np.float32)
     if len(args.images) == 1:
         target = out if out.suffix == ".npy" else out.with_suffix(".npy")
         target.parent.mkdir(parents=True, exist_ok=True)
-        np.save(target, rec.height_mm(_read_image(args.images[0])))
+        write(target, rec.height_mm(_read_image(args.images[0])))
         written.append(str(target))
     else:
         out.mkdir(parents=True, exist_ok=True)
         for img in args.images:
             target = out / (Path(img).stem + ".npy")
-            np.save(target, rec.height_mm(_read_image(img)))
+            write(target, rec.height_mm(_read_image(img)))
             written.append(str(target))
     if args.json:
         print_json({"written": written})
