@@ -162,17 +162,26 @@ def _detector(name: str, params: "RegistrationParams") -> cv2.Feature2D:
 def _check_height(h: object, name: str) -> np.ndarray:
     """A height map as float32: 2-D, >= 16x16, real; non-finite pixels (unknown) read 0 mm; heights
     beyond +-MAX_ABS_HEIGHT_MM raise :class:`HeightOutOfRange`."""
+    return _check_height_valid(h, name)[0]
+
+
+def _check_height_valid(h: object, name: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """:func:`_check_height` and the mask of known (finite) pixels, None when all are known."""
     if not isinstance(h, np.ndarray):
         raise ValueError(f"{name}: expected a numpy array, got {type(h).__name__}")
     if h.ndim != 2 or min(h.shape) < 16:
         raise ValueError(f"{name}: expected a 2-D height map of at least 16x16 pixels, got shape {h.shape}")
     if not (np.issubdtype(h.dtype, np.floating) or np.issubdtype(h.dtype, np.integer)) or h.dtype == np.float16:
         raise ValueError(f"{name}: expected a real numeric dtype (float32/64 or integer), got {h.dtype}")
+    valid = None
     if h.dtype == np.float32:
         z = h  # clean float32 input (the common case) is used as is: nan_to_num would copy every call
         if not np.isfinite(z).all():
+            valid = np.isfinite(z)
             z = np.nan_to_num(z, nan=0.0, posinf=0.0, neginf=0.0)
     else:
+        finite = np.isfinite(h)
+        valid = None if finite.all() else finite
         z = np.nan_to_num(h.astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
     lo, hi = cv2.minMaxLoc(z)[:2]
     peak = max(-lo, hi)
@@ -180,7 +189,7 @@ def _check_height(h: object, name: str) -> np.ndarray:
         raise HeightOutOfRange(f"{name}: a height of {peak:.3g} mm; a gel height map stays within "
                                f"+-{MAX_ABS_HEIGHT_MM:g} mm (is it in mm?)", device="gelsight.registration",
                                value=float(peak), limit=MAX_ABS_HEIGHT_MM)
-    return z if z.dtype == np.float32 else z.astype(np.float32)
+    return (z if z.dtype == np.float32 else z.astype(np.float32)), valid
 
 
 def _ptp(z: np.ndarray) -> float:
@@ -246,6 +255,7 @@ class Features:
     sample_z: np.ndarray | None = None
     height: np.ndarray | None = None
     ptp_mm: float = float("nan")
+    valid: np.ndarray | None = None
     train_bits: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
 
@@ -261,7 +271,9 @@ def extract_features(height_mm: np.ndarray, params: RegistrationParams = Registr
     """Keypoints and descriptors of a height map (reuse for a map matched many times); with
     ``dense`` also the steep-pixel samples used when this map is the reference A. scale: detection
     resize factor (default from this map's own shape; pass the touch's for a large map)."""
-    z = _check_height(height_mm, "height_mm")
+    z, known = _check_height_valid(height_mm, "height_mm")
+    if known is not None:
+        valid = known if valid is None else (valid & known)
     smooth = cv2.GaussianBlur(z, (0, 0), 1.0)
     if params.dense_highpass_px > 0:
         # The dense polish compares high-passed heights: an independent re-touch pressed deeper or
@@ -269,7 +281,7 @@ def extract_features(height_mm: np.ndarray, params: RegistrationParams = Registr
         # the press, the integrator's offsets), which would bias the alignment by pixels.
         smooth = cv2.subtract(smooth, _lowpass(z, params.dense_highpass_px, valid))
     # The checked map and its range ride along, so register() need not re-check a cached reference.
-    feats = Features(smooth=smooth, height=z, ptp_mm=_ptp(z))
+    feats = Features(smooth=smooth, height=z, ptp_mm=_ptp(z), valid=valid)
     if dense:
         feats.sample_xy, feats.sample_z = _dense_samples(smooth, params.dense_samples, valid)
     k = detect_scale(params, z.shape) if scale is None else float(scale)
@@ -511,7 +523,7 @@ class DenseFit:
 
 
 def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, iters: int = 5,
-                 noise_mm: float = 2e-3, gain_fit: bool = False) -> DenseFit:
+                 noise_mm: float = 2e-3, gain_fit: bool = False, valid_b: np.ndarray | None = None) -> DenseFit:
     """Gauss–Newton polish of a B->A rigid transform on A's steep pixels (rotation, translation and
     a height offset between the touches; with ``gain_fit`` also a height gain in [0.5, 2])."""
     xy, za = fa.sample_xy, fa.sample_z
@@ -520,6 +532,9 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
     h, w = smooth_b.shape
     # Height and both slopes of B in one 3-channel image: one remap per iteration instead of three.
     zgb = cv2.merge([smooth_b, *_grad(smooth_b)])
+    if valid_b is not None:
+        # A's samples that land on B's unknown pixels (NaN in B) are left out of the fit.
+        zgb = cv2.merge([smooth_b, *_grad(smooth_b), valid_b.astype(np.float32)])
     inv = cv2.invertAffineTransform(matrix_px)  # A px -> B px
     th = float(np.arctan2(inv[1, 0], inv[0, 0]))
     t = inv[:, 2].astype(np.float64).copy()
@@ -537,7 +552,13 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
             u, v, zo = u[ok], v[ok], za[ok]
         else:
             zo = za
-        zb, bx, by = _sample(zgb, u, v).T
+        zb, bx, by, *vb = _sample(zgb, u, v).T
+        if vb:
+            keep = vb[0] > 0.999
+            if keep.sum() < 8:
+                break
+            zb, bx, by, u, v, zo = zb[keep], bx[keep], by[keep], u[keep], v[keep], zo[keep]
+            n_ok = int(keep.sum())
         npar = 5 if gain_fit else 4
         j = np.empty((n_ok, npar))
         # d(u, v)/d(theta) = (-(v - t_y), u - t_x): no second rotation of the samples.
@@ -571,12 +592,17 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
     fit = DenseFit(cv2.invertAffineTransform(fwd).astype(np.float64), overlap=n_ok / len(x))
     if n_ok < 8:
         return fit
-    zb, bx, by = _sample(zgb, u[ok], v[ok]).T
-    a_ = za[ok] - za[ok].mean()
+    zb, bx, by, *vb = _sample(zgb, u[ok], v[ok]).T
+    xo, yo, zo = x[ok], y[ok], za[ok]
+    if vb:
+        keep = vb[0] > 0.999
+        if keep.sum() < 8:
+            return fit
+        zb, bx, by, xo, yo, zo = zb[keep], bx[keep], by[keep], xo[keep], yo[keep], zo[keep]
+    a_ = zo - zo.mean()
     b_ = zb - zb.mean()
     den = np.sqrt((a_ * a_).sum() * (b_ * b_).sum())
     fit.ncc = float((a_ * b_).sum() / den) if den > 1e-18 else 0.0
-    xo, yo = x[ok], y[ok]
     # Rotate about the samples' centroid so the angle's information is not mixed with translation.
     xo, yo = xo - xo.mean(), yo - yo.mean()
     j = np.stack([gain * (bx * (-s_ * xo - c * yo) + by * (c * xo - s_ * yo)), gain * bx, gain * by,
@@ -703,7 +729,7 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
             conf = homography_confidence(pb[mask], pa[mask])
             if conf >= params.min_confidence:
                 fit = dense_refine(fa, fb.smooth, m, params.refine_iters if params.refine else 0,  # type: ignore[arg-type]
-                               gain_fit=params.dense_gain)
+                               gain_fit=params.dense_gain, valid_b=fb.valid)
                 if fit.ncc >= params.min_ncc and fit.overlap >= params.min_overlap:
                     if _pinned(fit, params):
                         return _result(True, fit.matrix_px, *shapes, scale, conf, n_inl, method, None,  # type: ignore[arg-type]
@@ -720,7 +746,7 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
         m, ncc = _dense_fourier_mellin(a, b)
         if m is not None and ncc >= params.min_ncc:
             fit = dense_refine(fa, fb.smooth, m, params.refine_iters if params.refine else 0,  # type: ignore[arg-type]
-                               gain_fit=params.dense_gain)
+                               gain_fit=params.dense_gain, valid_b=fb.valid)
             ncc = fit.ncc
             if (fit.ncc >= max(params.min_ncc, 0.8) and fit.overlap >= params.min_overlap
                     and _pinned(fit, params)):

@@ -156,7 +156,8 @@ class TactileMap:
     def _from_hint(self, z: np.ndarray, hint_mm: np.ndarray) -> RegistrationResult:
         fa = self._map_features()
         fb = extract_features(z, self.params, dense=False)
-        fit = dense_refine(fa, fb.smooth, self._mm_to_px(hint_mm, z.shape), self.params.refine_iters)  # type: ignore[arg-type]
+        fit = dense_refine(fa, fb.smooth, self._mm_to_px(hint_mm, z.shape), self.params.refine_iters,  # type: ignore[arg-type]
+                           gain_fit=self.params.dense_gain, valid_b=fb.valid)
         ok = fit.ncc >= self.params.min_ncc and fit.overlap >= self.params.min_overlap and _pinned(fit, self.params)
         assert self.total is not None
         if not ok:
