@@ -96,7 +96,9 @@ class RegistrationParams:
     lone smooth dome reads 0.01-0.02, one real press with gel texture 0.14-0.2, texture ~1);
     dense_highpass_px: the polish compares heights minus their low-pass of this sigma (0: plain
     heights), which removes the press-depth and gel-blur differences of independent re-touches;
-    dense_gain: the polish also fits a height gain between the touches (a deeper press).
+    dense_gain: the polish also fits a height gain between the touches (a deeper press);
+    dense_bias_order: the height difference between the touches the polish allows: 0 a constant, 1 a
+    plane, 2 a quadratic surface (the bowl of a deeper press).
     """
 
     detector: str = "orb"
@@ -123,7 +125,8 @@ class RegistrationParams:
     max_sigma_px: float = 0.25
     min_rotation_pinning: float = 0.05
     dense_highpass_px: float = 0.0
-    dense_gain: bool = False
+    dense_gain: bool = True
+    dense_bias_order: int = 2
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -522,10 +525,25 @@ class DenseFit:
     rotation_pinning: float = 0.0
 
 
+def _bias_basis(x: np.ndarray, y: np.ndarray, order: int) -> np.ndarray:
+    """Columns 1 (order 0), + x, y (1), + x^2, xy, y^2 (2) on coordinates centred and scaled to ~1."""
+    xn = (x - x.mean()) / max(float(x.std()), 1.0)
+    yn = (y - y.mean()) / max(float(y.std()), 1.0)
+    cols = [np.ones_like(xn)]
+    if order >= 1:
+        cols += [xn, yn]
+    if order >= 2:
+        cols += [xn * xn, xn * yn, yn * yn]
+    return np.stack(cols, 1)
+
+
 def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, iters: int = 5,
-                 noise_mm: float = 2e-3, gain_fit: bool = False, valid_b: np.ndarray | None = None) -> DenseFit:
-    """Gauss–Newton polish of a B->A rigid transform on A's steep pixels (rotation, translation and
-    a height offset between the touches; with ``gain_fit`` also a height gain in [0.5, 2])."""
+                 noise_mm: float = 2e-3, gain_fit: bool = False, valid_b: np.ndarray | None = None,
+                 bias_order: int = 0) -> DenseFit:
+    """Gauss–Newton polish of a B->A rigid transform on A's steep pixels: rotation, translation,
+    a height offset between the touches (with ``bias_order`` 1 or 2 a plane or quadratic surface in
+    A's frame: the tilt or bowl by which an independent re-touch differs) and, with ``gain_fit``, a
+    height gain in [0.5, 2]. Samples landing outside B or on its unknown pixels are left out."""
     xy, za = fa.sample_xy, fa.sample_z
     if xy is None or za is None or len(xy) < 8:
         return DenseFit(matrix_px)
@@ -533,40 +551,52 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
     # Height and both slopes of B in one 3-channel image: one remap per iteration instead of three.
     zgb = cv2.merge([smooth_b, *_grad(smooth_b)])
     if valid_b is not None:
-        # A's samples that land on B's unknown pixels (NaN in B) are left out of the fit.
         zgb = cv2.merge([smooth_b, *_grad(smooth_b), valid_b.astype(np.float32)])
     inv = cv2.invertAffineTransform(matrix_px)  # A px -> B px
     th = float(np.arctan2(inv[1, 0], inv[0, 0]))
     t = inv[:, 2].astype(np.float64).copy()
-    bias, gain = 0.0, 1.0
+    gain = 1.0
     x, y = xy[:, 0].astype(np.float64), xy[:, 1].astype(np.float64)
+    basis = _bias_basis(x, y, int(bias_order))
+    nb = basis.shape[1]
+    coef = np.zeros(nb)
     start = (th, t.copy())
-    for _ in range(iters):
+
+    def gather(th: float, t: np.ndarray):
         c, s_ = np.cos(th), np.sin(th)
         u = c * x - s_ * y + t[0]
         v = s_ * x + c * y + t[1]
         ok, n_ok = _inside(u, v, w, h)
         if n_ok < 8:
-            break
-        if n_ok < len(x):  # fancy indexing only when some samples fall outside B
-            u, v, zo = u[ok], v[ok], za[ok]
-        else:
-            zo = za
+            return None
+        idx = np.flatnonzero(ok) if n_ok < len(x) else None
+        if idx is not None:
+            u, v = u[idx], v[idx]
         zb, bx, by, *vb = _sample(zgb, u, v).T
         if vb:
             keep = vb[0] > 0.999
             if keep.sum() < 8:
-                break
-            zb, bx, by, u, v, zo = zb[keep], bx[keep], by[keep], u[keep], v[keep], zo[keep]
-            n_ok = int(keep.sum())
-        npar = 5 if gain_fit else 4
-        j = np.empty((n_ok, npar))
+                return None
+            idx = np.flatnonzero(keep) if idx is None else idx[keep]
+            zb, bx, by, u, v = zb[keep], bx[keep], by[keep], u[keep], v[keep]
+        sel = slice(None) if idx is None else idx
+        return sel, u, v, zb, bx, by, n_ok
+
+    for _ in range(iters):
+        got = gather(th, t)
+        if got is None:
+            break
+        sel, u, v, zb, bx, by, _n = got
+        zo, bas = za[sel], basis[sel]
+        npar = 3 + nb + (1 if gain_fit else 0)
+        j = np.empty((len(zb), npar))
         # d(u, v)/d(theta) = (-(v - t_y), u - t_x): no second rotation of the samples.
         j[:, 0] = gain * (by * (u - t[0]) - bx * (v - t[1]))
-        j[:, 1], j[:, 2], j[:, 3] = gain * bx, gain * by, 1.0
+        j[:, 1], j[:, 2] = gain * bx, gain * by
+        j[:, 3:3 + nb] = bas
         if gain_fit:
-            j[:, 4] = zb
-        r = gain * zb + bias - zo
+            j[:, -1] = zb
+        r = gain * zb + bas @ coef - zo
         hess = j.T @ j
         hess[np.diag_indices(npar)] *= 1.0 + 1e-6
         try:
@@ -575,40 +605,36 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
             break
         th += d[0]
         t += d[1:3]
-        bias += d[3]
+        coef += d[3:3 + nb]
         if gain_fit:
             # A re-touch pressed deeper shows its relief a little higher: a bounded height gain.
-            gain = float(np.clip(gain + d[4], 0.5, 2.0))
+            gain = float(np.clip(gain + d[-1], 0.5, 2.0))
         if abs(d[0]) < 1e-6 and abs(d[1]) + abs(d[2]) < 1e-4:
             break
     # GN can wander on flat content: a large move away from the coarse answer is not trusted.
     if abs(th - start[0]) > np.radians(6.0) or np.abs(t - start[1]).max() > 8.0 or not np.isfinite(th):
         th, t = start
     c, s_ = np.cos(th), np.sin(th)
-    u = c * x - s_ * y + t[0]
-    v = s_ * x + c * y + t[1]
-    ok, n_ok = _inside(u, v, w, h)
     fwd = np.array([[c, -s_, t[0]], [s_, c, t[1]]])
-    fit = DenseFit(cv2.invertAffineTransform(fwd).astype(np.float64), overlap=n_ok / len(x))
-    if n_ok < 8:
+    u_all = c * x - s_ * y + t[0]
+    v_all = s_ * x + c * y + t[1]
+    fit = DenseFit(cv2.invertAffineTransform(fwd).astype(np.float64),
+                   overlap=_inside(u_all, v_all, w, h)[1] / len(x))
+    got = gather(th, t)
+    if got is None:
         return fit
-    zb, bx, by, *vb = _sample(zgb, u[ok], v[ok]).T
-    xo, yo, zo = x[ok], y[ok], za[ok]
-    if vb:
-        keep = vb[0] > 0.999
-        if keep.sum() < 8:
-            return fit
-        zb, bx, by, xo, yo, zo = zb[keep], bx[keep], by[keep], xo[keep], yo[keep], zo[keep]
+    sel, _u, _v, zb, bx, by, _n = got
+    xo, yo, bas = x[sel], y[sel], basis[sel]
+    zo = za[sel] - bas @ coef  # A's heights with the fitted surface between the touches removed
     a_ = zo - zo.mean()
     b_ = zb - zb.mean()
     den = np.sqrt((a_ * a_).sum() * (b_ * b_).sum())
     fit.ncc = float((a_ * b_).sum() / den) if den > 1e-18 else 0.0
     # Rotate about the samples' centroid so the angle's information is not mixed with translation.
     xo, yo = xo - xo.mean(), yo - yo.mean()
-    j = np.stack([gain * (bx * (-s_ * xo - c * yo) + by * (c * xo - s_ * yo)), gain * bx, gain * by,
-                  np.ones_like(bx)], 1)
+    j = np.column_stack([gain * (bx * (-s_ * xo - c * yo) + by * (c * xo - s_ * yo)), gain * bx, gain * by, bas])
     resid = gain * b_ - a_
-    var = max(float(resid @ resid) / max(len(resid) - 4, 1), noise_mm ** 2)
+    var = max(float(resid @ resid) / max(len(resid) - j.shape[1], 1), noise_mm ** 2)
     try:
         inv_info = np.linalg.inv(j.T @ j)
         cov = var * inv_info
@@ -729,7 +755,8 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
             conf = homography_confidence(pb[mask], pa[mask])
             if conf >= params.min_confidence:
                 fit = dense_refine(fa, fb.smooth, m, params.refine_iters if params.refine else 0,  # type: ignore[arg-type]
-                               gain_fit=params.dense_gain, valid_b=fb.valid)
+                               gain_fit=params.dense_gain, valid_b=fb.valid,
+                                   bias_order=params.dense_bias_order)
                 if fit.ncc >= params.min_ncc and fit.overlap >= params.min_overlap:
                     if _pinned(fit, params):
                         return _result(True, fit.matrix_px, *shapes, scale, conf, n_inl, method, None,  # type: ignore[arg-type]
@@ -746,7 +773,8 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
         m, ncc = _dense_fourier_mellin(a, b)
         if m is not None and ncc >= params.min_ncc:
             fit = dense_refine(fa, fb.smooth, m, params.refine_iters if params.refine else 0,  # type: ignore[arg-type]
-                               gain_fit=params.dense_gain, valid_b=fb.valid)
+                               gain_fit=params.dense_gain, valid_b=fb.valid,
+                                   bias_order=params.dense_bias_order)
             ncc = fit.ncc
             if (fit.ncc >= max(params.min_ncc, 0.8) and fit.overlap >= params.min_overlap
                     and _pinned(fit, params)):

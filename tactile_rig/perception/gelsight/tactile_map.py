@@ -157,7 +157,8 @@ class TactileMap:
         fa = self._map_features()
         fb = extract_features(z, self.params, dense=False)
         fit = dense_refine(fa, fb.smooth, self._mm_to_px(hint_mm, z.shape), self.params.refine_iters,  # type: ignore[arg-type]
-                           gain_fit=self.params.dense_gain, valid_b=fb.valid)
+                           gain_fit=self.params.dense_gain, valid_b=fb.valid,
+                           bias_order=self.params.dense_bias_order)
         ok = fit.ncc >= self.params.min_ncc and fit.overlap >= self.params.min_overlap and _pinned(fit, self.params)
         assert self.total is not None
         if not ok:

@@ -32,7 +32,8 @@ from tactile_rig.rig.trade.table import TradeRow, TradeTable
 TOPIC = "registration"
 SUMMARY = "GelSight registration knobs: independent re-touches not localized (%) vs fresh pairs/s"
 
-OLD_DEFAULTS = {"max_sigma_px": 0.1, "max_sigma_rot_deg": 0.1, "min_ncc": 0.6, "min_rotation_pinning": 0.0}
+OLD_DEFAULTS = {"max_sigma_px": 0.1, "max_sigma_rot_deg": 0.1, "min_ncc": 0.6, "min_rotation_pinning": 0.0,
+                "dense_bias_order": 0, "dense_gain": False}
 
 
 def settings() -> list[dict[str, Any]]:
@@ -50,7 +51,10 @@ def settings() -> list[dict[str, Any]]:
         {"ransac_iters": 64},
         {"ransac_iters": 1024},
         {"refine": False},
-        {"dense_highpass_px": 24.0, "dense_gain": True},
+        {"dense_bias_order": 0, "dense_gain": False},
+        {"dense_bias_order": 1},
+        {"dense_gain": False},
+        {"dense_highpass_px": 24.0},
         {"min_ncc": 0.8},
         {"max_sigma_px": 0.5, "max_sigma_rot_deg": 0.5},
         dict(OLD_DEFAULTS),
@@ -161,8 +165,11 @@ def measure(*, quick: bool, seed: int = 0) -> TradeTable:
         knobs={"detector": "keypoints (orb, brisk, both)", "orb_features": "ORB keypoints per touch",
                "orb_levels": "ORB pyramid levels", "detect_short_px": "detection image short side (px)",
                "ransac_iters": "two-pair RANSAC samples", "refine": "Gauss-Newton dense polish",
-               "dense_highpass_px/dense_gain": "polish on high-passed heights with a height gain",
-               "min_ncc, max_sigma_*": "refusal thresholds (first rows: the pre-issue-13 defaults)",
+               "dense_bias_order/dense_gain": "height difference the polish allows between touches "
+                                              "(0 offset, 1 plane, 2 quadratic) and a height gain",
+               "dense_highpass_px": "polish on high-passed heights",
+               "min_ncc, max_sigma_*, min_rotation_pinning": "refusal thresholds (one row: the pre-issue-13 "
+                                                             "defaults, offset-only polish)",
                "heights_downsample": "the touches reconstructed with integration downsample 2"},
         notes=["a row with confident wrong answers says so in its note: the front alone does not make it usable",
                f"machine load average {os.getloadavg()[0]:.1f} at the end of the run (2 shared cores)"],
