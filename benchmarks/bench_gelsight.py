@@ -1,8 +1,8 @@
 """GelSight perception benchmark: calibration accuracy, reconstruction speed, registration accuracy/speed.
 
-Run: ``python benchmarks/bench_gelsight.py [--quick] [--skip-calibration | --speed-only]``. One core
-(cv2.setNumThreads(1), BLAS and FFT single-threaded). Writes ``benchmarks/results/gelsight.json``
-(``--speed-only``: registration speeds only, into ``gelsight_speed.json``) and prints tables. Baselines
+Run: ``python benchmarks/bench_gelsight.py [--quick] [--skip-calibration | --speed-only] [--save]``. One
+core (cv2.setNumThreads(1), BLAS and FFT single-threaded). Prints tables; with ``--save`` also writes
+``benchmarks/results/gelsight.json`` (``--speed-only``: registration speeds only, ``gelsight_speed.json``). Baselines
 run in the same process: a gs_sdk-style reconstruction (per-pixel MLP + DCT set up per frame) and
 off-the-shelf BRISK + RANSAC (OpenCV ``estimateAffinePartial2D``) on min-max normalised height maps.
 """
@@ -142,6 +142,7 @@ def _baseline_brisk(a: np.ndarray, b: np.ndarray):
     """Off-the-shelf: BRISK (default threshold) on min-max 8-bit heights, cross-checked matches,
     OpenCV RANSAC partial affine; returns the B->A 2x3 px matrix or None."""
     def u8(z):
+        z = np.nan_to_num(z)  # jig_move marks B's pixels outside A's frame NaN
         z = z - z.min()
         return (255 * z / max(float(z.max()), 1e-12)).astype(np.uint8)
 
@@ -312,6 +313,7 @@ def main() -> int:
     ap.add_argument("--speed-only", action="store_true",
                     help="registration speed only (pair, cached A, stored map, baseline); writes "
                          "benchmarks/results/gelsight_speed.json and leaves gelsight.json alone")
+    ap.add_argument("--save", action="store_true", help="write the JSON results (default: print only)")
     args = ap.parse_args()
     globals()["ROUNDS"] = max(1, args.rounds)
     cv2.setNumThreads(1)
@@ -319,6 +321,8 @@ def main() -> int:
         load0 = os.getloadavg()
         rows = registration_speed(_test_maps()[1][0], args.quick)
         dest = ROOT / "benchmarks" / "results" / "gelsight_speed.json"
+        if not args.save:
+            return 0
         dest.parent.mkdir(parents=True, exist_ok=True)
         dest.write_text(json.dumps({"opencv": cv2.__version__, "numpy": np.__version__, "speed_rounds": ROUNDS,
                                     "load_average_start": load0, "load_average_end": os.getloadavg(),
@@ -346,6 +350,8 @@ def main() -> int:
         out["calibration"] = calibration_table(args.quick)
     elif dest.exists():  # the calibration table does not depend on speed: keep the last full run's
         out["calibration"] = json.loads(dest.read_text()).get("calibration")
+    if not args.save:
+        return 0
     dest.parent.mkdir(parents=True, exist_ok=True)
     dest.write_text(json.dumps(out, indent=1) + "\n")
     print(f"wrote {dest}")
