@@ -124,6 +124,9 @@ class TactileMap:
     def add_touch(self, height_mm: np.ndarray, pose_hint: np.ndarray | None = None) -> TouchRecord:
         """Register a touch against the map and mosaic it in when c > accept_confidence.
 
+        Valid input as :func:`register` (a 2-D map >= 16x16 in mm within +-50 mm; NaN = unknown); a
+        refused touch is returned with ``accepted=False`` and the reason, and leaves the map unchanged.
+
         The first touch becomes the root (identity pose). pose_hint: optional 2x3 (mm) touch -> map
         transform (e.g. from the jig) used as the start of a dense alignment when keypoints refuse.
         """
@@ -176,7 +179,8 @@ class TactileMap:
 
     def localize(self, height_mm: np.ndarray) -> RegistrationResult:
         """Where a touch lies in the map: ``matrix_mm`` takes a point of the touch (mm from its
-        centre) into the map frame (mm from the root touch's centre); refusal as in register()."""
+        centre) into the map frame (mm from the root touch's centre). Valid input, errors and
+        refusals (``no_contact``, ``degenerate_transform``, ...) as :func:`register`."""
         if self.total is None:
             raise ValueError("the tactile map is empty: add a touch first")
         z = _check_height(height_mm, "height_mm")
