@@ -48,6 +48,8 @@ def settings() -> list[dict[str, Any]]:
         {"orb_levels": 4},
         {"detect_short_px": 120},
         {"detect_short_px": 240},
+        {"inlier_px": 4.0},
+        {"inlier_px": 6.0},
         {"ransac_iters": 64},
         {"ransac_iters": 1024},
         {"refine": False},
@@ -164,7 +166,7 @@ def measure(*, quick: bool, seed: int = 0) -> TradeTable:
         rows,
         knobs={"detector": "keypoints (orb, brisk, both)", "orb_features": "ORB keypoints per touch",
                "orb_levels": "ORB pyramid levels", "detect_short_px": "detection image short side (px)",
-               "ransac_iters": "two-pair RANSAC samples", "refine": "Gauss-Newton dense polish",
+               "ransac_iters": "two-pair RANSAC samples", "inlier_px": "RANSAC residual threshold (px)", "refine": "Gauss-Newton dense polish",
                "dense_bias_order/dense_gain": "height difference the polish allows between touches "
                                               "(0 offset, 1 plane, 2 quadratic) and a height gain",
                "dense_highpass_px": "polish on high-passed heights",
