@@ -38,6 +38,8 @@ REASONS: dict[str, str] = {
 # Heights a registration accepts: a gel shows about 1 mm and a tactile map is a few mm deep; a map
 # beyond +-50 mm is not a gel surface (and would overflow the float32 statistics).
 MAX_ABS_HEIGHT_MM = 50.0
+# Li's confidence is computed on the inliers within this residual (px) of the rigid fit.
+CONFIDENCE_PX = 2.0
 
 
 @dataclass
@@ -112,7 +114,7 @@ class RegistrationParams:
     detect_short_px: int = 160
     band_px: tuple[float, float] = (0.0, 4.0)
     ransac_iters: int = 256
-    inlier_px: float = 2.0
+    inlier_px: float = 4.0
     min_inliers: int = 8
     min_confidence: float = 0.9
     min_ncc: float = 0.9
@@ -752,7 +754,12 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
         m, mask = ransac_rigid(pb, pa, params.ransac_iters, params.inlier_px, params.seed)
         n_inl = int(mask.sum())
         if m is not None and n_inl >= params.min_inliers:
-            conf = homography_confidence(pb[mask], pa[mask])
+            # Li's c on the inliers the rigid fit explains within 2 px: a looser consensus tolerance
+            # (independent touches move keypoints by a few px) must not dilute the homography test.
+            res = pb[mask] @ m[:, :2].T + m[:, 2] - pa[mask]
+            tight = np.einsum("ij,ij->i", res, res) < min(params.inlier_px, CONFIDENCE_PX) ** 2
+            sub = np.flatnonzero(mask)[tight] if tight.sum() >= params.min_inliers else np.flatnonzero(mask)
+            conf = homography_confidence(pb[sub], pa[sub])
             if conf >= params.min_confidence:
                 fit = dense_refine(fa, fb.smooth, m, params.refine_iters if params.refine else 0,  # type: ignore[arg-type]
                                gain_fit=params.dense_gain, valid_b=fb.valid,

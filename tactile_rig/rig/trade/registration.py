@@ -48,7 +48,7 @@ def settings() -> list[dict[str, Any]]:
         {"orb_levels": 4},
         {"detect_short_px": 120},
         {"detect_short_px": 240},
-        {"inlier_px": 4.0},
+        {"inlier_px": 2.0},
         {"inlier_px": 6.0},
         {"ransac_iters": 64},
         {"ransac_iters": 1024},
