@@ -144,6 +144,7 @@ def _baseline_brisk(a: np.ndarray, b: np.ndarray):
     """Off-the-shelf: BRISK (default threshold) on min-max 8-bit heights, cross-checked matches,
     OpenCV RANSAC partial affine; returns the B->A 2x3 px matrix or None."""
     def u8(z):
+        z = np.nan_to_num(z)  # jig_move marks B's pixels outside A's frame NaN
         z = z - z.min()
         return (255 * z / max(float(z.max()), 1e-12)).astype(np.uint8)
 

@@ -186,3 +186,19 @@ def test_bad_calibration_inputs(tmp_path, presses) -> None:
         calibrate_from_presses(presses, MM_PER_PX, -1.0)
     with pytest.raises(ValueError, match="method"):
         calibrate_from_presses(presses, MM_PER_PX, BALL_MM, "svm")
+
+
+def test_saved_baked_table_is_loaded_not_rebaked(tmp_path, mlp_cal, presses, monkeypatch) -> None:
+    mlp_cal.save(tmp_path / "c")
+    with np.load(tmp_path / "c.npz", allow_pickle=False) as data:
+        assert "baked_table" in data.files
+
+    def no_predict(self, feats):
+        raise AssertionError("the model was evaluated while loading a baked calibration")
+
+    # Baking an MLP costs about a second per load; the saved table is read instead.
+    monkeypatch.setattr(type(mlp_cal.model), "predict", no_predict)
+    back = GelSightCalibration.load(tmp_path / "c")
+    for frame in presses.frames[:3]:
+        for g_saved, g_fit in zip(back.gradients(frame), mlp_cal.gradients(frame)):
+            np.testing.assert_array_equal(g_saved, g_fit)

@@ -257,7 +257,7 @@ def test_cli_map_and_localize_exit_1_when_they_refuse(tmp_path, capsys, textured
 def test_cli_threshold_flags_reach_the_registration(tmp_path, capsys, textured) -> None:
     a, b = tmp_path / "a.npy", tmp_path / "b.npy"
     np.save(a, textured)
-    np.save(b, jig_move(textured, 20, (1.0, 0.5), MM)[0])
+    np.save(b, np.nan_to_num(jig_move(textured, 20, (1.0, 0.5), MM)[0]))  # the CLI loader takes finite heights
     base = ["gelsight", "register", str(a), str(b), "--mm-per-px", str(MM), "--json"]
     assert main(base) == 0
     capsys.readouterr()
@@ -274,7 +274,7 @@ def test_cli_documents_every_threshold(capsys, sub) -> None:
     text = capsys.readouterr().out
     for flag in ("--ransac-iters", "--inlier-px", "--min-inliers", "--min-confidence", "--min-ncc",
                  "--min-overlap", "--max-sigma-rot-deg", "--max-sigma-px", "--detect-short-px",
-                 "--orb-features", "--no-dense-fallback"):
+                 "--orb-features", "--min-rotation-pinning", "--no-dense-fallback"):
         assert flag in text, flag
 
 

@@ -83,6 +83,24 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _npy_writer(shape: tuple[int, ...], dtype: np.dtype):
+    """A writer of .npy files for arrays of one shape and dtype: the header (np.save's format) is
+    built once, then each file is the header plus the array's bytes (no per-file formatting)."""
+    import io
+
+    buf = io.BytesIO()
+    np.lib.format.write_array_header_1_0(buf, {"descr": np.lib.format.dtype_to_descr(np.dtype(dtype)),
+                                               "fortran_order": False, "shape": tuple(shape)})
+    header = buf.getvalue()
+
+    def write(path: Path, arr: np.ndarray) -> None:
+        with open(path, "wb") as fh:
+            fh.write(header)
+            fh.write(np.ascontiguousarray(arr, dtype).data)
+
+    return write
+
+
 def _cmd_height(args: argparse.Namespace) -> int:
     if bench_live.wants_bench(args):
         return bench_live.height(args)
@@ -90,15 +108,16 @@ def _cmd_height(args: argparse.Namespace) -> int:
     rec = _reconstructor(args.calib, args.background, args.solver)
     out = Path(args.output)
     written = []
+    write = _npy_writer(rec.calibration.shape, np.float32)
     if len(args.images) == 1:
         target = out if out.suffix == ".npy" else out.with_suffix(".npy")
-        np.save(target, rec.height_mm(_read_image(args.images[0])))
+        write(target, rec.height_mm(_read_image(args.images[0])))
         written.append(str(target))
     else:
         out.mkdir(exist_ok=True)  # the parent exists (output_path): only the leaf is made
         for img in args.images:
             target = out / (Path(img).stem + ".npy")
-            np.save(target, rec.height_mm(_read_image(img)))
+            write(target, rec.height_mm(_read_image(img)))
             written.append(str(target))
     if args.json:
         print_json({"written": written})
@@ -131,6 +150,8 @@ _REG_FLAGS: tuple[tuple[str, Callable[[str], Any], str], ...] = (
      "refuse when the dense fit pins rotation worse than this (1 sigma, deg)"),
     ("max_sigma_px", float_in(0.0, 10_000.0, "px", low_open=True),
      "refuse when the dense fit pins translation worse than this (1 sigma, px)"),
+    ("min_rotation_pinning", float_in(0.0, 100.0),
+     "refuse rotation-symmetric content (rotation vs translation information)"),
     ("detect_short_px", int_in(16, 8192, "px"), "keypoints are found on the map resized to this short side (px)"),
     ("orb_features", int_in(10, 100_000), "ORB keypoints per touch-sized image"),
 )

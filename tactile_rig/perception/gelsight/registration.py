@@ -38,6 +38,8 @@ REASONS: dict[str, str] = {
 # Heights a registration accepts: a gel shows about 1 mm and a tactile map is a few mm deep; a map
 # beyond +-50 mm is not a gel surface (and would overflow the float32 statistics).
 MAX_ABS_HEIGHT_MM = 50.0
+# Li's confidence is computed on the inliers within this residual (px) of the rigid fit.
+CONFIDENCE_PX = 2.0
 
 
 @dataclass
@@ -90,7 +92,15 @@ class RegistrationParams:
     refusal of the keypoint answer; min_confidence: the paper's c below this is refused (the tactile
     map accepts at 0.98); min_ncc: the dense check on the overlap; dense_fallback: try Fourier–Mellin
     when keypoints fail; refine: Gauss–Newton polish on dense_samples steep pixels (sub-pixel);
-    max_sigma_rot_deg / max_sigma_px: refuse when the dense fit cannot pin rotation/translation.
+    max_sigma_rot_deg / max_sigma_px: refuse when the dense fit cannot pin rotation/translation
+    (1-sigma from the Gauss-Newton information and the residual); min_rotation_pinning: refuse
+    rotation-symmetric content (rotation information over translation information x radius^2: a
+    lone smooth dome reads 0.01-0.02, one real press with gel texture 0.14-0.2, texture ~1);
+    dense_highpass_px: the polish compares heights minus their low-pass of this sigma (0: plain
+    heights), which removes the press-depth and gel-blur differences of independent re-touches;
+    dense_gain: the polish also fits a height gain between the touches (a deeper press);
+    dense_bias_order: the height difference between the touches the polish allows: 0 a constant, 1 a
+    plane, 2 a quadratic surface (the bowl of a deeper press).
     """
 
     detector: str = "orb"
@@ -104,17 +114,21 @@ class RegistrationParams:
     detect_short_px: int = 160
     band_px: tuple[float, float] = (0.0, 4.0)
     ransac_iters: int = 256
-    inlier_px: float = 2.0
+    inlier_px: float = 4.0
     min_inliers: int = 8
     min_confidence: float = 0.9
-    min_ncc: float = 0.6
+    min_ncc: float = 0.9
     min_overlap: float = 0.2
     dense_fallback: bool = True
     refine: bool = True
     dense_samples: int = 2000
     refine_iters: int = 5
-    max_sigma_rot_deg: float = 0.1
-    max_sigma_px: float = 0.1
+    max_sigma_rot_deg: float = 0.25
+    max_sigma_px: float = 0.25
+    min_rotation_pinning: float = 0.05
+    dense_highpass_px: float = 0.0
+    dense_gain: bool = True
+    dense_bias_order: int = 2
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -153,17 +167,26 @@ def _detector(name: str, params: "RegistrationParams") -> cv2.Feature2D:
 def _check_height(h: object, name: str) -> np.ndarray:
     """A height map as float32: 2-D, >= 16x16, real; non-finite pixels (unknown) read 0 mm; heights
     beyond +-MAX_ABS_HEIGHT_MM raise :class:`HeightOutOfRange`."""
+    return _check_height_valid(h, name)[0]
+
+
+def _check_height_valid(h: object, name: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """:func:`_check_height` and the mask of known (finite) pixels, None when all are known."""
     if not isinstance(h, np.ndarray):
         raise ValueError(f"{name}: expected a numpy array, got {type(h).__name__}")
     if h.ndim != 2 or min(h.shape) < 16:
         raise ValueError(f"{name}: expected a 2-D height map of at least 16x16 pixels, got shape {h.shape}")
     if not (np.issubdtype(h.dtype, np.floating) or np.issubdtype(h.dtype, np.integer)) or h.dtype == np.float16:
         raise ValueError(f"{name}: expected a real numeric dtype (float32/64 or integer), got {h.dtype}")
+    valid = None
     if h.dtype == np.float32:
         z = h  # clean float32 input (the common case) is used as is: nan_to_num would copy every call
         if not np.isfinite(z).all():
+            valid = np.isfinite(z)
             z = np.nan_to_num(z, nan=0.0, posinf=0.0, neginf=0.0)
     else:
+        finite = np.isfinite(h)
+        valid = None if finite.all() else finite
         z = np.nan_to_num(h.astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
     lo, hi = cv2.minMaxLoc(z)[:2]
     peak = max(-lo, hi)
@@ -171,7 +194,7 @@ def _check_height(h: object, name: str) -> np.ndarray:
         raise HeightOutOfRange(f"{name}: a height of {peak:.3g} mm; a gel height map stays within "
                                f"+-{MAX_ABS_HEIGHT_MM:g} mm (is it in mm?)", device="gelsight.registration",
                                value=float(peak), limit=MAX_ABS_HEIGHT_MM)
-    return z if z.dtype == np.float32 else z.astype(np.float32)
+    return (z if z.dtype == np.float32 else z.astype(np.float32)), valid
 
 
 def _ptp(z: np.ndarray) -> float:
@@ -186,6 +209,17 @@ def _blur(z: np.ndarray, sigma: float) -> np.ndarray:
     k = max(1, int(round(sigma * 1.7)))
     k += 1 - k % 2
     return cv2.blur(cv2.blur(z, (k, k)), (k, k))
+
+
+def _lowpass(z: np.ndarray, sigma_px: float, valid: np.ndarray | None) -> np.ndarray:
+    """Box-Gaussian low-pass; over ``valid`` only (normalised convolution) when given, so the zeros
+    outside a tactile map's coverage do not leak into its edge."""
+    if valid is None:
+        return _blur(z, sigma_px)
+    w = valid.astype(np.float32)
+    num = _blur(z * w, sigma_px)
+    den = _blur(w, sigma_px)
+    return num / np.maximum(den, 1e-3)
 
 
 def render_u8(height_mm: np.ndarray, band_px: tuple[float, float] = (0.0, 4.0),
@@ -226,6 +260,7 @@ class Features:
     sample_z: np.ndarray | None = None
     height: np.ndarray | None = None
     ptp_mm: float = float("nan")
+    valid: np.ndarray | None = None
     train_bits: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
 
@@ -241,10 +276,17 @@ def extract_features(height_mm: np.ndarray, params: RegistrationParams = Registr
     """Keypoints and descriptors of a height map (reuse for a map matched many times); with
     ``dense`` also the steep-pixel samples used when this map is the reference A. scale: detection
     resize factor (default from this map's own shape; pass the touch's for a large map)."""
-    z = _check_height(height_mm, "height_mm")
+    z, known = _check_height_valid(height_mm, "height_mm")
+    if known is not None:
+        valid = known if valid is None else (valid & known)
     smooth = cv2.GaussianBlur(z, (0, 0), 1.0)
+    if params.dense_highpass_px > 0:
+        # The dense polish compares high-passed heights: an independent re-touch pressed deeper or
+        # through a softer gel differs from the map mostly at low spatial frequencies (the bowl of
+        # the press, the integrator's offsets), which would bias the alignment by pixels.
+        smooth = cv2.subtract(smooth, _lowpass(z, params.dense_highpass_px, valid))
     # The checked map and its range ride along, so register() need not re-check a cached reference.
-    feats = Features(smooth=smooth, height=z, ptp_mm=_ptp(z))
+    feats = Features(smooth=smooth, height=z, ptp_mm=_ptp(z), valid=valid)
     if dense:
         feats.sample_xy, feats.sample_z = _dense_samples(smooth, params.dense_samples, valid)
     k = detect_scale(params, z.shape) if scale is None else float(scale)
@@ -482,78 +524,132 @@ class DenseFit:
     overlap: float = 0.0
     sigma_rot_deg: float = float("inf")
     sigma_px: float = float("inf")
+    rotation_pinning: float = 0.0
+
+
+def _bias_basis(x: np.ndarray, y: np.ndarray, order: int) -> np.ndarray:
+    """Columns 1 (order 0), + x, y (1), + x^2, xy, y^2 (2) on coordinates centred and scaled to ~1."""
+    xn = (x - x.mean()) / max(float(x.std()), 1.0)
+    yn = (y - y.mean()) / max(float(y.std()), 1.0)
+    cols = [np.ones_like(xn)]
+    if order >= 1:
+        cols += [xn, yn]
+    if order >= 2:
+        cols += [xn * xn, xn * yn, yn * yn]
+    return np.stack(cols, 1)
 
 
 def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, iters: int = 5,
-                 noise_mm: float = 2e-3) -> DenseFit:
-    """Gauss–Newton polish of a B->A rigid transform on A's steep pixels (rotation, translation and
-    a height offset between the touches)."""
+                 noise_mm: float = 2e-3, gain_fit: bool = False, valid_b: np.ndarray | None = None,
+                 bias_order: int = 0) -> DenseFit:
+    """Gauss–Newton polish of a B->A rigid transform on A's steep pixels: rotation, translation,
+    a height offset between the touches (with ``bias_order`` 1 or 2 a plane or quadratic surface in
+    A's frame: the tilt or bowl by which an independent re-touch differs) and, with ``gain_fit``, a
+    height gain in [0.5, 2]. Samples landing outside B or on its unknown pixels are left out."""
     xy, za = fa.sample_xy, fa.sample_z
     if xy is None or za is None or len(xy) < 8:
         return DenseFit(matrix_px)
     h, w = smooth_b.shape
     # Height and both slopes of B in one 3-channel image: one remap per iteration instead of three.
     zgb = cv2.merge([smooth_b, *_grad(smooth_b)])
+    if valid_b is not None:
+        zgb = cv2.merge([smooth_b, *_grad(smooth_b), valid_b.astype(np.float32)])
     inv = cv2.invertAffineTransform(matrix_px)  # A px -> B px
     th = float(np.arctan2(inv[1, 0], inv[0, 0]))
     t = inv[:, 2].astype(np.float64).copy()
-    bias = 0.0
+    gain = 1.0
     x, y = xy[:, 0].astype(np.float64), xy[:, 1].astype(np.float64)
+    basis = _bias_basis(x, y, int(bias_order))
+    nb = basis.shape[1]
+    coef = np.zeros(nb)
     start = (th, t.copy())
-    for _ in range(iters):
+
+    def gather(th: float, t: np.ndarray):
         c, s_ = np.cos(th), np.sin(th)
         u = c * x - s_ * y + t[0]
         v = s_ * x + c * y + t[1]
         ok, n_ok = _inside(u, v, w, h)
         if n_ok < 8:
+            return None
+        idx = np.flatnonzero(ok) if n_ok < len(x) else None
+        if idx is not None:
+            u, v = u[idx], v[idx]
+        zb, bx, by, *vb = _sample(zgb, u, v).T
+        if vb:
+            keep = vb[0] > 0.999
+            if keep.sum() < 8:
+                return None
+            idx = np.flatnonzero(keep) if idx is None else idx[keep]
+            zb, bx, by, u, v = zb[keep], bx[keep], by[keep], u[keep], v[keep]
+        sel = slice(None) if idx is None else idx
+        return sel, u, v, zb, bx, by, n_ok
+
+    for _ in range(iters):
+        got = gather(th, t)
+        if got is None:
             break
-        if n_ok < len(x):  # fancy indexing only when some samples fall outside B
-            u, v, zo = u[ok], v[ok], za[ok]
-        else:
-            zo = za
-        zb, bx, by = _sample(zgb, u, v).T
-        j = np.empty((n_ok, 4))
+        sel, u, v, zb, bx, by, _n = got
+        zo, bas = za[sel], basis[sel]
+        npar = 3 + nb + (1 if gain_fit else 0)
+        j = np.empty((len(zb), npar))
         # d(u, v)/d(theta) = (-(v - t_y), u - t_x): no second rotation of the samples.
-        j[:, 0] = by * (u - t[0]) - bx * (v - t[1])
-        j[:, 1], j[:, 2], j[:, 3] = bx, by, 1.0
-        r = zb + bias - zo
+        j[:, 0] = gain * (by * (u - t[0]) - bx * (v - t[1]))
+        j[:, 1], j[:, 2] = gain * bx, gain * by
+        j[:, 3:3 + nb] = bas
+        if gain_fit:
+            j[:, -1] = zb
+        r = gain * zb + bas @ coef - zo
         hess = j.T @ j
-        hess[np.diag_indices(4)] *= 1.0 + 1e-6
+        hess[np.diag_indices(npar)] *= 1.0 + 1e-6
         try:
             d = -np.linalg.solve(hess, j.T @ r)
         except np.linalg.LinAlgError:
             break
         th += d[0]
         t += d[1:3]
-        bias += d[3]
+        coef += d[3:3 + nb]
+        if gain_fit:
+            # A re-touch pressed deeper shows its relief a little higher: a bounded height gain.
+            gain = float(np.clip(gain + d[-1], 0.5, 2.0))
         if abs(d[0]) < 1e-6 and abs(d[1]) + abs(d[2]) < 1e-4:
             break
     # GN can wander on flat content: a large move away from the coarse answer is not trusted.
     if abs(th - start[0]) > np.radians(6.0) or np.abs(t - start[1]).max() > 8.0 or not np.isfinite(th):
         th, t = start
     c, s_ = np.cos(th), np.sin(th)
-    u = c * x - s_ * y + t[0]
-    v = s_ * x + c * y + t[1]
-    ok, n_ok = _inside(u, v, w, h)
     fwd = np.array([[c, -s_, t[0]], [s_, c, t[1]]])
-    fit = DenseFit(cv2.invertAffineTransform(fwd).astype(np.float64), overlap=n_ok / len(x))
-    if n_ok < 8:
+    u_all = c * x - s_ * y + t[0]
+    v_all = s_ * x + c * y + t[1]
+    fit = DenseFit(cv2.invertAffineTransform(fwd).astype(np.float64),
+                   overlap=_inside(u_all, v_all, w, h)[1] / len(x))
+    got = gather(th, t)
+    if got is None:
         return fit
-    zb, bx, by = _sample(zgb, u[ok], v[ok]).T
-    a_ = za[ok] - za[ok].mean()
+    sel, _u, _v, zb, bx, by, _n = got
+    xo, yo, bas = x[sel], y[sel], basis[sel]
+    zo = za[sel] - bas @ coef  # A's heights with the fitted surface between the touches removed
+    a_ = zo - zo.mean()
     b_ = zb - zb.mean()
     den = np.sqrt((a_ * a_).sum() * (b_ * b_).sum())
     fit.ncc = float((a_ * b_).sum() / den) if den > 1e-18 else 0.0
-    xo, yo = x[ok], y[ok]
     # Rotate about the samples' centroid so the angle's information is not mixed with translation.
     xo, yo = xo - xo.mean(), yo - yo.mean()
-    j = np.stack([bx * (-s_ * xo - c * yo) + by * (c * xo - s_ * yo), bx, by, np.ones_like(bx)], 1)
-    resid = b_ - a_
-    var = max(float(resid @ resid) / max(len(resid) - 4, 1), noise_mm ** 2)
+    j = np.column_stack([gain * (bx * (-s_ * xo - c * yo) + by * (c * xo - s_ * yo)), gain * bx, gain * by, bas])
+    resid = gain * b_ - a_
+    var = max(float(resid @ resid) / max(len(resid) - j.shape[1], 1), noise_mm ** 2)
     try:
-        cov = var * np.linalg.inv(j.T @ j)
+        inv_info = np.linalg.inv(j.T @ j)
+        cov = var * inv_info
         fit.sigma_rot_deg = float(np.degrees(np.sqrt(max(cov[0, 0], 0.0))))
         fit.sigma_px = float(np.sqrt(max(cov[1, 1], 0.0) + max(cov[2, 2], 0.0)))
+        # How much the content pins rotation compared with translation, whatever the noise: the
+        # rotation information (after translation and offset are solved) over the translation
+        # information times the samples' squared radius. ~0 for a rotation-symmetric dome, O(0.1-1)
+        # for texture. Unlike sigma it does not shrink on a noise-free (resampled) map.
+        r2 = float(np.mean(xo * xo + yo * yo))
+        info_rot = 1.0 / max(inv_info[0, 0], 1e-300)
+        info_t = 0.5 * (1.0 / max(inv_info[1, 1], 1e-300) + 1.0 / max(inv_info[2, 2], 1e-300))
+        fit.rotation_pinning = float(np.sqrt(info_rot / max(info_t * r2, 1e-300)))
     except np.linalg.LinAlgError:
         pass
     return fit
@@ -585,6 +681,12 @@ def _dense_fourier_mellin(height_a: np.ndarray, height_b: np.ndarray) -> tuple[n
         if ncc > best[1]:
             best = (m, ncc)
     return best[0], best[1]  # type: ignore[return-value]
+
+
+def _pinned(fit: DenseFit, params: RegistrationParams) -> bool:
+    """The dense fit pins the pose: small 1-sigma errors and content that is not rotation-symmetric."""
+    return (fit.sigma_rot_deg <= params.max_sigma_rot_deg and fit.sigma_px <= params.max_sigma_px
+            and fit.rotation_pinning >= params.min_rotation_pinning)
 
 
 def _result(ok: bool, m_px: np.ndarray | None, shape_a: tuple[int, int], shape_b: tuple[int, int],
@@ -652,11 +754,18 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
         m, mask = ransac_rigid(pb, pa, params.ransac_iters, params.inlier_px, params.seed)
         n_inl = int(mask.sum())
         if m is not None and n_inl >= params.min_inliers:
-            conf = homography_confidence(pb[mask], pa[mask])
+            # Li's c on the inliers the rigid fit explains within 2 px: a looser consensus tolerance
+            # (independent touches move keypoints by a few px) must not dilute the homography test.
+            res = pb[mask] @ m[:, :2].T + m[:, 2] - pa[mask]
+            tight = np.einsum("ij,ij->i", res, res) < min(params.inlier_px, CONFIDENCE_PX) ** 2
+            sub = np.flatnonzero(mask)[tight] if tight.sum() >= params.min_inliers else np.flatnonzero(mask)
+            conf = homography_confidence(pb[sub], pa[sub])
             if conf >= params.min_confidence:
-                fit = dense_refine(fa, fb.smooth, m, params.refine_iters if params.refine else 0)  # type: ignore[arg-type]
+                fit = dense_refine(fa, fb.smooth, m, params.refine_iters if params.refine else 0,  # type: ignore[arg-type]
+                               gain_fit=params.dense_gain, valid_b=fb.valid,
+                                   bias_order=params.dense_bias_order)
                 if fit.ncc >= params.min_ncc and fit.overlap >= params.min_overlap:
-                    if fit.sigma_rot_deg <= params.max_sigma_rot_deg and fit.sigma_px <= params.max_sigma_px:
+                    if _pinned(fit, params):
                         return _result(True, fit.matrix_px, *shapes, scale, conf, n_inl, method, None,  # type: ignore[arg-type]
                                        len(pa), fit.ncc)
                     keypoint_reason = INSUFFICIENT_TEXTURE
@@ -670,10 +779,12 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
     if params.dense_fallback and a.shape == b.shape:
         m, ncc = _dense_fourier_mellin(a, b)
         if m is not None and ncc >= params.min_ncc:
-            fit = dense_refine(fa, fb.smooth, m, params.refine_iters if params.refine else 0)  # type: ignore[arg-type]
+            fit = dense_refine(fa, fb.smooth, m, params.refine_iters if params.refine else 0,  # type: ignore[arg-type]
+                               gain_fit=params.dense_gain, valid_b=fb.valid,
+                                   bias_order=params.dense_bias_order)
             ncc = fit.ncc
             if (fit.ncc >= max(params.min_ncc, 0.8) and fit.overlap >= params.min_overlap
-                    and fit.sigma_rot_deg <= params.max_sigma_rot_deg and fit.sigma_px <= params.max_sigma_px):
+                    and _pinned(fit, params)):
                 return _result(True, fit.matrix_px, *shapes, scale, 1.0, 0, "dense_fourier_mellin", None,  # type: ignore[arg-type]
                                len(pa), fit.ncc)
         method += "+dense"

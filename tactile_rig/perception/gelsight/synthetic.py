@@ -37,14 +37,15 @@ def jig_move(height_mm: np.ndarray, rotation_deg: float, shift_mm: tuple[float, 
     """Touch B of the same surface after a jig move: the map rotated by ``rotation_deg`` about its
     centre and shifted by ``shift_mm`` (x right, y down), resampled into a frame of the same size.
 
-    Returns (B, truth) where truth is the 2x3 matrix in mm (from each map's centre) mapping a point
+    Pixels of B outside A's frame are NaN (unknown). Returns (B, truth) where truth is the 2x3 matrix in mm (from each map's centre) mapping a point
     of B into A's frame: the answer :func:`register(A, B)` must give.
     """
     h, w = height_mm.shape
     c = ((w - 1) / 2.0, (h - 1) / 2.0)
     fwd = cv2.getRotationMatrix2D(c, -rotation_deg, 1.0)  # A px -> B px (OpenCV angle is clockwise-positive in y-down)
     fwd[:, 2] += np.array(shift_mm) / mm_per_px
-    b = cv2.warpAffine(height_mm.astype(np.float32), fwd, (w, h), flags=cv2.INTER_LINEAR, borderValue=0.0)
+    # Outside A's frame B has no data: NaN (unknown), as a real touch never shows a flat fill.
+    b = cv2.warpAffine(height_mm.astype(np.float32), fwd, (w, h), flags=cv2.INTER_LINEAR, borderValue=np.nan)
     inv = cv2.invertAffineTransform(fwd)
     r = inv[:, :2]
     cvec = np.array(c)

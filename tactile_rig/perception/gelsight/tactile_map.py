@@ -20,6 +20,7 @@ from tactile_rig.perception.gelsight.registration import (
     RegistrationParams,
     RegistrationResult,
     _check_height,
+    _pinned,
     _result,
     dense_refine,
     detect_scale,
@@ -123,6 +124,9 @@ class TactileMap:
     def add_touch(self, height_mm: np.ndarray, pose_hint: np.ndarray | None = None) -> TouchRecord:
         """Register a touch against the map and mosaic it in when c > accept_confidence.
 
+        Valid input as :func:`register` (a 2-D map >= 16x16 in mm within +-50 mm; NaN = unknown); a
+        refused touch is returned with ``accepted=False`` and the reason, and leaves the map unchanged.
+
         The first touch becomes the root (identity pose). pose_hint: optional 2x3 (mm) touch -> map
         transform (e.g. from the jig) used as the start of a dense alignment when keypoints refuse.
         """
@@ -155,9 +159,10 @@ class TactileMap:
     def _from_hint(self, z: np.ndarray, hint_mm: np.ndarray) -> RegistrationResult:
         fa = self._map_features()
         fb = extract_features(z, self.params, dense=False)
-        fit = dense_refine(fa, fb.smooth, self._mm_to_px(hint_mm, z.shape), self.params.refine_iters)  # type: ignore[arg-type]
-        ok = (fit.ncc >= self.params.min_ncc and fit.overlap >= self.params.min_overlap
-              and fit.sigma_rot_deg <= self.params.max_sigma_rot_deg and fit.sigma_px <= self.params.max_sigma_px)
+        fit = dense_refine(fa, fb.smooth, self._mm_to_px(hint_mm, z.shape), self.params.refine_iters,  # type: ignore[arg-type]
+                           gain_fit=self.params.dense_gain, valid_b=fb.valid,
+                           bias_order=self.params.dense_bias_order)
+        ok = fit.ncc >= self.params.min_ncc and fit.overlap >= self.params.min_overlap and _pinned(fit, self.params)
         assert self.total is not None
         if not ok:
             return _result(False, None, self.total.shape, z.shape, (self.mm_per_px,) * 2, 0.0, 0, "hint",  # type: ignore[arg-type]
@@ -174,7 +179,8 @@ class TactileMap:
 
     def localize(self, height_mm: np.ndarray) -> RegistrationResult:
         """Where a touch lies in the map: ``matrix_mm`` takes a point of the touch (mm from its
-        centre) into the map frame (mm from the root touch's centre); refusal as in register()."""
+        centre) into the map frame (mm from the root touch's centre). Valid input, errors and
+        refusals (``no_contact``, ``degenerate_transform``, ...) as :func:`register`."""
         if self.total is None:
             raise ValueError("the tactile map is empty: add a touch first")
         z = _check_height(height_mm, "height_mm")

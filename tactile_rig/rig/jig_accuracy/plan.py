@@ -27,14 +27,10 @@ PAPER_FIGURES = {"rotation_mae_deg": 1.15, "rotation_std_deg": 1.02,
                  "translation_mae_mm": 0.14, "translation_std_mm": 0.055}
 
 
-# Registration knobs of the run, measured on the mock (docs/jig_accuracy.md):
-# * the dense polish's own uncertainty on this sensor (0.0634 mm/px, 0.6 mm gel blur, noise σ 1 grey
-#   level + 0.5 flicker) is 0.1-0.4 px / 0.1-0.4°, above the perception default's 0.1 refusal bar,
-#   while the actual errors stay well inside the targets: accept up to 0.5 px / 0.5°;
-# * keypoints on maps resized to a 160 px short side (the default 120 is faster but costs accuracy
-#   here: rotation MAE 0.27° → 0.37° on seed 0, 0.27° → 0.53° on seed 2).
-DEFAULT_REGISTRATION: tuple[tuple[str, Any], ...] = (("detect_short_px", 160), ("max_sigma_px", 0.5),
-                                                     ("max_sigma_rot_deg", 0.5))
+# The run registers with the perception defaults (RegistrationParams, the same values and flags as
+# `tactile-rig gelsight register/map/localize`); ``registration`` overrides them explicitly, and the
+# overrides are stored with the run.
+DEFAULT_REGISTRATION: tuple[tuple[str, Any], ...] = ()
 
 @dataclass(frozen=True)
 class JigAccuracyConfig:
