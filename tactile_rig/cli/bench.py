@@ -40,6 +40,9 @@ def register(sub: Any) -> None:
     r.add_argument("--gelsight-fps", type=float, default=25.0, help="frame rate of the GelSight camera (default 25)")
     r.add_argument("--gelsight-jpeg-quality", type=int, default=100, metavar="Q",
                    help="JPEG quality of the GelSight stream, 1..100 (default 100; a camera's MJPG is nearer 90)")
+    r.add_argument("--stage-scene", default="jig_accuracy", metavar="SCENE",
+                   help="what lies on the jig's stage under the GelSight camera: jig_accuracy (the object of "
+                        "the accuracy run, default) or gelsight_ball_presses (the calibration ball)")
     r.add_argument("--no-calibration", action="store_true",
                    help="do not make the GelSight calibration on the mocks (the bench then names none)")
     r.add_argument("--duration", type=float, metavar="S", help="stop after S seconds instead of at Ctrl-C")
@@ -73,7 +76,7 @@ def _rehearse(args: argparse.Namespace) -> int:
         raise ValueError(f"--duration {args.duration} must be > 0 s")
     opts = RehearsalOptions(cameras={n: s for n, s, _ in cams}, camera_sensors={n: k for n, _, k in cams},
                             seed=args.seed, homing=args.homing, gelsight_fps=args.gelsight_fps,
-                            gelsight_jpeg_quality=args.gelsight_jpeg_quality,
+                            gelsight_jpeg_quality=args.gelsight_jpeg_quality, stage_scene=args.stage_scene,
                             calibration=not args.no_calibration)
     stop = threading.Event()
 

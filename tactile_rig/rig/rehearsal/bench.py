@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from tactile_rig.rig.jig_accuracy import mock_gelsight_calibration
+from tactile_rig.rig.rehearsal.child import STAGE_SCENE
 from tactile_rig.rig.rehearsal.bench_file import RehearsalDevice, bench_toml, link_device
 from tactile_rig.rig.rehearsal.frames import write_fingervision_footage
 from tactile_rig.rig.rehearsal.processes import DeviceProcess, child_argv, mock_serve_argv
@@ -44,7 +45,9 @@ class RehearsalOptions:
     ``FILE.mcap[#TOPIC]``) and ``camera_sensors`` a camera name to its sensor (default fingervision);
     ``homing`` enables GRBL homing (the jig boots locked and ``$H`` takes ~20 s, as on a real jig);
     ``calibration`` makes the GelSight calibration when it is missing; ``gelsight_jpeg_quality`` is
-    the GelSight stream's JPEG quality (a GelSight Mini streams MJPG too)."""
+    the GelSight stream's JPEG quality (a GelSight Mini streams MJPG too); ``stage_scene`` is what lies
+    on the jig's stage (``jig_accuracy``: the object of the accuracy run; ``gelsight_ball_presses``:
+    the calibration ball)."""
 
     cameras: Mapping[str, str] = field(default_factory=dict)
     camera_sensors: Mapping[str, str] = field(default_factory=dict)
@@ -54,6 +57,7 @@ class RehearsalOptions:
     calibration: bool = True
     scale_rate_sps: int = 80
     gelsight_jpeg_quality: int = 100
+    stage_scene: str = STAGE_SCENE
 
     def __post_init__(self) -> None:
         for name, sensor in self.camera_sensors.items():
@@ -87,7 +91,7 @@ class RehearsalBench:
         o = self.options
         self.out.mkdir(parents=True, exist_ok=True)
         cal = self.out / "calib" / "gelsight.json"
-        stage_opts = ["--seed", str(o.seed), "--fps", repr(float(o.gelsight_fps)),
+        stage_opts = ["--scene", o.stage_scene, "--seed", str(o.seed), "--fps", repr(float(o.gelsight_fps)),
                       "--jpeg-quality", str(o.gelsight_jpeg_quality)] + (["--homing"] if o.homing else [])
         procs = {
             "gripper": DeviceProcess("gripper", mock_serve_argv("dynamixel", ["--protocol", "2", "--id", "1",
