@@ -11,6 +11,7 @@ processing time; a summary follows.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -73,9 +74,12 @@ def add_bench_camera_arguments(parser: argparse.ArgumentParser) -> None:
     add_live_arguments(parser)
 
 
-def wants_bench(args: argparse.Namespace) -> bool:
-    """True when the command was given a bench (``--bench``/``--mock``) and runs live."""
-    return bool(getattr(args, "bench", None) or getattr(args, "mock", False))
+def wants_bench(args: argparse.Namespace, *files: str) -> bool:
+    """True when the command runs live from a bench: ``--bench``/``--mock`` given, or none of its file
+    arguments ``files`` given and ``$TACTILE_RIG_BENCH`` set."""
+    if getattr(args, "bench", None) or getattr(args, "mock", False):
+        return True
+    return bool(os.environ.get("TACTILE_RIG_BENCH")) and not any(getattr(args, f, None) for f in files)
 
 
 def _run(args: argparse.Namespace, step: Any, sensor: str, line: Any) -> int:

@@ -83,7 +83,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_height(args: argparse.Namespace) -> int:
-    if bench_live.wants_bench(args):
+    if bench_live.wants_bench(args, "calib", "images"):
         return bench_live.height(args)
     bench_live.need_files(args, "calib", "images", "output")
     rec = _reconstructor(args.calib, args.background, args.solver)

@@ -52,11 +52,13 @@ def _record(args: argparse.Namespace) -> int:
     if tty and not args.json:
         print(file=sys.stderr)
     summary = {"out": str(outcome.path), "duration_s": round(outcome.duration_s, 3), "topics": outcome.counts,
-               "camera_fps": outcome.camera_fps}
+               "camera_fps": outcome.camera_fps, "missed": outcome.missed}
     if args.json:
         print_json(summary)
     else:
         print(f"recorded {sum(outcome.counts.values())} messages in {outcome.duration_s:.1f} s to {outcome.path}")
         for topic, n in sorted(outcome.counts.items()):
-            print(f"  {topic:<32} {n:>7}")
+            print(f"  {topic:<40} {n:>7}")
+        for device, n in sorted(outcome.missed.items()):
+            print(f"  {device}: {n} poll(s) unanswered and skipped")
     return 0
