@@ -123,7 +123,7 @@ def test_record_live_streams_what_it_records(rehearsal, tmp_path, capsys) -> Non
     rc: list[int] = []
     rec = threading.Thread(target=lambda: rc.append(main([
         "record", "--bench", str(rehearsal.bench_path), "--duration", "3", "--out", str(out), "--live",
-        "--live-port", str(port), "--json"])))
+        "--live-port", str(port), "--live-wait", "30", "--json"])))
     rec.start()
     client.start()
     rec.join(60)
@@ -157,7 +157,7 @@ def test_fingervision_track_live_from_the_bench_camera(rehearsal, capsys) -> Non
     rc: list[int] = []
     run = threading.Thread(target=lambda: rc.append(main([
         "fingervision", "track", "--bench", str(rehearsal.bench_path), "--camera", "camera_fingervision",
-        "--frames-max", "60", "--json", "--live", "--live-port", str(port)])))
+        "--frames-max", "60", "--json", "--live", "--live-port", str(port), "--live-wait", "30"])))
     run.start()
     client.start()
     run.join(60)
