@@ -9,7 +9,8 @@ Runs, side by side in one process:
   precomputed status packet): the floor of the pty + SDK round trip, with no firmware at all.
 * ``in-process``: ``rigsim://dynamixel`` on a virtual clock, timing on and off.
 
-Usage: ``python benchmarks/bench_dynamixel.py [--quick]``; writes ``benchmarks/results/dynamixel.json``.
+Usage: ``python benchmarks/bench_dynamixel.py [--quick] [--save | --out PATH]``; ``--save`` writes
+``benchmarks/results/dynamixel.json`` (full runs only).
 """
 
 from __future__ import annotations
@@ -22,6 +23,8 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+from _output import add_save_args, parse_args, save_json  # noqa: E402  (benchmarks/ is the script's folder)
 
 import dynamixel_sdk as sdk
 
@@ -94,7 +97,8 @@ def _serve(extra: list[str]) -> tuple[subprocess.Popen, str]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer transactions")
-    args = ap.parse_args()
+    add_save_args(ap, "dynamixel.json")
+    args = parse_args(ap)
     n = 500 if args.quick else 5000
     rows = []
     for name, extra in (("pty timing (1 Mbps, RDT 0)", []), ("pty no-timing", ["--no-timing"])):
@@ -121,11 +125,8 @@ def main() -> int:
               f"{r['p10_ms']:>8.3f} {r['p90_ms']:>8.3f} {r['median_over_wire_ms']:>9.3f} {r['failures']:>5}")
     print(f"load average while running: {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
     print(f"wire time of one read: {WIRE_S * 1e3:.2f} ms")
-    out = Path(__file__).resolve().parent / "results" / "dynamixel.json"
-    out.parent.mkdir(exist_ok=True)
-    out.write_text(json.dumps({"wire_ms": WIRE_S * 1e3, "quick": args.quick, "loadavg_1min": os.getloadavg()[0],
-                               "cpus": os.cpu_count(), "rows": rows}, indent=2) + "\n")
-    print(f"wrote {out}")
+    save_json(args, {"wire_ms": WIRE_S * 1e3, "quick": args.quick, "loadavg_1min": os.getloadavg()[0],
+                     "cpus": os.cpu_count(), "rows": rows}, indent=2)
     return 0
 
 

@@ -11,7 +11,8 @@ The board's cost: CPU seconds per simulated second when it runs a script as fast
 
     python benchmarks/bench_firmware.py [--quick] [--save]
 
-Prints JSON (and a table on stderr); ``--save`` also writes ``benchmarks/results/firmware.json``.
+Prints JSON (and a table on stderr); ``--save`` also writes ``benchmarks/results/firmware.json`` (full runs
+only; ``--out PATH`` writes anywhere).
 """
 
 from __future__ import annotations
@@ -26,6 +27,8 @@ import sys
 import time
 from contextlib import contextmanager
 from pathlib import Path
+
+from _output import add_save_args, parse_args, save_json  # noqa: E402  (benchmarks/ is the script's folder)
 
 import serial
 
@@ -137,8 +140,8 @@ def simulated(rate: int) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="short wall-clock runs (3 s of samples, fewer repeats)")
-    ap.add_argument("--save", action="store_true", help="also write benchmarks/results/firmware.json")
-    args = ap.parse_args()
+    add_save_args(ap, "firmware.json")
+    args = parse_args(ap)
     problem = sf.toolchain_problem()
     if problem:
         print(f"bench_firmware: {problem}", file=sys.stderr)
@@ -154,11 +157,7 @@ def main() -> int:
     }
     text = json.dumps(results, indent=2)
     print(text)
-    if args.save:
-        out = ROOT / "benchmarks" / "results" / "firmware.json"
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(text + "\n")
-        print(f"wrote {out}", file=sys.stderr)
+    save_json(args, results, indent=2)
     header = f"{'SPS':>4} {'who':>9} {'boot s':>7} {'samples/s':>10} {'lost':>5} {'? ms':>6} {'tare ms':>8}"
     print(header, file=sys.stderr)
     for rate, sides in results["wall_clock"].items():

@@ -1,8 +1,8 @@
 """GelSight perception benchmark: calibration accuracy, reconstruction speed, registration accuracy/speed.
 
-Run: ``python benchmarks/bench_gelsight.py [--quick] [--skip-calibration | --speed-only]``. One core
-(cv2.setNumThreads(1), BLAS and FFT single-threaded). Writes ``benchmarks/results/gelsight.json``
-(``--speed-only``: registration speeds only, into ``gelsight_speed.json``) and prints tables. Baselines
+Run: ``python benchmarks/bench_gelsight.py [--quick] [--skip-calibration | --speed-only] [--save]``. One core
+(cv2.setNumThreads(1), BLAS and FFT single-threaded). Prints tables; ``--save`` writes
+``benchmarks/results/gelsight.json`` (``--speed-only``: registration speeds only, into ``gelsight_speed.json``). Baselines
 run in the same process: a gs_sdk-style reconstruction (per-pixel MLP + DCT set up per frame) and
 off-the-shelf BRISK + RANSAC (OpenCV ``estimateAffinePartial2D``) on min-max normalised height maps.
 """
@@ -19,6 +19,8 @@ import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
+
+from _output import add_save_args, parse_args, save_json  # noqa: E402  (benchmarks/ is the script's folder)
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
@@ -310,20 +312,18 @@ def main() -> int:
     ap.add_argument("--rounds", type=int, default=ROUNDS, help="speed figures: median of this many measurements")
     ap.add_argument("--skip-calibration", action="store_true", help="speed and registration tables only")
     ap.add_argument("--speed-only", action="store_true",
-                    help="registration speed only (pair, cached A, stored map, baseline); writes "
-                         "benchmarks/results/gelsight_speed.json and leaves gelsight.json alone")
-    args = ap.parse_args()
+                    help="registration speed only (pair, cached A, stored map, baseline); with --save "
+                         "writes benchmarks/results/gelsight_speed.json and leaves gelsight.json alone")
+    add_save_args(ap, "gelsight.json")
+    args = parse_args(ap)
     globals()["ROUNDS"] = max(1, args.rounds)
     cv2.setNumThreads(1)
     if args.speed_only:
         load0 = os.getloadavg()
         rows = registration_speed(_test_maps()[1][0], args.quick)
-        dest = ROOT / "benchmarks" / "results" / "gelsight_speed.json"
-        dest.parent.mkdir(parents=True, exist_ok=True)
-        dest.write_text(json.dumps({"opencv": cv2.__version__, "numpy": np.__version__, "speed_rounds": ROUNDS,
-                                    "load_average_start": load0, "load_average_end": os.getloadavg(),
-                                    "registration_speed": rows}, indent=1) + "\n")
-        print(f"wrote {dest}")
+        save_json(args, {"opencv": cv2.__version__, "numpy": np.__version__, "speed_rounds": ROUNDS,
+                         "load_average_start": load0, "load_average_end": os.getloadavg(),
+                         "registration_speed": rows}, "gelsight_speed.json")
         return 0
     out: dict = {"opencv": cv2.__version__, "numpy": np.__version__, "quick": args.quick,
                  "load_average_start": os.getloadavg(), "speed_rounds": ROUNDS,
@@ -346,9 +346,7 @@ def main() -> int:
         out["calibration"] = calibration_table(args.quick)
     elif dest.exists():  # the calibration table does not depend on speed: keep the last full run's
         out["calibration"] = json.loads(dest.read_text()).get("calibration")
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    dest.write_text(json.dumps(out, indent=1) + "\n")
-    print(f"wrote {dest}")
+    save_json(args, out)
     return 0
 
 

@@ -8,9 +8,9 @@ Side by side in one run, on the same GelSight calibration (made once by the ball
 * ``single_touch_map`` — baseline: the map is the first touch only (no mosaicking);
 * ``paper`` — Li et al. 2014's real-bench figures, for reference (not measured here).
 
-    python benchmarks/bench_jig_accuracy.py [--quick] [--seeds N]
+    python benchmarks/bench_jig_accuracy.py [--quick] [--seeds N] [--save | --out PATH]
 
-Writes ``benchmarks/results/jig_accuracy.json`` and prints a table. ``--quick`` runs a reduced
+Prints a table; ``--save`` writes ``benchmarks/results/jig_accuracy.json`` (full runs only). ``--quick`` runs a reduced
 sweep (rotations −90..90 in 30° steps, shifts −6..6 in 3 mm steps) with one seed.
 """
 
@@ -22,6 +22,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from _output import add_save_args, parse_args, save_json  # noqa: E402  (benchmarks/ is the script's folder)
+
 from tactile_rig.rig.jig_accuracy import (
     PAPER_FIGURES,
     JigAccuracyConfig,
@@ -29,14 +31,12 @@ from tactile_rig.rig.jig_accuracy import (
     mock_gelsight_calibration,
 )
 
-RESULTS = Path(__file__).resolve().parent / "results" / "jig_accuracy.json"
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="reduced sweeps, one seed")
     ap.add_argument("--seeds", type=int, default=3, help="world seeds per variant (default 3)")
-    args = ap.parse_args()
+    add_save_args(ap, "jig_accuracy.json")
+    args = parse_args(ap)
     seeds = range(1 if args.quick else args.seeds)
     sweep = dict(rotations_deg=(-90.0, 90.0, 30.0), shifts_mm=(-6.0, 6.0, 3.0)) if args.quick else {}
     variants = {
@@ -65,9 +65,7 @@ def main() -> int:
     rows.append({"variant": "paper (Li 2014, real bench)", "seed": None, "points": None, "refused": None,
                  "extra_touches": None,
                  **{k: v for k, v in PAPER_FIGURES.items()}, "wall_s": None})
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps({"quick": args.quick, "calibration_wall_s": round(cal_s, 3), "rows": rows},
-                                  indent=2) + "\n")
+    save_json(args, {"quick": args.quick, "calibration_wall_s": round(cal_s, 3), "rows": rows}, indent=2)
 
     def f(v, fmt):
         return "—" if v is None else format(v, fmt)
@@ -81,7 +79,6 @@ def main() -> int:
               f"{f(r['rotation_mae_deg'], '.3f'):>9} {f(r['rotation_std_deg'], '.3f'):>9} "
               f"{f(r['translation_mae_mm'], '.4f'):>10} {f(r['translation_std_mm'], '.4f'):>10} "
               f"{f(r['wall_s'], '.2f'):>7}")
-    print(f"wrote {RESULTS}")
     return 0
 
 

@@ -12,7 +12,7 @@ baseline of writing the same raw bytes to a plain file (no JSON, no base64, no c
 - ``baseline_bytes``: ``f.write(img.tobytes())``.
 
 Reports frames per second (wall and CPU), MB per frame on disk, and the time to read the file back.
-Writes ``benchmarks/results/recording.json`` and prints a table.
+Prints a table; ``--save`` writes ``benchmarks/results/recording.json``.
 """
 
 from __future__ import annotations
@@ -25,6 +25,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from _output import add_save_args, parse_args, save_json  # noqa: E402  (benchmarks/ is the script's folder)
 
 import numpy as np
 
@@ -78,7 +80,8 @@ def _run(mode: str, frames: list[np.ndarray], path: Path) -> dict[str, float]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer frames")
-    args = ap.parse_args()
+    add_save_args(ap, "recording.json")
+    args = parse_args(ap)
     n = 30 if args.quick else 150
     results = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -90,9 +93,7 @@ def main() -> None:
                 results.append(row)
     out = {"benchmark": "recording", "python": platform.python_version(), "machine": platform.machine(),
            "load_avg": os.getloadavg(), "quick": args.quick, "results": results}
-    res_dir = ROOT / "benchmarks" / "results"
-    res_dir.mkdir(parents=True, exist_ok=True)
-    (res_dir / "recording.json").write_text(json.dumps(out, indent=1) + "\n")
+    save_json(args, out)
     print(f"{'size':>8} {'mode':>15} {'fps wall':>9} {'fps cpu':>9} {'MB/frame':>9} {'read fps':>9}")
     for r in results:
         print(f"{r['size']:>8} {r['mode']:>15} {r['fps_wall']:9.1f} {r['fps_cpu']:9.1f} {r['mb_per_frame']:9.3f} "

@@ -14,7 +14,7 @@ For 320x240 and 640x480, side by side in the same run:
   (UVC exposure/white balance, read noise, duplicate detection) on a virtual clock.
 
 Single core (``cv2.setNumThreads(1)``); reports wall-clock fps and CPU-time fps (the second is the
-renderer's own cost when other jobs share the machine; the load average is recorded). Writes ``benchmarks/results/render.json`` and prints a table.
+renderer's own cost when other jobs share the machine; the load average is recorded). Prints a table; ``--save`` writes ``benchmarks/results/render.json``.
 """
 
 from __future__ import annotations
@@ -25,6 +25,8 @@ import platform
 import sys
 import time
 from pathlib import Path
+
+from _output import add_save_args, parse_args, save_json  # noqa: E402  (benchmarks/ is the script's folder)
 
 import cv2
 import numpy as np
@@ -119,7 +121,8 @@ def bench_size(rows: int, cols: int, n: int) -> dict[str, float]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer frames")
-    args = ap.parse_args()
+    add_save_args(ap, "render.json")
+    args = parse_args(ap)
     cv2.setNumThreads(1)
     n = 20 if args.quick else 150
     results: dict = {"opencv": cv2.__version__, "numpy": np.__version__, "python": platform.python_version(),
@@ -135,10 +138,7 @@ def main() -> int:
     for size, by in results["fps"].items():
         for name, r in by.items():
             print(f"{size:9s} {name:16s} {r['wall_fps']:9.1f} {r['cpu_fps']:9.1f} {r['cpu_fps'] / CAMERA_FPS:13.1f}")
-    out = ROOT / "benchmarks" / "results" / "render.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(results, indent=1) + "\n")
-    print(f"wrote {out}")
+    save_json(args, results)
     return 0
 
 

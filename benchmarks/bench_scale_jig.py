@@ -14,7 +14,7 @@ that are not byte-exact.
 
     python benchmarks/bench_scale_jig.py [--quick] [--jig-only] [--connects 200]
 
-Writes ``benchmarks/results/scale_jig.json`` and prints a table.
+Prints a table; ``--save`` writes ``benchmarks/results/scale_jig.json``.
 """
 
 from __future__ import annotations
@@ -31,6 +31,8 @@ import time
 import tty
 from contextlib import contextmanager
 from pathlib import Path
+
+from _output import add_save_args, parse_args, save_json  # noqa: E402  (benchmarks/ is the script's folder)
 
 import serial
 
@@ -251,7 +253,8 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="short runs (3 s each instead of 10 s)")
     ap.add_argument("--jig-only", action="store_true", help="skip the scale runs (results keep the last ones)")
     ap.add_argument("--connects", type=int, default=200, help="pty connects checked for a clean banner (200)")
-    args = ap.parse_args()
+    add_save_args(ap, "scale_jig.json")
+    args = parse_args(ap)
     seconds = 3.0 if args.quick else 10.0
     out = ROOT / "benchmarks" / "results" / "scale_jig.json"
     results = json.loads(out.read_text()) if args.jig_only and out.exists() else {}
@@ -262,8 +265,7 @@ def main() -> int:
     results["jig_connects"] = bench_jig_connects(args.connects)
     with open("/proc/loadavg") as f:
         results["loadavg"] = f.read().split()[:3]
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(results, indent=2) + "\n")
+    save_json(args, results, indent=2)
     if "scale" in results:
         print(f"{'scale SPS':>10} {'driver/s':>9} {'pyserial/s':>11} {'dropped':>8} {'bad crc':>8} {'none lost':>10}")
         for r in results["scale"]:

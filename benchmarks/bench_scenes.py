@@ -10,8 +10,8 @@ Side by side in one run:
 * ``cap``: the collision cap from rates and latencies measured off the model sensor (8-240 Hz) and
   off the real-time pty run.
 
-Usage: ``python benchmarks/bench_scenes.py [--quick] [--only SCENE ...]``; writes
-``benchmarks/results/scenes.json`` and prints a table.
+Usage: ``python benchmarks/bench_scenes.py [--quick] [--only SCENE ...] [--save | --out PATH]``; prints a
+table; ``--save`` writes ``benchmarks/results/scenes.json``.
 """
 
 from __future__ import annotations
@@ -21,6 +21,8 @@ import json
 import sys
 import time
 from pathlib import Path
+
+from _output import add_save_args, parse_args, save_json  # noqa: E402  (benchmarks/ is the script's folder)
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -73,7 +75,10 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="a few episodes per scene")
     ap.add_argument("--only", nargs="*", help="run only these scenes")
-    args = ap.parse_args()
+    add_save_args(ap, "scenes.json")
+    args = parse_args(ap)
+    if args.only and args.save:
+        ap.error("--save with --only would replace the full run's scenes.json with some scenes; use --out PATH")
     scenes = [s["name"] for s in list_scenes()]
     if args.only:
         scenes = [s for s in scenes if s in args.only]
@@ -95,10 +100,8 @@ def main() -> int:
     slowest = min((r["sim_per_wall"] or 0) for r in rows) if rows else None
     out = {"quick": args.quick, "scenes": rows, "collision_cap": caps, "baseline_real_time": base,
            "min_sim_per_wall": slowest}
-    path = ROOT / "benchmarks" / "results" / "scenes.json"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(out, indent=1))
-    print(f"\nslowest scene: {slowest}x real time; wrote {path}")
+    print(f"\nslowest scene: {slowest}x real time")
+    save_json(args, out)
     return 0
 
 

@@ -117,6 +117,126 @@ def test_scene_target_runs_scene_runner_episodes(tmp_path: Path) -> None:
     assert all(p.result["seed"] == p.seed for p in s.points)  # the episode ran on the point's seed
     with pytest.raises(FileNotFoundError, match="built-in scene"):
         run_sweep("scene:no_such_scene", points, tmp_path)
+    with pytest.raises(ValueError, match="<model>.<param>"):  # refused before any point runs
+        run_sweep("scene:collision_stop", [{"rate_hz": 1.0}], tmp_path)
+
+
+# -- episodes per point, one table, one error for mistyped parameters, Dask ---------------------
+def test_episodes_have_their_own_keys_and_seeds_and_episode_zero_is_the_point(tmp_path: Path) -> None:
+    from tactile_rig.rig.sweep import episode_key
+
+    params = {"x": 1.0, "noise": 1.0}
+    keys = [episode_key(TARGET, params, i) for i in range(4)]
+    assert keys[0] == point_key(TARGET, params) and len(set(keys)) == 4
+    with cf.ThreadPoolExecutor(2) as ex:
+        s3 = run_sweep(TARGET, [params], tmp_path, episodes=3, executor=ex)
+    assert s3.counts == {"ok": 3, "skipped": 0, "failed": 0}
+    assert sorted(p.episode for p in s3.points) == [0, 1, 2]
+    assert {p.point for p in s3.points} == {keys[0]}
+    assert len({p.result["y"] for p in s3.points}) == 3  # different seeds, different noise
+    # more episodes later reuse the ones done
+    with cf.ThreadPoolExecutor(2) as ex:
+        s4 = run_sweep(TARGET, [params], tmp_path, episodes=4, executor=ex)
+    assert s4.counts == {"ok": 1, "skipped": 3, "failed": 0}
+    with pytest.raises(ValueError, match="episodes=0"):
+        run_sweep(TARGET, [params], tmp_path, episodes=0)
+
+
+def test_table_gives_success_rate_median_and_worst_per_point(tmp_path: Path) -> None:
+    from tactile_rig.rig.sweep_report import format_table, sweep_table
+
+    points = [{"x": 1.0, "noise": 0.0}, {"x": 2.0, "noise": 0.0}, {"x": 3.0, "noise": 0.0, "fail": True}]
+    with cf.ThreadPoolExecutor(2) as ex:
+        s = run_sweep(TARGET, points, tmp_path, episodes=2, executor=ex)
+    rows = sweep_table(s)
+    assert [r.params["x"] for r in rows] == [1.0, 2.0, 3.0]
+    assert [r.success_rate for r in rows] == [1.0, 1.0, 0.0]
+    assert rows[1].figures["y"].median == 4.0 and rows[1].figures["y"].worst == 4.0
+    assert "seed" not in rows[0].figures and rows[2].figures == {}
+    assert "asked to fail" in rows[2].errors[0]
+    text = format_table(rows)
+    assert text.splitlines()[0].split()[:4] == ["x", "fail", "episodes", "success"]
+    assert "4 / 4" in text and "0%" in text
+    with pytest.raises(ValueError, match="no such figure; they have: y"):
+        sweep_table(s, figures=["z"])
+
+
+def test_worst_is_the_max_unless_higher_is_better(tmp_path: Path) -> None:
+    from tactile_rig.rig.sweep_report import sweep_table
+
+    with cf.ThreadPoolExecutor(2) as ex:
+        s = run_sweep(TARGET, [{"x": 0.0, "noise": 1.0}], tmp_path, episodes=5, executor=ex)
+    ys = [p.result["y"] for p in s.points]
+    assert sweep_table(s)[0].figures["y"].worst == max(ys)
+    assert sweep_table(s, higher_is_better=["y"])[0].figures["y"].worst == min(ys)
+
+
+def test_mistyped_parameters_are_one_error_before_anything_runs(tmp_path: Path) -> None:
+    points = grid({"sensor.rat_hz": [8.0, 16.0], "tabel.stiffness_n_per_mm": [10.0],
+                   "controller.force_esp_n": [0.3], "table.stifness_n_per_mm": [5.0]})
+    with pytest.raises(ValueError) as err:
+        run_sweep("scene:collision_stop", points, tmp_path / "s")
+    msg = str(err.value)
+    assert "4 unknown parameter(s), nothing ran" in msg
+    for hint in ("did you mean 'rate_hz'", "did you mean 'table'", "did you mean 'force_eps_n'",
+                 "did you mean 'stiffness_n_per_mm'"):
+        assert hint in msg
+    assert not (tmp_path / "s").exists()
+    with pytest.raises(ValueError, match="it has no parameter 'nois'; did you mean 'noise'"):
+        run_sweep(TARGET, [{"x": 1, "nois": 0.1}], tmp_path / "d")
+
+
+def test_every_built_in_scene_accepts_its_own_parameters() -> None:
+    import tomllib
+
+    from tactile_rig.rig.scene_runner import list_scenes
+    from tactile_rig.rig.sweep import check_params
+    from tactile_rig.sim.scenes import resolve_scene_path
+
+    for sc in list_scenes():
+        raw = tomllib.loads(resolve_scene_path(sc["name"]).read_text(encoding="utf-8"))
+        names = [f"{m}.{k}" for m, v in raw.get("models", {}).items() for k in v if k != "type"]
+        names += [f"{sec}.{k}" for sec in ("controller", "sensor") for k in raw.get(sec, {})]
+        names += [f"{t}.{k}" for t, v in raw.get("randomize", {}).items() for k in v]
+        check_params(f"scene:{sc['name']}", [{n: 1 for n in names}])
+
+
+def test_element_of_a_list_parameter_reaches_the_scene(tmp_path: Path) -> None:
+    # the table 3 mm below the start: contact comes early, and the episode still succeeds
     with cf.ThreadPoolExecutor(1) as ex:
-        bad = run_sweep("scene:collision_stop", [{"rate_hz": 1.0}], tmp_path, executor=ex)
-    assert bad.counts["failed"] == 1 and "<model>.<param>" in bad.points[0].error
+        s = run_sweep("scene:collision_stop", [{"table.point_mm.2": 7.0, "controller.speed_frac_of_cap": 1.0}],
+                      tmp_path, executor=ex)
+    assert s.counts["ok"] == 1, [p.error for p in s.points]
+    assert s.points[0].result["ok"] is True
+
+
+def test_cli_prints_one_table_and_plots(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    from tactile_rig.cli import main
+
+    png = tmp_path / "sweep.png"
+    argv = ["sweep", TARGET, "--param", "x=0:2:1", "--set", "noise=0.1", "--episodes", "3", "--out",
+            str(tmp_path / "o"), "--executor", "thread", "--progress", "off", "--plot", str(png)]
+    assert main(argv) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].split()[:3] == ["x", "episodes", "success"] and len(out) >= 5
+    assert out[4].startswith("3 points x 3 episodes: 9 ran")
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    assert main(["sweep", TARGET, "--param", "xx=1,2", "--out", str(tmp_path / "o2"), "--progress", "off"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "did you mean 'x'" in err
+    assert not (tmp_path / "o2").exists()
+
+
+def test_dask_local_cluster_runs_the_sweep_quietly(tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
+    pytest.importorskip("distributed")
+    from tactile_rig.rig.sweep import dask_executor
+
+    ex = dask_executor(workers=1, processes=False, threads_per_worker=2)
+    try:
+        s = run_sweep(TARGET, grid({"x": [0.0, 1.0, 2.0]}, {"noise": 0.0}), tmp_path, episodes=2, executor=ex)
+    finally:
+        ex.shutdown()
+    assert s.counts == {"ok": 6, "skipped": 0, "failed": 0}
+    assert sorted(p.result["y"] for p in s.points) == [0.0, 0.0, 1.0, 1.0, 4.0, 4.0]
+    cap = capfd.readouterr()
+    assert cap.out == "" and "distributed" not in cap.err  # no cluster chatter

@@ -72,3 +72,51 @@ def test_front_is_exactly_the_undominated_set(points):
         dominated = any((sj >= si and ej <= ei) and (sj > si or ej < ei)
                         for j, (sj, ej) in enumerate(points) if j != i)
         assert (i in front) == (not dominated)
+
+
+# -- serialisation, markdown, the default's reason ----------------------------------------------
+def _rich_table():
+    rows = [TradeRow({"solver": "dct", "ds": 1}, 800.0, 0.14, is_default=True, extra={"normal_deg": 8.1},
+                     note="shipped"),
+            TradeRow({"solver": "dct", "ds": 2}, 2400.0, 0.13, extra={"normal_deg": 8.0}),
+            TradeRow({"solver": "poisson", "ds": 1}, math.nan, 0.10, note="crashed")]
+    return TradeTable("demo", "frames_per_s", "height_rms_mm", "30 real presses, 5-fold by press", rows,
+                      knobs={"solver": "integration", "ds": "downsample factor"},
+                      notes=["speeds on one core"], default_note="registration needs full resolution",
+                      conditions={"machine": "cpu", "cores": 2, "usable_cores": 2, "load_1min": 3.5})
+
+
+def test_dict_round_trip_keeps_everything_and_nan_stays_failed():
+    t = _rich_table()
+    d = json.loads(json.dumps(t.to_dict(), allow_nan=False))  # strict JSON: no NaN tokens
+    back = TradeTable.from_dict(d)
+    assert back.to_dict() == t.to_dict()
+    assert math.isnan(back.rows[2].speed) and back.default_note == t.default_note
+    assert back.conditions["load_1min"] == 3.5
+    with pytest.raises(ValueError, match="not a trade table"):
+        TradeTable.from_dict({"topic": "x"})
+
+
+def test_default_off_front_prints_its_reason_or_says_none_given():
+    t = _rich_table()
+    assert not t.default_on_front()  # ds=2 is faster and more accurate
+    assert "NOT on the front: registration needs full resolution" in t.format_text()
+    t.default_note = ""
+    assert "NOT on the front: no reason given" in t.format_text()
+
+
+def test_markdown_has_one_row_per_setting_sorted_by_speed_with_marks():
+    md = _rich_table().to_markdown()
+    rows = [ln for ln in md.splitlines() if ln.startswith("| ") and "`" in ln]
+    assert len(rows) == 3
+    assert "ds=2" in rows[0] and "**yes**" in rows[0]  # fastest first, on the front
+    assert "**D**" in rows[1] and "**yes**" not in rows[1]
+    assert "failed" in rows[2]
+    assert "The default (solver=dct ds=1), NOT on the front: registration needs full resolution." in md
+    assert "Measured on: cpu; 2/2 cores usable; load 3.5" in md
+    assert "Pareto front, fastest first: solver=dct ds=2 (2400, 0.13)" in md
+
+
+def test_setting_must_be_a_mapping():
+    with pytest.raises(ValueError, match="mapping"):
+        TradeTable("t", "s", "e", "", [TradeRow(["k", 1], 1, 1, is_default=True)])  # type: ignore[arg-type]
