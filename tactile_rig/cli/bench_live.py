@@ -14,13 +14,19 @@ import argparse
 import os
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.common import print_json
 from tactile_rig.rig.live import DEFAULT_LIVE_PORT, LiveServer
+
+# What a jig accuracy run publishes (the camera's topic depends on its name).
+JIG_ACCURACY_TOPICS = {"/perception/jig_accuracy_point": "tactile_rig.Perception",
+                       "/perception/tactile_map_touch": "tactile_rig.Perception",
+                       "/jig/pose": "tactile_rig.JigPose", "/command/jig": "tactile_rig.Command"}
+from tactile_rig.rig.bench_camera import camera_name
 from tactile_rig.rig.live_perception import (
     FingerVisionStep,
     GelSightHeightStep,
@@ -46,22 +52,24 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
 SESSION_TOPIC = "/session"  # advertised at once so a viewer can subscribe before the session's own topics exist
 
 
-def live_from_args(args: argparse.Namespace, clock: Any = None, topics: tuple[str, ...] = ()) -> LiveServer | None:
-    """The live server ``--live`` asks for (its URL printed on stderr), or None. With ``--live-wait``
-    it waits for a viewer to subscribe to ``topics`` (advertised first), or to anything."""
+def live_from_args(args: argparse.Namespace, clock: Any = None,
+                   topics: Mapping[str, str] | None = None) -> LiveServer | None:
+    """The live server ``--live`` asks for (its URL printed on stderr), or None.
+
+    ``topics`` (topic → schema) are advertised at once, so a viewer can subscribe before the session
+    publishes on them; with ``--live-wait S`` the session waits up to S s for a viewer subscribed to
+    all of them (or, without ``topics``, to anything)."""
     if not getattr(args, "live", False):
         return None
     if args.live_wait < 0:
         raise ValueError(f"--live-wait {args.live_wait} must be >= 0 s")
     live = LiveServer(port=args.live_port, clock=clock)
     print(f"live view: {live.url} (Foxglove: Open connection -> Foxglove WebSocket)", file=sys.stderr, flush=True)
-    if args.live_wait > 0 and not topics:
-        live.advertise(SESSION_TOPIC)
-        live.wait_for_subscriber(args.live_wait)
-    elif args.live_wait > 0:
-        for t in topics:
-            live.advertise(t, "tactile_rig.Perception")
-        live.wait_for_subscriber(args.live_wait, set(topics))
+    wanted = dict(topics or {SESSION_TOPIC: "tactile_rig.Json"})
+    for topic, schema in wanted.items():
+        live.advertise(topic, schema)
+    if args.live_wait > 0:
+        live.wait_for_subscriber(args.live_wait, set(wanted) if topics else None)
     return live
 
 
@@ -84,7 +92,9 @@ def wants_bench(args: argparse.Namespace, *files: str) -> bool:
 
 def _run(args: argparse.Namespace, step: Any, sensor: str, line: Any) -> int:
     bench = bench_from_args(args)
-    live = live_from_args(args)
+    cam = camera_name(bench, args.camera, sensor)
+    live = live_from_args(args, topics={f"/camera/{cam}/compressed": "foxglove.CompressedImage",
+                                        f"/perception/{cam}/{step.name}": "tactile_rig.Perception"})
     as_json = bool(getattr(args, "json", False))
 
     def on_frame(row: dict[str, Any]) -> None:
@@ -94,7 +104,7 @@ def _run(args: argparse.Namespace, step: Any, sensor: str, line: Any) -> int:
             print(f"{row['frame']:5d} {row['fps']:6.2f} fps {row['work_ms']:6.1f} ms  {line(row)}", flush=True)
 
     try:
-        s = run_live(bench, args.camera, step, sensor=sensor, duration_s=args.duration, max_frames=args.frames_max,
+        s = run_live(bench, cam, step, sensor=sensor, duration_s=args.duration, max_frames=args.frames_max,
                      live=live, on_frame=on_frame,
                      publish_image=(lambda img: height_image(step.last)) if isinstance(step, GelSightHeightStep)
                      else None)
@@ -108,17 +118,21 @@ def _run(args: argparse.Namespace, step: Any, sensor: str, line: Any) -> int:
     return 0 if s.frames else 1
 
 
-def track(args: argparse.Namespace, params: Any) -> int:
-    """``fingervision track --bench``: live tracking from the bench's FingerVision camera."""
+def track(args: argparse.Namespace, params: Any, calibrations: Any = None, mm_per_px: float | None = None) -> int:
+    """``fingervision track --bench``: live tracking from the bench's FingerVision camera, from the
+    camera's stored baseline and in newtons through its force map when the bench names them."""
 
     def line(r: dict[str, Any]) -> str:
         if r["calibrating"]:
             return f"calibrating ({r['marker_count']} markers)"
-        f = r["force"]
-        return (f"{r['marker_count']:3d} markers  force ({f[0]:+.3f}, {f[1]:+.3f}, {f[2]:+.3f}) {r['force_unit']}  "
-                f"{'contact' if r['contact'] else 'free'}  {'SLIP' if r['slip'] else 'still'}")
+        f = r["force_px"]
+        newtons = f"  {r['force_map_n']:6.2f} N" if "force_map_n" in r else ""
+        return (f"{r['marker_count']:3d} markers  force ({f[0]:+.3f}, {f[1]:+.3f}, {f[2]:+.3f}) px"
+                f"{newtons}  {'contact' if r['contact'] else 'free'}  {'SLIP' if r['slip'] else 'still'}")
 
-    return _run(args, FingerVisionStep(params), "fingervision", line)
+    if calibrations is not None and calibrations.files and not getattr(args, "json", False):
+        print("calibration: " + ", ".join(f"{k} {v}" for k, v in calibrations.files.items()), file=sys.stderr)
+    return _run(args, FingerVisionStep(params, calibrations, mm_per_px), "fingervision", line)
 
 
 def height(args: argparse.Namespace) -> int:
@@ -156,7 +170,8 @@ def scene_live(args: argparse.Namespace, show: Any) -> dict[str, Any]:
     trace on ``/perception/<scene>/trace``, one message per sample, episodes one after the other in
     simulated time. Returns the summary ``run_episodes`` would."""
     stem = resolve_scene_path(args.name).stem
-    live = live_from_args(args, topics=(f"/perception/{stem}/trace", f"/perception/{stem}/episode"))
+    live = live_from_args(args, topics={f"/perception/{stem}/trace": "tactile_rig.Perception",
+                                        f"/perception/{stem}/episode": "tactile_rig.Perception"})
     assert live is not None
     reports = []
     t0 = 0.0

@@ -145,7 +145,7 @@ def _record(i: int, name: str, r) -> dict[str, Any]:
 
 def _track(args: argparse.Namespace) -> int:
     if bench_live.wants_bench(args, "frames"):
-        return bench_live.track(args, load_params(args.config, args.calib_frames))
+        return bench_live.track(args, load_params(args.config, args.calib_frames), *_calibrations(args))
     bench_live.need_files(args, "frames")
 
     if args.fps is not None and not (0 < args.fps < float("inf")):

@@ -14,7 +14,7 @@ from typing import Any
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.bench_live import add_live_arguments, live_from_args
 from tactile_rig.cli.common import add_json_flag, print_json
-from tactile_rig.rig.bench_record import record_bench
+from tactile_rig.rig.bench_record import record_bench, record_topics
 
 
 def register(sub: Any) -> None:
@@ -36,7 +36,7 @@ def _record(args: argparse.Namespace) -> int:
     out = args.out or f"recordings/session-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
     if not out.endswith(".mcap"):
         raise ValueError(f"--out {out!r} must name an .mcap file")
-    live = live_from_args(args)
+    live = live_from_args(args, topics=record_topics(bench))
     tty = getattr(sys.stderr, "isatty", lambda: False)()
 
     def tick(o: Any) -> None:

@@ -37,6 +37,20 @@ class RecordOutcome:
     missed: dict[str, int] = field(default_factory=dict)  # polls a device did not answer (skipped)
 
 
+def record_topics(bench: Bench) -> dict[str, str]:
+    """The topics (→ schema) a recording of ``bench`` writes."""
+    topics: dict[str, str] = {}
+    if any(d.kind == "scale" for d in bench.devices.values()):
+        topics["/scale/force"] = "tactile_rig.ScaleReading"
+    if any(d.kind == "gripper" for d in bench.devices.values()):
+        topics["/state/gripper"] = "tactile_rig.DeviceState"
+    if any(d.kind == "jig" for d in bench.devices.values()):
+        topics.update({"/state/jig": "tactile_rig.DeviceState", "/jig/pose": "tactile_rig.JigPose"})
+    for name in bench.cameras:
+        topics[f"/camera/{name}/compressed"] = "foxglove.CompressedImage"
+    return topics
+
+
 def record_bench(bench: Bench, duration_s: float, out: str | Path | None, *, live: Any = None,
                  gripper_period_s: float = 0.05, jig_period_s: float = 0.1, jpeg: bool = True,
                  on_tick: Callable[[RecordOutcome], None] | None = None) -> RecordOutcome:
