@@ -43,6 +43,9 @@ def register(sub: Any) -> None:
     r.add_argument("--stage-scene", default="jig_accuracy", metavar="SCENE",
                    help="what lies on the jig's stage under the GelSight camera: jig_accuracy (the object of "
                         "the accuracy run, default) or gelsight_ball_presses (the calibration ball)")
+    r.add_argument("--press", action="store_true",
+                   help="the gripper presses a FingerVision fingertip (camera_fingervision) on the scale: gripper, "
+                        "scale and that camera share one process and world (for calibrate force-map)")
     r.add_argument("--no-calibration", action="store_true",
                    help="do not make the GelSight calibration on the mocks (the bench then names none)")
     r.add_argument("--duration", type=float, metavar="S", help="stop after S seconds instead of at Ctrl-C")
@@ -77,6 +80,7 @@ def _rehearse(args: argparse.Namespace) -> int:
     opts = RehearsalOptions(cameras={n: s for n, s, _ in cams}, camera_sensors={n: k for n, _, k in cams},
                             seed=args.seed, homing=args.homing, gelsight_fps=args.gelsight_fps,
                             gelsight_jpeg_quality=args.gelsight_jpeg_quality, stage_scene=args.stage_scene,
+                            press=args.press,
                             calibration=not args.no_calibration)
     stop = threading.Event()
 

@@ -47,7 +47,9 @@ class RehearsalOptions:
     ``calibration`` makes the GelSight calibration when it is missing; ``gelsight_jpeg_quality`` is
     the GelSight stream's JPEG quality (a GelSight Mini streams MJPG too); ``stage_scene`` is what lies
     on the jig's stage (``jig_accuracy``: the object of the accuracy run; ``gelsight_ball_presses``:
-    the calibration ball)."""
+    the calibration ball); ``press`` serves the gripper, the scale and a FingerVision camera
+    (``camera_fingervision``) from one process and one world, the fingertip pressed on the scale by
+    the gripper (:mod:`.child` ``press``: what a force-map collection needs)."""
 
     cameras: Mapping[str, str] = field(default_factory=dict)
     camera_sensors: Mapping[str, str] = field(default_factory=dict)
@@ -58,11 +60,14 @@ class RehearsalOptions:
     scale_rate_sps: int = 80
     gelsight_jpeg_quality: int = 100
     stage_scene: str = STAGE_SCENE
+    press: bool = False
 
     def __post_init__(self) -> None:
         for name, sensor in self.camera_sensors.items():
             if sensor not in SENSORS:
                 raise ValueError(f"camera {name!r}: sensor {sensor!r} must be one of {', '.join(SENSORS)}")
+        if self.press and "fingervision" in self.cameras:
+            raise ValueError("camera name 'fingervision' is the pressed fingertip's camera with press=True")
         for name in self.cameras:
             if not name.replace("_", "").isalnum() or name == "gelsight":
                 raise ValueError(f"camera name {name!r} must be letters, digits and _ (and not 'gelsight', "
@@ -93,13 +98,16 @@ class RehearsalBench:
         cal = self.out / "calib" / "gelsight.json"
         stage_opts = ["--scene", o.stage_scene, "--seed", str(o.seed), "--fps", repr(float(o.gelsight_fps)),
                       "--jpeg-quality", str(o.gelsight_jpeg_quality)] + (["--homing"] if o.homing else [])
-        procs = {
-            "gripper": DeviceProcess("gripper", mock_serve_argv("dynamixel", ["--protocol", "2", "--id", "1",
-                                                                               "--baud", "57600"])),
-            "scale": DeviceProcess("scale", mock_serve_argv("scale", ["--rate", str(o.scale_rate_sps),
-                                                                       "--seed", str(o.seed)])),
-            "stage": DeviceProcess("jig", child_argv("stage", stage_opts)),
-        }
+        procs: dict[str, DeviceProcess] = {}
+        if o.press:
+            procs["press"] = DeviceProcess("press", child_argv("press", ["--seed", str(o.seed),
+                                                                          "--rate", str(o.scale_rate_sps)]))
+        else:
+            procs["gripper"] = DeviceProcess("gripper", mock_serve_argv(
+                "dynamixel", ["--protocol", "2", "--id", "1", "--baud", "57600"]))
+            procs["scale"] = DeviceProcess("scale", mock_serve_argv(
+                "scale", ["--rate", str(o.scale_rate_sps), "--seed", str(o.seed)]))
+        procs["stage"] = DeviceProcess("jig", child_argv("stage", stage_opts))
         for name, source in o.cameras.items():
             if source == SYNTHETIC_FOOTAGE:
                 source = str(write_fingervision_footage(self.out / "footage" / f"{name}.avi", seed=o.seed))
@@ -121,8 +129,14 @@ class RehearsalBench:
 
     def _write(self, calibration: Path | None) -> None:
         o, links = self.options, self.out / "dev"
-        g, s, st = (self.processes[k].info for k in ("gripper", "scale", "stage"))
+        st = self.processes["stage"].info
         pids = {k: p.pid for k, p in self.processes.items()}
+        if o.press:
+            press = self.processes["press"].info
+            g, s = press["gripper"], press["scale"]
+            pids["gripper"] = pids["scale"] = pids["press"]
+        else:
+            g, s = self.processes["gripper"].info, self.processes["scale"].info
         self.devices = [
             RehearsalDevice("gripper", {"port": str(link_device(links, "gripper", g["port"])), "baud": 57600,
                                         "ids": [1], "protocol": 2, "current_limit_frac": 0.5},
@@ -143,6 +157,12 @@ class RehearsalBench:
             keys["calibration"] = os.path.relpath(calibration, self.out)
         self.devices.append(RehearsalDevice("camera_gelsight", keys,
                                             f"GelSight rendering the jig's stage, pid {pids['stage']}"))
+        if o.press:
+            c = self.processes["press"].info["camera"]
+            self.devices.append(RehearsalDevice("camera_fingervision", {
+                "port": c["url"], "sensor": "fingervision", "width": c["width"], "height": c["height"],
+                "fps": float(c["fps"]), "fourcc": c["fourcc"]},
+                f"FingerVision fingertip pressed on the scale by the gripper, pid {pids['press']}"))
         for name in o.cameras:
             c = self.processes[f"camera_{name}"].info
             self.devices.append(RehearsalDevice(f"camera_{name}", {
