@@ -1,6 +1,8 @@
-"""Force map on the rehearsal bench (``bench rehearse --press``): the gripper presses the FingerVision
-fingertip on the scale, the guided collection records it and fits the map, then live tracking
-reports newtons that agree with the scale. Real time, ptys and HTTP, separate processes."""
+"""Calibrations made on the rehearsal bench (``bench rehearse --press --stage-scene
+gelsight_ball_presses``): the GelSight ball-press session moving the jig, and the force map, where
+the gripper presses the FingerVision fingertip on the scale, the guided collection records it and
+fits the map, then live tracking reports newtons that agree with the scale. Real time, ptys and
+HTTP, separate processes; each session's MCAP read by the mcap package's own reader."""
 
 from __future__ import annotations
 
@@ -26,9 +28,25 @@ pytestmark = [pytest.mark.pty, pytest.mark.slow]
 @pytest.fixture(scope="module")
 def press_bench(tmp_path_factory: pytest.TempPathFactory):
     out = tmp_path_factory.mktemp("press")
-    with RehearsalBench(out, RehearsalOptions(press=True, calibration=False)) as rb:
+    opts = RehearsalOptions(press=True, calibration=False, stage_scene="gelsight_ball_presses")
+    with RehearsalBench(out, opts) as rb:
         yield rb
         assert rb.problems() == []
+
+
+def _topics(path: str) -> set[str]:
+    with open(path, "rb") as f:
+        return {c.topic for _s, c, _m in mcap_reader.make_reader(f).iter_messages()}
+
+
+def test_gelsight_calibration_on_the_rehearsal(press_bench, capsys) -> None:
+    out = press_bench.out / "calib" / "gelsight"
+    assert main(["calibrate", "gelsight", "--bench", str(press_bench.bench_path), "--yes", "--out", str(out),
+                 "--grid-x", "-6", "6", "3", "--grid-y", "-4", "4", "2", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert res["values"]["presses"] == 6
+    assert res["values"]["heldout_mean_normal_deg"] < 10.0  # the mock session: ~4.3°
+    assert {"/camera/camera_gelsight/compressed", "/jig/pose", "/command/jig"} <= _topics(res["files"]["recording"])
 
 
 def test_force_map_collected_on_the_rehearsal_gives_newtons_in_live_tracking(press_bench, capsys) -> None:
@@ -39,9 +57,7 @@ def test_force_map_collected_on_the_rehearsal_gives_newtons_in_live_tracking(pre
                  "--json"]) == 0
     out = [json.loads(line) for line in capsys.readouterr().out.splitlines() if line.startswith("{")]
     recording = next(v for d in out for k, v in d.items() if k in ("recording", "mcap") and str(v).endswith(".mcap"))
-    with open(recording, "rb") as f:  # the collection's MCAP, read by the mcap package's own reader
-        topics = {c.topic for _s, c, _m in mcap_reader.make_reader(f).iter_messages()}
-    assert {"/scale/force", "/camera/camera_fingervision/compressed"} <= topics
+    assert {"/scale/force", "/camera/camera_fingervision/compressed"} <= _topics(recording)
 
     bench = load_bench(bench_path)
     cal = camera_calibrations(bench, "camera_fingervision", force_map=model, defaults=False, load=("force_map",))
