@@ -95,7 +95,9 @@ def _rehearse(args: argparse.Namespace) -> int:
         else:
             print(f"rehearsal bench up: {len(rb.processes)} device processes")
             for k, p in rb.processes.items():
-                print(f"  {k:<20} pid {p.pid:<8} {p.info.get('port') or p.info.get('url')}")
+                where = p.info.get("port") or p.info.get("url") or ", ".join(
+                    f"{d} {p.info[d]['port']}" for d in ("gripper", "scale") if d in p.info)
+                print(f"  {k:<20} pid {p.pid:<8} {where}")
             print(f"bench file: {rb.bench_path}")
             print(f"  export TACTILE_RIG_BENCH={rb.bench_path.resolve()}")
             print("Ctrl-C stops it.")

@@ -16,7 +16,9 @@ Devices (each its own process, real time):
 The serial devices are named in the bench file through links in ``OUT/dev/`` (``OUT/dev/gripper`` →
 ``/dev/pts/N``), as a lab names USB adapters through ``/dev/serial/by-path`` links. A GelSight
 calibration made on the mocks (the ball-press session) is written to ``OUT/calib/gelsight.json`` and
-named by the camera, so ``run jig-accuracy --bench`` runs at once.
+named by the camera, so ``run jig-accuracy --bench`` runs at once. With ``press``, a force map or a
+marker baseline made earlier in ``OUT/calib/`` (``force_map/``, ``fingervision.json``) is named by
+``camera_fingervision`` on the next start.
 """
 
 from __future__ import annotations
@@ -159,10 +161,16 @@ class RehearsalBench:
                                             f"GelSight rendering the jig's stage, pid {pids['stage']}"))
         if o.press:
             c = self.processes["press"].info["camera"]
-            self.devices.append(RehearsalDevice("camera_fingervision", {
-                "port": c["url"], "sensor": "fingervision", "width": c["width"], "height": c["height"],
-                "fps": float(c["fps"]), "fourcc": c["fourcc"]},
-                f"FingerVision fingertip pressed on the scale by the gripper, pid {pids['press']}"))
+            keys = {"port": c["url"], "sensor": "fingervision", "width": c["width"], "height": c["height"],
+                    "fps": float(c["fps"]), "fourcc": c["fourcc"]}
+            # What earlier sessions on this rehearsal made, named as a lab's bench names them.
+            if (self.out / "calib" / "fingervision.json").is_file():
+                keys["calibration"] = "calib/fingervision.json"
+            if any((self.out / "calib" / "force_map").glob("force_map*.json")):
+                keys["force_map"] = "calib/force_map"
+            self.devices.append(RehearsalDevice("camera_fingervision", keys,
+                                                f"FingerVision fingertip pressed on the scale by the gripper, "
+                                                f"pid {pids['press']}"))
         for name in o.cameras:
             c = self.processes[f"camera_{name}"].info
             self.devices.append(RehearsalDevice(f"camera_{name}", {
