@@ -20,13 +20,9 @@ import numpy as np
 
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.common import print_json
-from tactile_rig.rig.live import DEFAULT_LIVE_PORT, LiveServer
-
-# What a jig accuracy run publishes (the camera's topic depends on its name).
-JIG_ACCURACY_TOPICS = {"/perception/jig_accuracy_point": "tactile_rig.Perception",
-                       "/perception/tactile_map_touch": "tactile_rig.Perception",
-                       "/jig/pose": "tactile_rig.JigPose", "/command/jig": "tactile_rig.Command"}
 from tactile_rig.rig.bench_camera import camera_name
+from tactile_rig.rig.camera_calibrations import camera_calibrations, describe_files
+from tactile_rig.rig.live import DEFAULT_LIVE_PORT, LiveServer
 from tactile_rig.rig.live_perception import (
     FingerVisionStep,
     GelSightHeightStep,
@@ -49,22 +45,29 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --live: wait up to S s for a viewer to subscribe before starting (default 0)")
 
 
+# What a jig accuracy run publishes (the camera's topic depends on its name).
+JIG_ACCURACY_TOPICS = {"/perception/jig_accuracy_point": "tactile_rig.Perception",
+                       "/perception/tactile_map_touch": "tactile_rig.Perception",
+                       "/jig/pose": "tactile_rig.JigPose", "/command/jig": "tactile_rig.Command"}
+
 SESSION_TOPIC = "/session"  # advertised at once so a viewer can subscribe before the session's own topics exist
 
 
 def live_from_args(args: argparse.Namespace, clock: Any = None,
-                   topics: Mapping[str, str] | None = None) -> LiveServer | None:
+                   topics: Mapping[str, str] | tuple[str, ...] | None = None) -> LiveServer | None:
     """The live server ``--live`` asks for (its URL printed on stderr), or None.
 
-    ``topics`` (topic → schema) are advertised at once, so a viewer can subscribe before the session
-    publishes on them; with ``--live-wait S`` the session waits up to S s for a viewer subscribed to
-    all of them (or, without ``topics``, to anything)."""
+    ``topics`` (topic → schema; a tuple means ``tactile_rig.Perception``) are advertised at once, so a
+    viewer can subscribe before the session publishes on them; with ``--live-wait S`` the session
+    waits up to S s for a viewer subscribed to all of them (or, without ``topics``, to anything)."""
     if not getattr(args, "live", False):
         return None
     if args.live_wait < 0:
         raise ValueError(f"--live-wait {args.live_wait} must be >= 0 s")
     live = LiveServer(port=args.live_port, clock=clock)
     print(f"live view: {live.url} (Foxglove: Open connection -> Foxglove WebSocket)", file=sys.stderr, flush=True)
+    if isinstance(topics, tuple):
+        topics = dict.fromkeys(topics, "tactile_rig.Perception")
     wanted = dict(topics or {SESSION_TOPIC: "tactile_rig.Json"})
     for topic, schema in wanted.items():
         live.advertise(topic, schema)
@@ -118,21 +121,27 @@ def _run(args: argparse.Namespace, step: Any, sensor: str, line: Any) -> int:
     return 0 if s.frames else 1
 
 
-def track(args: argparse.Namespace, params: Any, calibrations: Any = None, mm_per_px: float | None = None) -> int:
+def track(args: argparse.Namespace, params: Any) -> int:
     """``fingervision track --bench``: live tracking from the bench's FingerVision camera, from the
     camera's stored baseline and in newtons through its force map when the bench names them."""
 
     def line(r: dict[str, Any]) -> str:
         if r["calibrating"]:
             return f"calibrating ({r['marker_count']} markers)"
-        f = r["force_px"]
-        newtons = f"  {r['force_map_n']:6.2f} N" if "force_map_n" in r else ""
-        return (f"{r['marker_count']:3d} markers  force ({f[0]:+.3f}, {f[1]:+.3f}, {f[2]:+.3f}) px"
-                f"{newtons}  {'contact' if r['contact'] else 'free'}  {'SLIP' if r['slip'] else 'still'}")
+        f, unit = (r["force_n"], "N") if "force_n" in r else (r["force_px"], "px")
+        return (f"{r['marker_count']:3d} markers  force ({f[0]:+.3f}, {f[1]:+.3f}, {f[2]:+.3f}) {unit}  "
+                f"{'contact' if r['contact'] else 'free'}  {'SLIP' if r['slip'] else 'still'}")
 
-    if calibrations is not None and calibrations.files and not getattr(args, "json", False):
-        print("calibration: " + ", ".join(f"{k} {v}" for k, v in calibrations.files.items()), file=sys.stderr)
-    return _run(args, FingerVisionStep(params, calibrations, mm_per_px), "fingervision", line)
+    bench = bench_from_args(args)
+    stored = not getattr(args, "no_calibration", False)
+    cal = camera_calibrations(bench, args.camera, calibration=getattr(args, "calibration", None) if stored else None,
+                              force_map=getattr(args, "force_map", None) if stored else None, defaults=False,
+                              load=("calibration", "force_map") if stored else ())
+    cfg = bench.cameras.get(cal.camera)
+    step = FingerVisionStep(params, cal, mm_per_px=float(cfg.mm_per_px_x) if cfg is not None else None)
+    if not getattr(args, "json", False):
+        print(f"calibration: {describe_files(cal)}", flush=True)
+    return _run(args, step, "fingervision", line)
 
 
 def height(args: argparse.Namespace) -> int:

@@ -145,7 +145,7 @@ def _record(i: int, name: str, r) -> dict[str, Any]:
 
 def _track(args: argparse.Namespace) -> int:
     if bench_live.wants_bench(args, "frames"):
-        return bench_live.track(args, load_params(args.config, args.calib_frames), *_calibrations(args))
+        return bench_live.track(args, load_params(args.config, args.calib_frames))
     bench_live.need_files(args, "frames")
 
     if args.fps is not None and not (0 < args.fps < float("inf")):
@@ -160,7 +160,7 @@ def _track(args: argparse.Namespace) -> int:
         cal.calibration.apply(fv)  # the stored baseline: no frames spent rebuilding it
     fm = cal.force_map
     if not args.json:
-        print(f"calibration: {describe_files(cal)}", file=sys.stderr)
+        print(f"calibration: {describe_files(cal)}")
     learnt = args.object_rect is None
     n = 0
     for i, (name, frame) in enumerate(iter_frames(args.frames)):
