@@ -38,8 +38,8 @@ def register(sub: Any) -> None:
     r.add_argument("--homing", action="store_true",
                    help="GRBL homing enabled: the jig boots locked and $H takes ~20 s, as on a real jig")
     r.add_argument("--gelsight-fps", type=float, default=25.0, help="frame rate of the GelSight camera (default 25)")
-    r.add_argument("--gelsight-jpeg-quality", type=int, default=100, metavar="Q",
-                   help="JPEG quality of the GelSight stream, 1..100 (default 100; a camera's MJPG is nearer 90)")
+    r.add_argument("--gelsight-jpeg-quality", type=int, default=95, metavar="Q",
+                   help="JPEG quality of the GelSight stream, 1..100 (default 95, as a camera's MJPG)")
     r.add_argument("--stage-scene", default="jig_accuracy", metavar="SCENE",
                    help="what lies on the jig's stage under the GelSight camera: jig_accuracy (the object of "
                         "the accuracy run, default) or gelsight_ball_presses (the calibration ball)")

@@ -14,7 +14,8 @@ Devices (each its own process, real time):
   ``"rendered"`` is a FingerVision video the rehearsal writes first to ``OUT/footage/<name>.avi``.
 
 The serial devices are named in the bench file through links in ``OUT/dev/`` (``OUT/dev/gripper`` →
-``/dev/pts/N``), as a lab names USB adapters through ``/dev/serial/by-path`` links. A GelSight
+``/dev/pts/N``), as a lab names USB adapters through ``/dev/serial/by-path`` links; each process's
+stderr is ``OUT/logs/<device>.log``. A GelSight
 calibration made on the mocks (the ball-press session) is written to ``OUT/calib/gelsight.json`` and
 named by the camera, so ``run jig-accuracy --bench`` runs at once. With ``press``, a force map or a
 marker baseline made earlier in ``OUT/calib/`` (``force_map/``, ``fingervision.json``) is named by
@@ -60,7 +61,7 @@ class RehearsalOptions:
     gelsight_fps: float = 25.0
     calibration: bool = True
     scale_rate_sps: int = 80
-    gelsight_jpeg_quality: int = 100
+    gelsight_jpeg_quality: int = 95
     stage_scene: str = STAGE_SCENE
     press: bool = False
 
@@ -118,7 +119,7 @@ class RehearsalBench:
         self.processes = procs
         try:
             for p in procs.values():
-                p.start()
+                p.start(self.out / "logs")
             if o.calibration and not cal.is_file():
                 mock_gelsight_calibration(cal.with_suffix(""), seed=o.seed)  # while the processes boot
             for p in procs.values():
