@@ -127,7 +127,11 @@ def record_bench(bench: Bench, duration_s: float, out: str | Path | None, *, liv
                 next_jig = now + jig_period_s
             for name, cam in rig.cameras.items():
                 try:
-                    fr = cam.read_latest(max_age_s=1.0)
+                    # A capture thread keeps the newest frame (real time); without one (a virtual
+                    # clock) the read itself waits, in virtual time, up to one frame period for the
+                    # next frame (a simulated camera, like a V4L2 one, keeps only the newest).
+                    fr = (cam.read_latest(max_age_s=1.0) if cam.threaded
+                          else cam.read(timeout_s=1.0 / float(cam.config.fps)))
                 except DeviceTimeout:
                     continue
                 if fr.seq == last_seq[name]:
