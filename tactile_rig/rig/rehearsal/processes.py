@@ -16,6 +16,20 @@ from tactile_rig.core.errors import NotConnected
 
 START_TIMEOUT_S = 60.0  # a cold start imports numpy, OpenCV and the scene under a loaded machine
 
+# Runs a module as ``python -m`` would, after asking Linux to send it SIGTERM when the process that
+# started it dies (prctl PR_SET_PDEATHSIG), so a rehearsal killed outright (SIGKILL, a test timeout)
+# leaves no device behind. Best effort: elsewhere the module just runs.
+_LAUNCHER = (
+    "import ctypes, runpy, signal, sys\n"
+    "try:\n"
+    "    ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)\n"
+    "except (OSError, AttributeError):\n"
+    "    pass\n"
+    "module = sys.argv[1]\n"
+    "sys.argv = [module] + sys.argv[2:]\n"
+    "runpy.run_module(module, run_name='__main__', alter_sys=True)\n"
+)
+
 
 @dataclass
 class DeviceProcess:
@@ -108,8 +122,9 @@ class DeviceProcess:
 
 def mock_serve_argv(kind: str, options: Sequence[str]) -> list[str]:
     """``tactile-rig mock serve KIND OPTIONS`` as a module run (the same interpreter and package)."""
-    return ["-m", "tactile_rig.cli", "mock", "serve", kind, *options]
+    return ["-c", _LAUNCHER, "tactile_rig.cli", "mock", "serve", kind, *options]
 
 
 def child_argv(what: str, options: Sequence[str]) -> list[str]:
-    return ["-m", "tactile_rig.rig.rehearsal.child", what, *options]
+    """One of the rehearsal's own device processes (:mod:`tactile_rig.rig.rehearsal.child`)."""
+    return ["-c", _LAUNCHER, "tactile_rig.rig.rehearsal.child", what, *options]
