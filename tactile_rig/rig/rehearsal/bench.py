@@ -95,7 +95,10 @@ class RehearsalBench:
         self.bench_path = self.out / BENCH_FILE
 
     def start(self) -> "RehearsalBench":
-        """Start every device process (in parallel), wait for their ports, write the bench file."""
+        """Start every device process (in parallel), wait for their ports, write the bench file.
+
+        On Linux the device processes end when the thread that started them ends (they must not
+        outlive a killed rehearsal): call this from a thread that lives as long as the rehearsal."""
         o = self.options
         self.out.mkdir(parents=True, exist_ok=True)
         cal = self.out / "calib" / "gelsight.json"
