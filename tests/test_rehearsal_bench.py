@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from tactile_rig.cli import main
-from tactile_rig.rig.bench import load_bench
+from tactile_rig.rig.bench import connect_bench, load_bench
 from tactile_rig.rig.jig_accuracy import JigAccuracyConfig, execute_jig_accuracy
 from tactile_rig.rig.learning import fit_force_map
 from tactile_rig.rig.rehearsal import RehearsalBench, RehearsalOptions
@@ -198,3 +198,38 @@ def test_gelsight_height_live_saves_the_last_map(rehearsal, tmp_path, capsys) ->
     assert rows[-2]["max_height_mm"] == pytest.approx(float(h.max()), abs=1e-4)
     assert rows[-2]["max_height_mm"] > 0.05  # the jig's object presses the gel
     assert main(["gelsight", "height"]) == 2  # neither files nor a bench: one line, exit 2
+
+
+def test_gelsight_localize_live_follows_the_jig(rehearsal, tmp_path, capsys) -> None:
+    b = str(rehearsal.bench_path)
+    bench = load_bench(b)
+    # One connection for the whole test: GRBL resets when its port is opened (an Uno's DTR reset) and,
+    # without homing, takes wherever the stage stands as its new zero.
+    jig = connect_bench(load_bench(text=f'[jig]\nport = "{bench.devices["jig"].port}"\n')).jig
+    try:
+        assert main(["camera", "grab", "--bench", b, "--out", str(tmp_path), "--json"]) == 0
+        frame = json.loads(capsys.readouterr().out.splitlines()[-1])["files"][0]
+        cal = str(rehearsal.out / "calib" / "gelsight.json")
+        assert main(["gelsight", "map", frame, "--calib", cal, "--mm-per-px", "0.0634", "-o",
+                     str(tmp_path / "map.npz"), "--json"]) == 0
+        capsys.readouterr()
+
+        def localize() -> dict:
+            # The jig accuracy run's registration knobs (rig/jig_accuracy/plan.py DEFAULT_REGISTRATION).
+            assert main(["gelsight", "localize", str(tmp_path / "map.npz"), "--bench", b, "--frames-max", "2",
+                         "--detect-short-px", "160", "--max-sigma-px", "0.5", "--max-sigma-rot-deg", "0.5",
+                         "--json"]) == 0
+            rows = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+            assert rows[-1]["summary"] and rows[-1]["frames"] == 2
+            return rows[-2]
+
+        home = localize()
+        assert home["ok"] and abs(home["rotation_deg"]) < 0.5 and np.hypot(*home["translation_mm"]) < 0.1
+        jig.move_to(0.0, 0.0, 15.0)
+        jig.wait_idle(timeout_s=30)
+        turned = localize()
+        jig.move_to(0.0, 0.0, 0.0)
+        jig.wait_idle(timeout_s=30)
+    finally:
+        jig.close()
+    assert turned["ok"] and abs(abs(turned["rotation_deg"]) - 15.0) < 1.0  # the jig's turn, seen in the gel

@@ -26,6 +26,7 @@ from tactile_rig.rig.live import DEFAULT_LIVE_PORT, LiveServer
 from tactile_rig.rig.live_perception import (
     FingerVisionStep,
     GelSightHeightStep,
+    GelSightLocalizeStep,
     gelsight_calibration_for,
     height_image,
     run_live,
@@ -101,10 +102,11 @@ def _run(args: argparse.Namespace, step: Any, sensor: str, line: Any) -> int:
     as_json = bool(getattr(args, "json", False))
 
     def on_frame(row: dict[str, Any]) -> None:
+        text = line(row)
         if as_json:
             print_json(row)
         else:
-            print(f"{row['frame']:5d} {row['fps']:6.2f} fps {row['work_ms']:6.1f} ms  {line(row)}", flush=True)
+            print(f"{row['frame']:5d} {row['fps']:6.2f} fps {row['work_ms']:6.1f} ms  {text}", flush=True)
 
     try:
         s = run_live(bench, cam, step, sensor=sensor, duration_s=args.duration, max_frames=args.frames_max,
@@ -165,6 +167,29 @@ def height(args: argparse.Namespace) -> int:
         np.save(target, step.last)
         print(f"last height map: {target}", file=sys.stderr)
     return rc
+
+
+def localize(args: argparse.Namespace, tactile_map: Any) -> int:
+    """``gelsight localize MAP --bench``: each live frame of the bench's GelSight camera localized in
+    ``tactile_map``; exit 1 when the last frame was refused."""
+    bench = bench_from_args(args)
+    cam = args.camera or next((k for k, c in bench.cameras.items() if c.sensor == "gelsight"), None)
+    if cam is None:
+        raise ValueError(f"{bench.source}: no camera with sensor = \"gelsight\"")
+    step = GelSightLocalizeStep(gelsight_calibration_for(bench, cam, args.calib), tactile_map)
+    args.camera = cam
+    last: dict[str, Any] = {}
+
+    def line(r: dict[str, Any]) -> str:
+        last.update(r)
+        if not r["ok"]:
+            return f"refused: {r['reason']} (confidence {r['confidence']:.3f})"
+        t = r["translation_mm"]
+        return (f"rotation {r['rotation_deg']:+.3f} deg  translation ({t[0]:+.4f}, {t[1]:+.4f}) mm  "
+                f"confidence {r['confidence']:.4f}  {r['method']}")
+
+    rc = _run(args, step, "gelsight", line)
+    return rc if rc else (0 if last.get("ok") else 1)
 
 
 def need_files(args: argparse.Namespace, *names: str) -> None:

@@ -113,6 +113,20 @@ class GelSightHeightStep:
                 "contact_area_mm2": round(float(np.count_nonzero(h > self.contact_mm)) * self.mm2_per_px, 4)}
 
 
+class GelSightLocalizeStep:
+    """Where each frame's touch lies in a tactile map (:meth:`TactileMap.localize`): rotation (deg),
+    translation (mm), the paper's confidence, or the reason it was refused."""
+
+    name = "localize"
+
+    def __init__(self, calibration: GelSightCalibration, tactile_map: Any) -> None:
+        self.rec = Reconstructor(calibration)
+        self.map = tactile_map
+
+    def __call__(self, image: np.ndarray, t_s: float) -> dict[str, Any]:
+        return self.map.localize(self.rec.height_mm(image)).as_dict()
+
+
 def height_image(h: np.ndarray, range_mm: float = 1.0) -> np.ndarray:
     """A height map as an 8-bit colour image for viewing (0..``range_mm`` → the turbo colormap)."""
     u8 = np.clip(h / max(range_mm, 1e-6) * 255.0, 0, 255).astype(np.uint8)
