@@ -42,8 +42,7 @@ def test_the_live_view_sends_what_the_recording_stores(tmp_path) -> None:
                 img[:, i % 32] = 255
                 sink.write_frame("left", img, compress="jpeg")
             clock.sleep(0.0125)
-        client.wait_for("/scale/force", 50)  # delivery, not timing: the server closes with the sink
-        client.wait_for("/camera/left/compressed", 10)
+        assert client.wait_for("/scale/force", 50) and client.wait_for("/left/image/compressed", 10)
         sink.close()
         client.stop()
     recorded = read_recording(tmp_path / "s.mcap")
@@ -93,7 +92,10 @@ def test_run_jig_accuracy_live_on_the_mocks(tmp_path, capsys) -> None:
                                    "--live-port", str(port), "--live-wait", "20"], port)
     assert rc == [0]
     summary = json.loads(capsys.readouterr().out.splitlines()[-1])
+    # The run's topics are advertised before it starts and it waits for the viewer: every message.
     points = client.on("/perception/jig_accuracy_point")
-    assert 0 < len(points) <= summary["n_points"] == 3
-    assert [m.data["index"] for m in points] == sorted(m.data["index"] for m in points)
-    assert client.on("/jig/pose") and client.on("/camera/image/compressed")
+    assert [m.data["index"] for m in points] == [0, 1, 2] and summary["n_points"] == 3
+    assert len(client.on("/perception/tactile_map_touch")) == 3
+    poses = client.on("/jig/pose")
+    assert len(poses) == len(client.on("/command/jig")) == 6  # 3 map touches + 3 points
+    assert [round(m.data["theta_deg"]) for m in poses[3:]] == [-10, 0, 10]

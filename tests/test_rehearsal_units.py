@@ -3,6 +3,8 @@ footage at its recorded rate, the bench file, and the command line's checks of i
 
 from __future__ import annotations
 
+import json
+
 import cv2
 import numpy as np
 import pytest
@@ -16,7 +18,7 @@ from tactile_rig.drivers.camera_http import HttpCameraSource
 from tactile_rig.mocks.camera import SimulatedCamera
 from tactile_rig.rig.bench import load_bench
 from tactile_rig.rig.bench_check import check_bench
-from tactile_rig.rig.recording import Recorder
+from tactile_rig.rig.recording import Recorder, read_recording
 from tactile_rig.rig.rehearsal import CameraServer, RehearsalOptions, load_footage
 from tactile_rig.rig.rehearsal.bench_file import RehearsalDevice, bench_toml
 
@@ -146,3 +148,17 @@ def test_bad_rehearsal_options_are_refused(capsys) -> None:
         RehearsalOptions(cameras={"gelsight": "x.mp4"})
     assert main(["bench", "rehearse", "--camera", "nonsense"]) == 2
     assert "NAME=SOURCE" in capsys.readouterr().err
+
+
+def test_record_on_the_mock_bench_in_virtual_time(tmp_path, capsys) -> None:
+    pytest.importorskip("mcap")
+    out = tmp_path / "m.mcap"
+    assert main(["record", "--mock", "--duration", "2", "--out", str(out), "--json"]) == 0
+    topics = json.loads(capsys.readouterr().out.splitlines()[-1])["topics"]
+    assert topics["/scale/force"] == 160  # every sample of the sketch at 80/s
+    assert 40 <= topics["/camera/image/compressed"] <= 50  # 25 fps; a late poll may miss a frame
+    assert 15 <= topics["/jig/pose"] == topics["/state/jig"] <= 20
+    assert topics["/state/gripper"] >= 15
+    recorded = read_recording(out)
+    assert recorded.topics() == topics and not recorded.truncated
+    assert [m.data["seq"] for m in recorded.on("/scale/force")] == sorted(m.data["seq"] for m in recorded.on("/scale/force"))

@@ -138,7 +138,7 @@ def _record(i: int, name: str, r) -> dict[str, Any]:
 
 
 def _track(args: argparse.Namespace) -> int:
-    if bench_live.wants_bench(args):
+    if bench_live.wants_bench(args, "frames"):
         return bench_live.track(args, load_params(args.config, args.calib_frames, args.init))
     bench_live.need_files(args, "frames")
 

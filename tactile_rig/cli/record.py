@@ -15,7 +15,7 @@ from tactile_rig.cli.args import finite_float, output_file
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.bench_live import add_live_arguments, live_from_args
 from tactile_rig.cli.common import add_json_flag, print_json
-from tactile_rig.rig.bench_record import record_bench
+from tactile_rig.rig.bench_record import record_bench, record_topics
 
 
 def register(sub: Any) -> None:
@@ -37,7 +37,7 @@ def _record(args: argparse.Namespace) -> int:
     out = args.out or f"recordings/session-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
     if not out.endswith(".mcap"):
         raise ValueError(f"--out {out!r} must name an .mcap file")
-    live = live_from_args(args)
+    live = live_from_args(args, topics=record_topics(bench))
     tty = getattr(sys.stderr, "isatty", lambda: False)()
 
     def tick(o: Any) -> None:
@@ -53,11 +53,13 @@ def _record(args: argparse.Namespace) -> int:
     if tty and not args.json:
         print(file=sys.stderr)
     summary = {"out": str(outcome.path), "duration_s": round(outcome.duration_s, 3), "topics": outcome.counts,
-               "camera_fps": outcome.camera_fps}
+               "camera_fps": outcome.camera_fps, "missed": outcome.missed}
     if args.json:
         print_json(summary)
     else:
         print(f"recorded {sum(outcome.counts.values())} messages in {outcome.duration_s:.1f} s to {outcome.path}")
         for topic, n in sorted(outcome.counts.items()):
-            print(f"  {topic:<32} {n:>7}")
+            print(f"  {topic:<40} {n:>7}")
+        for device, n in sorted(outcome.missed.items()):
+            print(f"  {device}: {n} poll(s) unanswered and skipped")
     return 0

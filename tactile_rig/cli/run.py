@@ -17,7 +17,7 @@ from typing import Any
 
 from tactile_rig.cli.args import SEED, finite_float, output_dir
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
-from tactile_rig.cli.bench_live import add_live_arguments, live_from_args
+from tactile_rig.cli.bench_live import JIG_ACCURACY_TOPICS, add_live_arguments, live_from_args
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.rig.jig_accuracy import (
     JigAccuracyConfig,
@@ -88,9 +88,7 @@ def _jig_accuracy(args: argparse.Namespace) -> int:
         elif progress is not None:
             progress.update(1)
 
-    # Advertised before the run so a viewer waiting with --live-wait misses none of the first moves.
-    live = live_from_args(args, topics={"/jig/pose": "tactile_rig.JigPose",
-                                        "/perception/jig_accuracy_point": "tactile_rig.Perception"})
+    live = live_from_args(args, topics=JIG_ACCURACY_TOPICS)
     try:
         outcome = execute_jig_accuracy(cfg, out_dir, bench=bench, calibration=args.calibration, camera=args.camera,
                                        resume=True if args.resume else None, overwrite=args.overwrite,

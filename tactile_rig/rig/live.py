@@ -29,6 +29,7 @@ from tactile_rig.rig.recording import SCHEMAS, camera_topic
 __all__ = ["DEFAULT_LIVE_PORT", "LiveServer", "Tee", "require_foxglove"]
 
 DEFAULT_LIVE_PORT = 8765  # the Foxglove app's default for "Foxglove WebSocket"
+LINGER_S = 0.5  # close(): time for queued messages to reach a subscribed viewer
 BACKLOG_MESSAGES = 16384  # per client; a simulated episode's trace arrives as one burst
 
 
@@ -199,9 +200,12 @@ class LiveServer:
         pass
 
     def close(self) -> None:
-        """Stop the server (idempotent)."""
+        """Stop the server (idempotent). With a subscriber, first give the messages still queued for it
+        ``LINGER_S`` to leave (a session's last messages are the ones a viewer wants to see)."""
         server, self._server = self._server, None
         if server is not None:
+            if self.subscribed_topics:
+                time.sleep(LINGER_S)
             for ch in self._channels.values():
                 ch.close()
             server.stop()

@@ -6,10 +6,11 @@
     process because they share one world (on a real bench the object on the stage is what the
     fingertip camera sees).
 
-``python -m tactile_rig.rig.rehearsal.child press [--seed N] [--fps F]``
-    The force-map press (scene ``force_map_press``): the MX-64 mock and the scale sketch's mock on
-    their own ptys and the FingerVision fingertip over HTTP, on one world, because the gripper's
-    squeeze is what the scale reads and what the fingertip's markers show.
+``python -m tactile_rig.rig.rehearsal.child press [--scene S] [--seed N] [--fps F]``
+    The gripper pressing its FingerVision fingertip on the scale: the MX-64 mock and the scale's
+    mock each on a pty, and the fingertip camera rendering the skin as MJPEG over HTTP, on one world
+    (the ``force_map_press`` scene): the servo's squeeze loads the cell and deforms the skin, which
+    is what a force-map collection needs.
 
 ``python -m tactile_rig.rig.rehearsal.child camera --source FILE[#TOPIC] [--name NAME]``
     A camera playing recorded footage (:mod:`.frames`) at its recorded rate, as MJPEG over HTTP.
@@ -83,25 +84,24 @@ def serve_stage(args: argparse.Namespace) -> int:
 
 
 def serve_press(args: argparse.Namespace) -> int:
-    """The gripper and the scale on ptys and the fingertip camera over HTTP, on one world (module doc)."""
+    """Gripper and scale on ptys, the FingerVision camera over HTTP, on one world (see the module doc)."""
     clock = RealClock()
-    world = load_scene(PRESS_SCENE, clock=clock, seed=args.seed).world
-    gripper = create_device("dynamixel", Params({"protocol": "2", "ids": "1", "baud": "57600"},
-                                                source="rehearsal press"), clock=clock, world=world)
-    scale = create_device("scale", Params({"rate": "80", "seed": str(args.seed)}, source="rehearsal press"),
+    world = load_scene(args.scene, clock=clock, seed=args.seed).world
+    grip = create_device("dynamixel", Params({"protocol": "2", "ids": "1", "baud": "57600"}, source="rehearsal press"),
+                         clock=clock, world=world)
+    scale = create_device("scale", Params({"rate": str(args.rate), "seed": str(args.seed)}, source="rehearsal press"),
                           clock=clock, world=world)
-    fourcc, width, height = GELSIGHT_FORMAT
-    cam = SimulatedCamera(world.require("fingervision", "the rehearsal's fingertip camera"), clock=clock,
-                          name="fingertip", fourcc=fourcc, width=width, height=height, fps=args.fps,
+    fourcc, width, height = GELSIGHT_FORMAT  # the FingerVision renderer's 320x240 too
+    cam = SimulatedCamera(world.require("fingervision", "the rehearsal's FingerVision camera"), clock=clock,
+                          name="fingervision", fourcc=fourcc, width=width, height=height, fps=args.fps,
                           modes={GELSIGHT_FORMAT: args.fps}, seed=args.seed)
-    with PtyServer(gripper, clock=clock, name="gripper") as gp, PtyServer(scale, clock=clock, name="scale") as sp, \
+    with PtyServer(grip, clock=clock, name="gripper") as g, PtyServer(scale, clock=clock, name="scale") as sc, \
             CameraServer(cam) as cams:
-        _emit({"device": "press", "scene": PRESS_SCENE, "gripper": {"port": gp.port, "baud": gripper.baud},
-               "scale": {"port": sp.port, "baud": scale.baud},
-               "camera": {"url": cams.url, "sensor": "fingervision", "fourcc": fourcc, "width": width,
-                          "height": height, "fps": args.fps}})
-        return _wait_for_signal(lambda: next((f"{n} failed: {e}" for n, e in (("gripper mock", gp.error),
-                                              ("scale mock", sp.error), ("camera", cams.error)) if e), None))
+        _emit({"device": "press", "gripper": {"port": g.port, "baud": 57600}, "scale": {"port": sc.port, "baud": 57600},
+               "scene": args.scene, "camera": {"url": cams.url, "sensor": "fingervision", "fourcc": fourcc,
+                                               "width": width, "height": height, "fps": args.fps}})
+        return _wait_for_signal(lambda: next((f"{n} failed: {e}" for n, e in (("gripper", g.error),
+                                              ("scale", sc.error), ("camera", cams.error)) if e), None))
 
 
 def serve_camera(args: argparse.Namespace) -> int:
@@ -129,8 +129,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     st.add_argument("--jpeg-quality", type=int, default=95)
     st.set_defaults(func=serve_stage)
     pr = sub.add_parser("press")
+    pr.add_argument("--scene", default=PRESS_SCENE)
     pr.add_argument("--seed", type=int, default=0)
     pr.add_argument("--fps", type=float, default=25.0)
+    pr.add_argument("--rate", type=int, default=80, help="scale samples per second (10 or 80)")
     pr.set_defaults(func=serve_press)
     cam = sub.add_parser("camera")
     cam.add_argument("--source", required=True)
