@@ -111,6 +111,12 @@ def page(tables: dict[str, TradeTable | None], summaries: dict[str, str], img_re
         "it says otherwise: the load average before and after the run is recorded); errors do not depend on "
         "the machine.",
         "",
+        "Adding a topic: one module in `tactile_rig/rig/trade/` with `TOPIC`, `SUMMARY` and "
+        "`measure(*, quick, seed) -> TradeTable` (every setting measured in one run, the default marked, "
+        "`default_note` saying why when it is off the front), plus its line in `TOPICS` "
+        "(`tactile_rig/rig/trade/__init__.py`); `tactile_rig.rig.trade.timing.rates_per_s` times settings "
+        "interleaved, so a load spike hits them all alike.",
+        "",
         "| topic | default | default on the front? | fastest on the front | most accurate on the front |",
         "|---|---|---|---|---|",
     ]
