@@ -124,10 +124,14 @@ def page(tables: dict[str, TradeTable | None], summaries: dict[str, str], img_re
         if t is None:
             head.append(f"| [{topic}](#{topic}) | - | not measured yet | - | - |")
             continue
-        d = t.rows[t.default_index]
+        defaults = "<br>".join(f"`{' '.join(f'{k}={v}' for k, v in t.rows[i].setting.items())}`"
+                               for i in t.default_indices)
         on = "yes" if t.default_on_front() else ("no: " + (t.default_note or "**no reason given**"))
-        head.append(f"| [{topic}](#{topic}) | `{' '.join(f'{k}={v}' for k, v in d.setting.items())}` | "
-                    f"{on.replace('|', '/')} | {_best(t, 'speed')} | {_best(t, 'error')} |")
+        if t.group_by:  # one front per group: the section lists them
+            best = worst = f"one front per `{t.group_by}`: see the section"
+        else:
+            best, worst = _best(t, "speed"), _best(t, "error")
+        head.append(f"| [{topic}](#{topic}) | {defaults} | {on.replace('|', '/')} | {best} | {worst} |")
     head.append("")
     body = [section(topic, t, summaries.get(topic, ""), img_rel=img_rel.get(topic)) for topic, t in tables.items()]
     return "\n".join(head) + "\n" + "\n".join(body)
