@@ -66,3 +66,17 @@ def test_scenes_reference_is_the_rendered_sensor_and_the_model_departs(monkeypat
     assert 0.0 < arm[1.0]["error"] < arm[10.0]["error"]
     assert all(r["speed"] > 0 for r in out["rows"])
     assert scenes.rendered_scenes() == ["following_proximity_rendered"]
+
+
+def test_an_episode_without_poses_compares_as_nan_not_a_crash():
+    from types import SimpleNamespace
+
+    from tactile_rig.core.types import Trace
+
+    tr = Trace()
+    tr.append(0.0, confidence=0.5)  # an insertion that never localized: no pose read
+    rep = SimpleNamespace(result=SimpleNamespace(trace=tr))
+    t, xyz = scenes._path(rep)
+    assert t.size == 0 and xyz.shape == (0, 3)
+    ok = (np.linspace(0, 1, 3), np.zeros((3, 3)))
+    assert all(math.isnan(v) for v in scenes.path_departure_mm(ok, (t, xyz)))

@@ -55,6 +55,8 @@ def _path(report: Any) -> tuple[np.ndarray, np.ndarray]:
     tr = report.result.trace
     t = np.asarray(tr.t_s, float)
     cols = [np.asarray(tr.channels[c], float) for c in ("x_mm", "y_mm", "z_mm") if c in tr.channels]
+    if not cols:  # an episode that ended before the controller read a pose
+        return np.zeros(0), np.zeros((0, 3))
     xyz = np.column_stack(cols)
     keep = np.all(np.isfinite(xyz), axis=1)  # rows recorded without a pose (NaN-padded) are skipped
     return t[keep], xyz[keep]
@@ -112,10 +114,15 @@ def _rows(scene: str, judged: str, runs: dict[tuple, list[tuple[Any, float]]], r
         notes = [ref_note] if key == ref_key else []
         if key == default_key and key != ref_key:
             notes.append("the scene's own setting")
+        no_path = int(np.sum(~np.isfinite(rms)))
+        if no_path:
+            notes.append(f"{no_path}/{n} episodes without a pose to compare")
+        finite_rms = [v for v in rms if math.isfinite(v)]
         rows.append(TradeRow(
-            setting(key), sim / wall if wall > 0 else math.nan, float(np.median(rms)),
+            setting(key), sim / wall if wall > 0 else math.nan,
+            float(np.median(finite_rms)) if finite_rms else math.nan,
             is_default=key == default_key,
-            extra={"worst_departure_mm": float(np.max(worst)),
+            extra={"worst_departure_mm": float(np.nanmax(worst)) if finite_rms else math.nan,
                    "judged": float(np.median([r.figures.get(judged, math.nan) for r, _ in out])),
                    "judged_abs_diff": float(np.median(dlag)), "same_verdict": agree / n,
                    "ok_rate": sum(r.ok for r, _ in out) / n},
