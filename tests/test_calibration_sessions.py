@@ -178,6 +178,11 @@ def test_gelsight_session_cli_writes_a_versioned_calibration_and_report(tmp_path
     assert res["values"]["heldout_mean_height_rms_mm"] < 0.08
     assert abs(res["values"]["ball_offset_px"][0]) < 0.5 and abs(res["values"]["ball_offset_px"][1]) < 0.5
     assert (tmp_path / "gelsight.report.md").exists() and (tmp_path / "gelsight_presses" / "labels.csv").exists()
+    from tactile_rig.rig.recording import read_recording
+
+    rec = read_recording(res["files"]["recording"])
+    assert len([m for m in rec.on("/jig/pose") if m.data["purpose"] == "press"]) == 12
+    assert {"calibration/gelsight/gelsight-v1.json", "calibration/gelsight/gelsight-v1.npz"} <= set(rec.attachments)
 
 
 # -- scale, gripper, FingerVision through the CLI ---------------------------------------------------
@@ -235,3 +240,35 @@ def test_fingervision_session_on_the_mock(tmp_path, capsys):
     with np.load(tmp_path / "fv.npz") as d:
         assert d["positions_px"].shape == (res["values"]["markers"], 2) and d["bg_hist"].size > 0
     assert read_calibration(tmp_path / "fv.json", "fingervision")["frame_shape"] == [240, 320]
+
+
+# -- every session records what it measured, and never overwrites a calibration ------------------
+def test_scale_session_records_its_readings_and_adds_a_version(tmp_path, capsys):
+    from tactile_rig.cli import main
+    from tactile_rig.rig.recording import read_recording
+
+    out = tmp_path / "scale.json"
+    for _ in range(2):
+        assert main(["calibrate", "scale", "--mock", "--known-mass-g", "100", "--out", str(out), "--json"]) == 0
+    res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert res["calibration"].endswith("scale-v2.json") and (tmp_path / "scale-v1.json").is_file()
+    rec = read_recording(res["files"]["recording"])
+    phases = {m.data["phase"] for m in rec.on("/scale/force")}
+    assert phases == {"empty", "settling", "verify"}
+    verify = [m.data["grams"] for m in rec.on("/scale/force") if m.data["phase"] == "verify"]
+    assert abs(np.mean(verify) - 100.0) < 0.5  # the recording holds the readings the check was made on
+    assert [m.data["command"] for m in rec.on("/command/scale")] == ["tare", "calibrate"]
+    assert "calibration/scale/scale-v2.json" in rec.attachments and "bench.toml" in rec.attachments
+
+
+def test_fingervision_session_records_frames_and_attaches_json_and_npz(tmp_path, capsys):
+    from tactile_rig.cli import main
+    from tactile_rig.rig.recording import read_recording
+
+    assert main(["calibrate", "fingervision", "--mock", "--frames", "3", "--out", str(tmp_path / "fv"),
+                 "--json"]) == 0
+    res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    rec = read_recording(res["files"]["recording"])
+    frames = [m for m in rec.messages if m.topic.endswith("compressed")]
+    assert len(frames) == 3 and frames[0].image().shape == (240, 320, 3)
+    assert {"calibration/fingervision/fv-v1.json", "calibration/fingervision/fv-v1.npz"} <= set(rec.attachments)

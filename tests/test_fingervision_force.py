@@ -30,9 +30,9 @@ def test_uniform_shear_gives_the_force_direction(angle_deg: float) -> None:
     rest = lattice()
     d = 1.7 * np.array([math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))])
     ft = _ft(rest, rest + d)
-    got = math.degrees(math.atan2(ft.force[1], ft.force[0]))
+    got = math.degrees(math.atan2(ft.force_px[1], ft.force_px[0]))
     assert abs((got - angle_deg + 180) % 360 - 180) < 1e-6
-    assert ft.force[2] == 0.0
+    assert ft.force_px[2] == 0.0
     assert ft.n_used == len(rest)
 
 
@@ -43,11 +43,11 @@ def test_rotation_about_the_centre_gives_z_torque_only() -> None:
     R = np.array([[math.cos(th), -math.sin(th)], [math.sin(th), math.cos(th)]])
     pos = (rest - CENTRE) @ R.T + CENTRE
     ft = _ft(rest, pos)
-    assert ft.torque[2] > 0
-    assert abs(ft.torque[0]) < 1e-9 and abs(ft.torque[1]) < 1e-9
-    assert np.linalg.norm(ft.force[:2]) < 1e-9  # a pure rotation has no net shear
+    assert ft.torque_px2[2] > 0
+    assert abs(ft.torque_px2[0]) < 1e-9 and abs(ft.torque_px2[1]) < 1e-9
+    assert np.linalg.norm(ft.force_px[:2]) < 1e-9  # a pure rotation has no net shear
     ft2 = _ft(rest, (rest - CENTRE) @ R + CENTRE)
-    assert ft2.torque[2] == pytest.approx(-ft.torque[2])
+    assert ft2.torque_px2[2] == pytest.approx(-ft.torque_px2[2])
 
 
 def test_normal_force_from_size_growth_and_from_norm() -> None:
@@ -55,11 +55,11 @@ def test_normal_force_from_size_growth_and_from_norm() -> None:
     sizes = np.full(len(rest), 8.0)
     grown = sizes + np.linspace(0.0, 2.0, len(rest))
     ft = _ft(rest, rest, sizes, grown)
-    assert ft.force[2] == pytest.approx(1.0)
+    assert ft.force_px[2] == pytest.approx(1.0)
     shrunk = _ft(rest, rest, sizes, sizes - 1.0)
-    assert shrunk.force[2] == 0.0  # a smaller marker is not a pull
+    assert shrunk.force_px[2] == 0.0  # a smaller marker is not a pull
     ft_n = _ft(rest, rest + [3.0, 4.0], normal="norm")
-    assert ft_n.force[2] == pytest.approx(5.0)
+    assert ft_n.force_px[2] == pytest.approx(5.0)
 
 
 def test_median_and_quantile_reductions_resist_outliers() -> None:
@@ -68,9 +68,9 @@ def test_median_and_quantile_reductions_resist_outliers() -> None:
     pos[0] += [100.0, 0.0]  # one marker mistracked
     sizes0 = np.full(len(rest), 8.0)
     sizes = sizes0 + np.linspace(0, 1, len(rest))
-    assert _ft(rest, pos, sizes0, sizes).force[0] > 4.0
-    assert _ft(rest, pos, sizes0, sizes, reduction="median").force[0] == pytest.approx(1.0)
-    q = _ft(rest, pos, sizes0, sizes, reduction="quantile", quantile=0.75).force[2]
+    assert _ft(rest, pos, sizes0, sizes).force_px[0] > 4.0
+    assert _ft(rest, pos, sizes0, sizes, reduction="median").force_px[0] == pytest.approx(1.0)
+    q = _ft(rest, pos, sizes0, sizes, reduction="quantile", quantile=0.75).force_px[2]
     assert q == pytest.approx(np.quantile(np.linspace(0, 1, len(rest)), 0.75))
 
 
@@ -81,19 +81,17 @@ def test_invalid_markers_are_ignored_and_none_valid_is_zero() -> None:
     valid[:5] = False
     pos[:5] = np.nan
     ft = _ft(rest, pos, valid=valid)
-    assert ft.force[0] == pytest.approx(1.0) and ft.n_used == len(rest) - 5
+    assert ft.force_px[0] == pytest.approx(1.0) and ft.n_used == len(rest) - 5
     none = _ft(rest, pos, valid=np.zeros(len(rest), bool))
-    assert none.n_used == 0 and np.all(none.force == 0) and np.all(none.torque == 0)
+    assert none.n_used == 0 and np.all(none.force_px == 0) and np.all(none.torque_px2 == 0)
     empty = _ft(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0, bool))
-    assert np.all(empty.force == 0)
+    assert np.all(empty.force_px == 0)
 
 
-def test_scales_give_newtons_and_newton_millimetres() -> None:
-    rest = lattice()
-    px = _ft(rest, rest + [1.0, 2.0])
-    n = _ft(rest, rest + [1.0, 2.0], newton_per_px=0.05, mm_per_px=0.1)
-    assert np.allclose(n.force, px.force * 0.05)
-    assert np.allclose(n.torque, px.torque * 0.005)
+def test_perception_has_no_newton_scale() -> None:
+    """Force stays in px here; newtons come from a force map fitted on the rig."""
+    with pytest.raises(TypeError):
+        ForceParams(newton_per_px=0.05)  # type: ignore[call-arg]
 
 
 def test_bad_parameters_are_named() -> None:
@@ -117,6 +115,6 @@ def test_bad_parameters_are_named() -> None:
 def test_force_is_always_finite(disp, ds, valid, reduction) -> None:
     rest = lattice()[:12]
     ft = _ft(rest, rest + disp, np.full(12, 8.0), 8.0 + ds, valid, reduction=reduction)
-    assert np.all(np.isfinite(ft.force)) and np.all(np.isfinite(ft.torque))
+    assert np.all(np.isfinite(ft.force_px)) and np.all(np.isfinite(ft.torque_px2))
     if not valid.any():
-        assert np.all(ft.force == 0)
+        assert np.all(ft.force_px == 0)

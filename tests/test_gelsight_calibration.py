@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tactile_rig.core.errors import CalibrationError
+from tactile_rig.core.errors import CalibrationError, SaturatedFrame
 from tactile_rig.perception.gelsight import (
     ContactParams, GelSightCalibration, IntegrationParams, Reconstructor, calibrate_from_presses, clamp_radius_px,
     cross_validate, load_presses, marker_mask, press_error)
@@ -84,11 +84,14 @@ def test_background_frame_reads_flat(lut_cal, mlp_cal) -> None:
 
 
 @pytest.mark.parametrize("value", [0, 255])
-def test_saturated_frames_stay_finite(mlp_cal, value: int) -> None:
+def test_saturated_frames_are_refused(mlp_cal, value: int) -> None:
+    # An all-black (lights off, lens covered) or all-white frame read -7..+8 mm before: refused now.
     frame = np.full_like(mlp_cal.background, value)
-    z = Reconstructor(mlp_cal).height_mm(frame)
-    assert np.all(np.isfinite(z))
-    assert np.abs(z).max() < 50.0
+    with pytest.raises(SaturatedFrame) as err:
+        Reconstructor(mlp_cal).height_mm(frame)
+    assert err.value.value > 0.9 and err.value.limit == 0.2
+    with pytest.raises(SaturatedFrame):
+        mlp_cal.gradients(frame)
 
 
 @settings(deadline=None, max_examples=15)

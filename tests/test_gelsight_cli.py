@@ -57,7 +57,7 @@ def test_end_to_end(tmp_path, capsys, presses) -> None:
     np.save(flat, np.zeros((120, 160), np.float32))
     assert main(["gelsight", "register", str(a), str(flat), "--mm-per-px", MM, "--json"]) == 1
     refused = _json(capsys)
-    assert refused["matrix_mm"] is None and refused["reason"] == "insufficient_texture"
+    assert refused["matrix_mm"] is None and refused["reason"] == "no_contact"
 
     touches = []
     for k, (rot, c) in enumerate([(0, (160, 120)), (10, (130, 110)), (-20, (190, 130))]):

@@ -8,6 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from tactile_rig.core.errors import GradientOutOfRange
 from tactile_rig.perception.gelsight import HeightMapper, IntegrationParams, height_map_mm, sphere_cap
 
 MM_PER_PX = 0.1245
@@ -74,10 +75,16 @@ def test_flat_gradients_give_a_flat_map() -> None:
     arrays(np.float64, (12, 17), elements=st.floats(allow_nan=True, allow_infinity=True, width=64)),
     st.sampled_from(["dst", "dct", "fc"]),
 )
-def test_any_gradients_give_a_finite_bounded_map(g: np.ndarray, solver: str) -> None:
+def test_any_gradients_give_a_finite_bounded_map_or_gradient_out_of_range(g: np.ndarray, solver: str) -> None:
+    finite = g[np.isfinite(g)]
+    if finite.size and np.abs(finite).max() > 20.0:
+        with pytest.raises(GradientOutOfRange) as err:
+            height_map_mm(g, g.T.copy().T[::-1], MM_PER_PX, method=solver)
+        assert err.value.limit == 20.0 and err.value.value > 20.0
+        return
     z = height_map_mm(g, g.T.copy().T[::-1], MM_PER_PX, method=solver)
     assert np.all(np.isfinite(z))
-    # Slopes are clipped to +-max_slope, so the height cannot exceed what that slope spans.
+    # Slopes are at most max_slope, so the height cannot exceed what that slope spans.
     assert np.abs(z).max() <= 20.0 * MM_PER_PX * (12 + 17) * 2
 
 

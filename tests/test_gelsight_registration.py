@@ -10,6 +10,8 @@ from hypothesis import strategies as st
 from tactile_rig.perception.gelsight import (
     INSUFFICIENT_TEXTURE, Reconstructor, RegistrationParams, calibrate_from_presses, homography_confidence,
     load_presses, ransac_rigid, register, sphere_cap)
+from tactile_rig.core.errors import NoContact
+from tactile_rig.perception.gelsight.registration import NO_CONTACT
 from tactile_rig.perception.gelsight.synthetic import jig_move, tile
 from tests._data import test_data
 
@@ -85,7 +87,8 @@ def test_lone_smooth_dome_is_refused_not_guessed(rotation_deg) -> None:
 def test_flat_maps_are_refused() -> None:
     flat = np.zeros((60, 80), np.float32)
     res = register(flat, flat, MM_PER_PX)
-    assert not res.ok and res.reason == INSUFFICIENT_TEXTURE and res.confidence == 0.0
+    assert not res.ok and res.reason == NO_CONTACT and res.confidence == 0.0
+    assert isinstance(res.error(), NoContact)
 
 
 def test_brisk_and_both_detectors_also_register(textured) -> None:

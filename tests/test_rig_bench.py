@@ -230,7 +230,7 @@ def test_mock_devices_share_one_clock_and_world() -> None:
         kind = "echo-test"
 
         def __init__(self, params, *, clock, world):
-            super().__init__(baud=params.int("baud", 9600), timing=False)
+            super().__init__(baud=params.integer("baud", 9600), timing=False)
             self.world = world
 
         def on_bytes(self, data: bytes, t_s: float) -> None:

@@ -172,7 +172,8 @@ def test_calibrate_cli(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     assert "--trials 1 must be >= 2" in capsys.readouterr().err
 
 
-def test_calibrate_on_a_hardware_bench_needs_a_recording(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+def test_calibrate_on_a_hardware_bench_without_the_devices_says_what_is_missing(tmp_path: Path,
+                                                                                capsys: pytest.CaptureFixture) -> None:
     from tactile_rig.cli import main
     from tactile_rig.rig.recording import read_recording
 
@@ -181,7 +182,8 @@ def test_calibrate_on_a_hardware_bench_needs_a_recording(tmp_path: Path, capsys:
     bench = tmp_path / "bench.toml"
     bench.write_text(f'[scale]\nport = "{tty}"\n')
     assert main(["calibrate", "force-map", "--bench", str(bench), "--out", str(tmp_path / "o")]) == 2
-    assert "--from-recording" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "has no [gripper]" in err and "--from-recording" in err
     assert main(["calibrate", "force-map", "--mock", "--trials", "3", "--no-figures", "--out",
                  str(tmp_path / "m")]) == 0
     rec = read_recording(tmp_path / "m" / "force_map.mcap")

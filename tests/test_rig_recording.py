@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 
 import mcap  # noqa: E402,F401  (extra [record] is installed by .[all,test]; absent = fail, not skip)
 
+from tactile_rig.core.errors import BadFile  # noqa: E402
 from tactile_rig.core.clock import VirtualClock  # noqa: E402
 from tactile_rig.control.protocols import Pose  # noqa: E402
 from tactile_rig.rig.recording import Recorder, read_recording  # noqa: E402
@@ -108,7 +109,11 @@ def test_truncated_file_reads_a_prefix(full_recording, tmp_path_factory, frac: f
     cut = int(frac * len(data))
     path = tmp_path_factory.mktemp("cut") / "cut.mcap"
     path.write_bytes(data[:cut])
-    r = read_recording(path)  # never raises
+    if cut < 8:  # not even the magic: nothing was ever recorded in it, refused by name
+        with pytest.raises(BadFile, match="cut.mcap"):
+            read_recording(path)
+        return
+    r = read_recording(path)  # a cut anywhere after the magic never raises
     got = [m.data["force_n"] for m in r.on("/scale/force")]
     assert got == forces[: len(got)]  # a prefix, in order, nothing corrupted
     if cut < len(data) - 8:

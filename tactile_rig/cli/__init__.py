@@ -3,7 +3,8 @@
 Each command group lives in its own module under :mod:`tactile_rig.cli` and exposes
 ``register(subparsers)``. A handler returns the process exit code. Errors from the rig
 (:class:`~tactile_rig.core.errors.RigError`) and bad arguments (``ValueError``) become one line on
-stderr and exit code 2; a device fault exits 3 so scripts can tell it from a failed verdict (1).
+stderr and exit code 2; a device fault exits 3 so scripts can tell it from a failed verdict (1); an
+unexpected exception (a bug) exits 70 with one line (:func:`tactile_rig.cli.common.run_handler`).
 """
 
 from __future__ import annotations
@@ -15,11 +16,12 @@ import sys
 from typing import Sequence
 
 from tactile_rig import __version__
-from tactile_rig.core.errors import DeviceFault, RigError
+from tactile_rig.cli.common import EXIT_ERROR, EXIT_FAILED, EXIT_FAULT, EXIT_INTERNAL, EXIT_OK, OneLineParser, run_handler
 
 # Command groups, in the order they appear in --help.
 COMMAND_MODULES: tuple[str, ...] = (
     "mock",
+    "bench",
     "devices",
     "gripper",
     "scale",
@@ -28,20 +30,20 @@ COMMAND_MODULES: tuple[str, ...] = (
     "fingervision",
     "scene",
     "run",
+    "record",
+    "camera",
     "calibrate",
+    "substance",
     "replay",
     "sweep",
     "trade",
 )
 
-EXIT_OK = 0
-EXIT_FAILED = 1
-EXIT_ERROR = 2
-EXIT_FAULT = 3
+__all__ = ["EXIT_OK", "EXIT_FAILED", "EXIT_ERROR", "EXIT_FAULT", "EXIT_INTERNAL", "build_parser", "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="tactile-rig",
         description="Drivers, faithful mocks, perception and controllers for tactile grippers.",
     )
@@ -69,17 +71,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if func is None:
         parser.print_help()
         return EXIT_ERROR
-    try:
-        return int(func(args) or 0)
-    except DeviceFault as exc:
-        print(f"tactile-rig: device fault: {exc}", file=sys.stderr)
-        return EXIT_FAULT
-    except (RigError, ValueError, FileNotFoundError) as exc:
-        print(f"tactile-rig: error: {exc}", file=sys.stderr)
-        return EXIT_ERROR
-    except KeyboardInterrupt:
-        print("tactile-rig: interrupted", file=sys.stderr)
-        return 130
+    return run_handler(func, args)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -12,10 +12,16 @@ from pathlib import Path
 from typing import Any
 
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
-from tactile_rig.cli.calibrate_sessions import register_sessions
+from tactile_rig.cli.calibrate_sessions import _connect, _guide, register_sessions
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.cli.replay import extras_as_errors
+from tactile_rig.rig.camera_calibrations import camera_calibrations
+from tactile_rig.rig.jig_accuracy import sim_camera_connector
 from tactile_rig.rig.learning import DEFAULT_GAMMA, force_map_session, substance_session
+from tactile_rig.rig.live_collection import PressPlan, collect_force_map, collect_stirring
+from tactile_rig.sim.world.stick_press import increasing_peaks
+
+MOCK_PRESS_SCENE = "force_map_press"  # the simulated fingertip pressing on the scale
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -35,20 +41,40 @@ def _source_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--camera", help="perception topic name in the recording (default: the only one)")
     p.add_argument("--seed", type=int, default=0, help="seed of the mock session (default 0)")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures and Markdown page")
+    p.add_argument("--force", action="store_true",
+                   help="overwrite the newest model version instead of adding <name>-vN+1")
+    p.add_argument("--live", action="store_true",
+                   help="guided live collection (the default on a real bench; on --mock the simulated scene)")
+    p.add_argument("--yes", action="store_true", help="never prompt, even on a terminal")
     add_json_flag(p)
 
 
-def _check_source(args: argparse.Namespace, what: str) -> Any:
-    """The bench (or None). Mocks simulate the session; on hardware the session is learned from a
-    recording of it (live guided collection is not available yet)."""
+def _check_source(args: argparse.Namespace, what: str) -> tuple[Any, bool]:
+    """(the bench or None, whether to collect live). A real bench collects live unless it learns
+    from ``--from-recording``; the mock simulates the trials unless ``--live``."""
     if not (getattr(args, "mock", False) or getattr(args, "bench", None)):
-        return None
-
+        if args.live:
+            raise ValueError(f"{what} --live needs a bench: pass --bench FILE or --mock")
+        return None, False
     bench = bench_from_args(args, check_files=False)
-    if not bench.is_mock and not args.from_recording:
-        raise ValueError(f"{what} on hardware: record the session (tactile-rig replay reads it) and pass "
-                         f"--from-recording FILE.mcap; live guided collection is not available yet")
-    return bench
+    if args.from_recording:
+        if args.live:
+            raise ValueError("--live and --from-recording exclude each other (collect, or learn from a file)")
+        return bench, False
+    return bench, bool(args.live or not bench.is_mock)
+
+
+def _live_camera(args: argparse.Namespace, bench: Any) -> str:
+    """The FingerVision camera of the bench that the live session reads (``--camera`` or the first)."""
+    if bench.is_mock:
+        return "camera"
+    cams = [n for n, c in bench.cameras.items() if c.sensor == "fingervision"]
+    name = args.camera or (cams[0] if cams else None)
+    if name is None or name not in bench.cameras:
+        raise ValueError(f"{bench.source}: no FingerVision camera for the live session (cameras: "
+                         f"{', '.join(bench.cameras) or 'none'}); add one with sensor = \"fingervision\" or "
+                         "pass --camera NAME (or learn from a recording with --from-recording FILE.mcap)")
+    return name
 
 
 # -- force map ---------------------------------------------------------------------------------
@@ -64,20 +90,46 @@ def _register_force_map(csub: argparse._SubParsersAction) -> None:
     p.add_argument("--alpha", type=float, default=0.02, help="ridge penalty λ (default 0.02, as the thesis)")
     p.add_argument("--gamma", type=float, default=None, help="RBF gamma on robust-scaled features (default 0.05)")
     p.add_argument("--out", default="calib/force_map", help="output folder (default calib/force_map)")
+    p.add_argument("--max-effort", type=float, default=0.5,
+                   help="live: effort cap, fraction of the current limit (default 0.5)")
+    p.add_argument("--release-opening-m", type=float, default=0.06,
+                   help="live: opening between presses in m, clear of the platform (default 0.06)")
+    p.add_argument("--ramp", type=float, default=1.0, help="live: seconds to reach each press's peak (default 1)")
+    p.add_argument("--hold", type=float, default=0.5, help="live: seconds at the peak (default 0.5)")
     p.set_defaults(func=_force_map)
 
 
 @extras_as_errors
 def _force_map(args: argparse.Namespace) -> int:
-    bench = _check_source(args, "force-map")
+    bench, live = _check_source(args, "force-map")
     if args.trials < 2:
         raise ValueError(f"--trials {args.trials} must be >= 2 (one trial is held out)")
     if not args.max_force > 0:
         raise ValueError(f"--max-force {args.max_force} must be > 0 N")
+    collect, camera = None, args.camera
+    if live:
+        missing = [d for d in ("gripper", "scale") if d not in bench.devices]
+        if missing:
+            raise ValueError(f"force-map live collection: {bench.source} has no [{'], ['.join(missing)}]; add "
+                             "them, or learn from a recorded session with --from-recording FILE.mcap")
+        camera = _live_camera(args, bench)
+        plan = PressPlan(peaks_n=tuple(float(v) for v in increasing_peaks(args.trials, args.max_force)),
+                         max_effort=args.max_effort, release_opening_m=args.release_opening_m, ramp_s=args.ramp,
+                         hold_s=args.hold)
+
+        def collect(path: Path) -> Path:
+            rig = _connect(args, ["gripper", "scale", camera], scene=MOCK_PRESS_SCENE,
+                           connectors={"camera": sim_camera_connector("fingervision")})
+            try:
+                cal = camera_calibrations(rig.bench, camera, load=("calibration",), defaults=not bench.is_mock)
+                return collect_force_map(rig, path, camera=camera, plan=plan, calibrations=cal, guide=_guide(args))
+            finally:
+                rig.close()
+
     report = force_map_session(Path(args.out), n_trials=args.trials, max_force_n=args.max_force, seed=args.seed,
                                recording=args.from_recording, holdout=args.holdout, alpha=args.alpha,
-                               gamma=DEFAULT_GAMMA if args.gamma is None else args.gamma, camera=args.camera,
-                               bench=bench, figures=not args.no_figures)
+                               gamma=DEFAULT_GAMMA if args.gamma is None else args.gamma, camera=camera,
+                               bench=bench, figures=not args.no_figures, force=args.force, collect=collect)
     if args.json:
         print_json(report)
     else:
@@ -98,17 +150,42 @@ def _register_substance(csub: argparse._SubParsersAction) -> None:
     p.add_argument("--window", type=float, default=2.0, help="feature window in s (default 2)")
     p.add_argument("--test-fraction", type=float, default=0.25, help="trials held out per substance (default 0.25)")
     p.add_argument("--out", default="calib/substance", help="output folder (default calib/substance)")
+    p.add_argument("--substances", help="live: comma-separated substances to stir, e.g. water,oil,honey")
+    p.add_argument("--trial-s", type=float, default=10.0, help="live: seconds of stirring per trial (default 10)")
+    p.add_argument("--grip-effort", type=float, default=0.3, help="live: effort holding the stick (default 0.3)")
     p.set_defaults(func=_substance)
 
 
 @extras_as_errors
 def _substance(args: argparse.Namespace) -> int:
-    _check_source(args, "substance")
+    bench, live = _check_source(args, "substance")
     if args.per_substance < 2:
         raise ValueError(f"--per-substance {args.per_substance} must be >= 2 (train and test trials)")
+    collect, camera = None, args.camera
+    if live:
+        if bench.is_mock:
+            raise ValueError("substance --live: the mock bench has no stirring scene to stir in; drop --live "
+                             "(the mock simulates the stirring trials) or use a real or rehearsal bench")
+        if not args.substances:
+            raise ValueError("substance on a bench: name what will be stirred with --substances water,oil,honey")
+        camera = _live_camera(args, bench)
+        names = [s.strip() for s in args.substances.split(",") if s.strip()]
+
+        def collect(path: Path) -> Path:
+            devices = [camera] + (["gripper"] if "gripper" in bench.devices else [])
+            rig = _connect(args, devices)
+            try:
+                cal = camera_calibrations(rig.bench, camera, load=("calibration",))
+                return collect_stirring(rig, path, camera=camera, substances=names, per_substance=args.per_substance,
+                                        trial_s=args.trial_s, grip_effort=args.grip_effort, calibrations=cal,
+                                        guide=_guide(args))
+            finally:
+                rig.close()
+
     report = substance_session(Path(args.out), per_substance=args.per_substance, seed=args.seed,
                                recording=args.from_recording, test_fraction=args.test_fraction,
-                               window_s=args.window, camera=args.camera, figures=not args.no_figures)
+                               window_s=args.window, camera=camera, figures=not args.no_figures,
+                               force=args.force, collect=collect)
     if args.json:
         print_json(report)
     else:

@@ -45,7 +45,10 @@ def register_sessions(csub: Any) -> None:
 
     def common(p: argparse.ArgumentParser, out: str) -> None:
         add_bench_arguments(p)
-        p.add_argument("--out", default=out, help=f"calibration file to write (default {out})")
+        p.add_argument("--out", default=out, help=f"calibration to write: version N goes to <name>-vN.*, "
+                                                  f"<name>.* links to the newest (default {out})")
+        p.add_argument("--force", action="store_true",
+                       help="overwrite the newest version (or the named -vN file) instead of adding a version")
         p.add_argument("--seed", type=int, default=0, help="seed of the mock world (default 0)")
         p.add_argument("--yes", action="store_true", help="never prompt, even on a terminal")
         add_json_flag(p)
@@ -138,6 +141,8 @@ def _run(args: argparse.Namespace, rig: Any, session: Callable[[Any], Any], summ
     else:
         print(summary(outcome.report))
         print(f"calibration: {outcome.calibration_path}   report: {outcome.report_path}")
+        if outcome.files.get("recording"):
+            print(f"recording: {outcome.files['recording']}")
     return 0
 
 
@@ -153,7 +158,8 @@ def _gelsight(args: argparse.Namespace) -> int:
         prepare_jig(rig.jig)
         press_rig = DeviceJigRig(rig.jig, rig.devices[cam], rig.clock, world=rig.world, settle_s=0.05)
         return gelsight_session(press_rig, plan, float(rig.bench.devices[cam].mm_per_px_x), args.out,
-                                guide=_guide(args))
+                                guide=_guide(args), force=args.force, bench=rig.bench, clock=rig.clock,
+                                camera=cam)
 
     return _run(args, rig, session, lambda r: (
         f"GelSight: {r['presses']} presses, held-out normal error {r['heldout_mean_normal_deg']:.2f} deg, "
@@ -165,7 +171,7 @@ def _scale(args: argparse.Namespace) -> int:
     place = _mock_mass_placer(rig) if rig.bench.is_mock else None
     return _run(args, rig, lambda rig: scale_session(
         rig.scale, args.known_mass_g, args.out, place_mass=place, guide=_guide(args), samples=args.samples,
-        wait_timeout_s=args.wait_timeout), lambda r: (
+        wait_timeout_s=args.wait_timeout, force=args.force, bench=rig.bench), lambda r: (
         f"scale: {r['cal_factor_counts_per_g']:.5g} counts/g; {args.known_mass_g:g} g reads "
         f"{r['loaded_mean_g']:.3f} g ({r['verify_error_g']:+.3f} g), empty noise {r['empty_noise_g']:.3f} g"))
 
@@ -192,7 +198,7 @@ def _gripper(args: argparse.Namespace) -> int:
     rig = _connect(args, ["gripper"], connectors={"gripper": connect_gripper}, bench_too=True)
     return _run(args, rig, lambda rig: gripper_session(
         rig.gripper, args.out, effort=args.effort, max_opening_m=args.max_opening_m,
-        closing_sign=args.closing_sign, guide=_guide(args)), lambda r: (
+        closing_sign=args.closing_sign, guide=_guide(args), force=args.force, bench=rig.bench), lambda r: (
         f"gripper: closed {r['closed_ticks']} ticks, open {r['open_ticks']} ticks "
         f"({r['span_ticks']} ticks for {r['max_opening_m']} m)"))
 
@@ -201,6 +207,7 @@ def _fingervision(args: argparse.Namespace) -> int:
     cam = _camera_name(args, "fingervision")
     rig = _connect(args, [cam], scene="fingervision_rest", connectors={"camera": sim_camera_connector("fingervision")})
     return _run(args, rig, lambda rig: fingervision_session(rig.devices[cam], args.out, frames=args.frames,
-                                                            guide=_guide(args)), lambda r: (
+                                                            guide=_guide(args), force=args.force,
+                                                            bench=rig.bench), lambda r: (
         f"FingerVision: {r['valid_markers']}/{r['markers']} stable markers, median jitter "
         f"{'n/a' if r['median_marker_jitter_px'] is None else format(r['median_marker_jitter_px'], '.3f')} px"))

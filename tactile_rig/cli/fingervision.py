@@ -1,22 +1,37 @@
 """``tactile-rig fingervision track FRAMES_OR_VIDEO``: run the FingerVision processor over recorded frames.
 
-FRAMES may be a folder of images, a glob pattern or a video file. The first ``n_calib_frames`` frames
-(no contact) build the marker baseline. With ``--json`` one JSON object per frame is printed.
+FRAMES may be a folder of images, a glob pattern or a video file. Markers get their ids on the first
+frame (a lattice fit); the first ``n_calib_frames`` frames (no contact) refine their rest positions.
+With ``--json`` one JSON object per frame is printed.
+
+Exit codes: 0 done; 2 bad input (a missing file, a bad option, an undecodable image, frames of
+different sizes) or no marker lattice in the first ``n_calib_frames`` frames (black, white, flat,
+out-of-focus frames: ``MarkersNotFound``), one line on stderr.
 """
 
 from __future__ import annotations
 
 import argparse
 import glob
-import json
+import os
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from tactile_rig.cli import bench_live
+from tactile_rig.cli.args import float_in, int_in
 from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.cli.loaders import load_config_mapping, read_frame
+from tactile_rig.core.files import check_file, check_image_dims, checked, quiet_opencv
+
+
+from tactile_rig.core.errors import MarkersNotFound
 from tactile_rig.perception.fingervision import FingerVision, FingerVisionParams
+from tactile_rig.rig.bench import load_bench
+from tactile_rig.rig.camera_calibrations import camera_calibrations, describe_files
 
 _IMAGE_EXT = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
 
@@ -25,14 +40,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("fingervision", help="FingerVision perception over recorded frames")
     fsub = p.add_subparsers(dest="fv_command", metavar="ACTION")
     t = fsub.add_parser("track", help="track markers, force/torque, object and slip, frame by frame")
-    t.add_argument("frames", help="folder of images, glob pattern (quote it) or video file")
+    t.add_argument("frames", nargs="?", help="folder of images, glob pattern (quote it) or video file "
+                   "(or --bench: live from the bench's camera)")
     t.add_argument("--config", help="TOML or JSON file of FingerVisionParams (sections detector, tracker, force, proximity)")
-    t.add_argument("--calib-frames", type=int, help="no-contact frames for the baseline (overrides the config)")
-    t.add_argument("--fps", type=float, help="frame rate, for timestamps t_s = index / fps (Kalman time step)")
-    t.add_argument("--object-rect", type=int, nargs=4, metavar=("X", "Y", "W", "H"),
+    t.add_argument("--calib-frames", type=int_in(1, 100_000), help="no-contact frames for the baseline (overrides the config)")
+    t.add_argument("--fps", type=float_in(0.0, 100_000.0, "frames/s", low_open=True), help="frame rate, for timestamps t_s = index / fps (Kalman time step)")
+    t.add_argument("--object-rect", type=int_in(0, 65535, "px"), nargs=4, metavar=("X", "Y", "W", "H"),
                    help="learn the object's colours from this rectangle (px) of the first frame after calibration")
-    t.add_argument("--limit", type=int, help="stop after this many frames")
+    t.add_argument("--limit", type=int_in(1, 10**9), help="stop after this many frames")
+    t.add_argument("--calibration", help="marker baseline (calibrate fingervision) to start from; default: the "
+                   "bench camera's, else calib/fingervision.json when present")
+    t.add_argument("--force-map", help="force map for newtons (calibrate force-map); default: the bench camera's, "
+                   "else calib/force_map when present")
+    t.add_argument("--no-calibration", action="store_true",
+                   help="load no stored file: build the baseline from the first frames, forces in px")
     add_json_flag(t)
+    bench_live.add_bench_camera_arguments(t)
     t.set_defaults(func=_track)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
@@ -42,22 +65,13 @@ def load_params(path: str | None, calib_frames: int | None = None):
 
     data: dict[str, Any] = {}
     if path:
-        file = Path(path)
-        if not file.is_file():
-            raise FileNotFoundError(f"--config: no such file {path!r}")
-        text = file.read_text(encoding="utf-8")
-        if file.suffix.lower() == ".json":
-            data = json.loads(text)
-        else:
-            import tomllib
-
-            try:
-                data = tomllib.loads(text)
-            except tomllib.TOMLDecodeError as exc:
-                raise ValueError(f"--config {path}: not valid TOML ({exc})") from exc
+        data = load_config_mapping(path, "FingerVision config")
     if calib_frames is not None:
         data = {**data, "n_calib_frames": calib_frames}
-    return FingerVisionParams.from_mapping(data)
+    if not path:
+        return FingerVisionParams.from_mapping(data)
+    with checked(path, "FingerVision config", "sections detector, tracker, force, proximity of FingerVisionParams"):
+        return FingerVisionParams.from_mapping(data)
 
 
 def iter_frames(source: str) -> Iterator[tuple[str, np.ndarray]]:
@@ -76,9 +90,13 @@ def iter_frames(source: str) -> Iterator[tuple[str, np.ndarray]]:
     elif path.is_file() and path.suffix.lower() in _IMAGE_EXT:
         files = [path]
     elif path.is_file():
-        cap = cv2.VideoCapture(str(path))
+        check_file(path, "video")
+        with quiet_opencv():
+            cap = cv2.VideoCapture(str(path))
         if not cap.isOpened():
             raise ValueError(f"{source}: not an image and OpenCV cannot open it as a video")
+        check_image_dims(path, "video frame", int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)) or 1,
+                         int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)) or 1)
         try:
             i = 0
             while True:
@@ -95,10 +113,7 @@ def iter_frames(source: str) -> Iterator[tuple[str, np.ndarray]]:
     else:
         raise FileNotFoundError(f"{source}: no such folder, video or matching files")
     for f in files:
-        frame = cv2.imread(str(f), cv2.IMREAD_COLOR)
-        if frame is None:
-            raise ValueError(f"{f}: cannot decode the image")
-        yield f.name, frame
+        yield f.name, read_frame(f)
 
 
 def _record(i: int, name: str, r) -> dict[str, Any]:
@@ -129,10 +144,23 @@ def _record(i: int, name: str, r) -> dict[str, Any]:
 
 
 def _track(args: argparse.Namespace) -> int:
+    if bench_live.wants_bench(args):
+        return bench_live.track(args, load_params(args.config, args.calib_frames))
+    bench_live.need_files(args, "frames")
 
-    if args.fps is not None and not args.fps > 0:
-        raise ValueError(f"--fps: expected > 0 frames/s, got {args.fps}")
+    if args.fps is not None and not (0 < args.fps < float("inf")):
+        raise ValueError(f"--fps: expected a finite rate > 0 frames/s, got {args.fps}")
+    if args.limit is not None and args.limit < 1:
+        raise ValueError(f"--limit: expected >= 1 frames, got {args.limit}")
+    if args.object_rect is not None and (args.object_rect[2] < 1 or args.object_rect[3] < 1):
+        raise ValueError(f"--object-rect: expected a width and height >= 1 px, got {args.object_rect[2:]}")
     fv = FingerVision(load_params(args.config, args.calib_frames))
+    cal, mm_per_px = _calibrations(args)
+    if cal.calibration is not None:
+        cal.calibration.apply(fv)  # the stored baseline: no frames spent rebuilding it
+    fm = cal.force_map
+    if not args.json:
+        print(f"calibration: {describe_files(cal)}", file=sys.stderr)
     learnt = args.object_rect is None
     n = 0
     for i, (name, frame) in enumerate(iter_frames(args.frames)):
@@ -142,7 +170,18 @@ def _track(args: argparse.Namespace) -> int:
             fv.learn_object(frame, rects=[tuple(args.object_rect)])
             learnt = True
         r = fv.process(frame, None if args.fps is None else i / args.fps)
+        if fv.tracker is None and i + 1 >= fv.params.n_calib_frames and (
+                fv.params.init == "lattice" or i + 1 > fv.params.n_calib_frames):
+            raise MarkersNotFound(
+                f"{args.frames}: no marker lattice in the first {i + 1} frame(s) (frame {name}); expected dark "
+                f"dots on the skin: the frames are black, white, flat or out of focus", device="fingervision")
+        if fv.tracker is not None and fv.baseline is not None and not np.any(fv.baseline.valid):
+            raise MarkersNotFound(f"{args.frames}: the baseline frames hold no stable marker", device="fingervision")
         rec = _record(i, name, r)
+        if fm is not None and not r.calibrating:
+            f_n, tq, mag = fm.to_newtons(r.force_px, r.torque_px2)
+            rec.update(force_n=f_n, force_map_n=mag)
+            rec["torque_nmm" if mm_per_px else "torque_npx"] = tq * (mm_per_px or 1.0)
         n += 1
         if args.json:
             print_json(rec)
@@ -152,8 +191,26 @@ def _track(args: argparse.Namespace) -> int:
             obj = "no object" if r.object_centroid_px is None else (
                 f"object {r.object_area_px:.0f} px2 at ({r.object_centroid_px[0]:.1f}, {r.object_centroid_px[1]:.1f})"
                 + ("" if r.object_orientation_deg is None else f" {r.object_orientation_deg:+.1f} deg"))
-            print(f"{i:5d} {name:<24} {state}  force ({f[0]:+.2f}, {f[1]:+.2f}, {f[2]:+.2f}) px  "
+            newtons = f"  {rec['force_map_n']:6.2f} N" if "force_map_n" in rec else ""
+            print(f"{i:5d} {name:<24} {state}  force ({f[0]:+.2f}, {f[1]:+.2f}, {f[2]:+.2f}) px{newtons}  "
                   f"torque_z {r.torque_px2[2]:+.1f} px2  {'SLIP' if r.slip else 'still'}  {obj}")
     if n == 0:
         raise ValueError(f"{args.frames}: no frames")
+    if fv.tracker is None:
+        raise MarkersNotFound(f"{args.frames}: no marker lattice in any of the {n} frame(s); expected dark dots "
+                              f"on the skin: the frames are black, white, flat or out of focus", device="fingervision")
     return 0
+
+
+def _calibrations(args: argparse.Namespace) -> tuple[Any, float | None]:
+    """The marker baseline and force map ``track`` uses: named on the command line, else by the bench
+    (``--bench``/``$TACTILE_RIG_BENCH``) for ``--camera``, else the sessions' default files."""
+    bench_path = getattr(args, "bench", None) or os.environ.get("TACTILE_RIG_BENCH")
+    bench = None if args.no_calibration or not bench_path else load_bench(bench_path, check_ports=False)
+    camera = getattr(args, "camera", None)
+    cal = camera_calibrations(bench, camera, calibration=None if args.no_calibration else args.calibration,
+                              force_map=None if args.no_calibration else args.force_map,
+                              defaults=not args.no_calibration,
+                              load=() if args.no_calibration else ("calibration", "force_map"))
+    cfg = bench.cameras.get(cal.camera) if bench is not None else None
+    return cal, (float(cfg.mm_per_px_x) if cfg is not None else None)

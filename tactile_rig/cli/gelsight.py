@@ -1,14 +1,30 @@
-"""``tactile-rig gelsight``: calibrate from ball presses, height maps, registration, tactile maps."""
+"""``tactile-rig gelsight``: calibrate from ball presses, height maps, registration, tactile maps.
+
+Exit codes: 0 done; 1 a refusal (``register``/``localize`` refused the touch, ``map`` rejected at
+least one touch; the JSON says why); 2 bad input (a missing file, a frame the calibration cannot read:
+saturated, colours beyond its range, heights no gel shows, one line naming the reason).
+"""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any, Callable
 
 import numpy as np
 
+from tactile_rig.cli import bench_live
+from tactile_rig.cli.args import float_in, int_in, output_dir, output_file
 from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.cli.loaders import (
+    load_gelsight_calibration,
+    load_height_mm,
+    load_press_folder,
+    load_tactile_map,
+    read_frame,
+)
 from tactile_rig.perception.gelsight import (
+    ACCEPT_CONFIDENCE,
     GelSightCalibration,
     IntegrationParams,
     Reconstructor,
@@ -16,35 +32,21 @@ from tactile_rig.perception.gelsight import (
     TactileMap,
     calibrate_from_presses,
     cross_validate,
-    load_presses,
 )
 from tactile_rig.perception.gelsight import register as register_heights
 
 
 def _load_height(path: str) -> np.ndarray:
-    p = Path(path)
-    if not p.exists():
-        raise FileNotFoundError(f"height map {p} does not exist")
-    if p.suffix != ".npy":
-        raise ValueError(f"{p}: expected a .npy height map in mm")
-    arr = np.load(p, allow_pickle=False)
-    if arr.ndim != 2:
-        raise ValueError(f"{p}: expected a 2-D height map, got shape {arr.shape}")
-    return arr.astype(np.float32)
+    return load_height_mm(path)
 
 
 def _read_image(path: str) -> np.ndarray:
-    import cv2
-
-    img = cv2.imread(path, cv2.IMREAD_COLOR)
-    if img is None:
-        raise FileNotFoundError(f"cannot read image {path}")
-    return img
+    return read_frame(path)
 
 
 def _reconstructor(calib: str, background: str | None, solver: str | None = None):
 
-    cal = GelSightCalibration.load(calib)
+    cal = load_gelsight_calibration(calib)
     if background:
         bg = _read_image(background)
         cal = GelSightCalibration(cal.model, bg, cal.mm_per_px_x, cal.mm_per_px_y, cal.ball_radius_mm,
@@ -62,7 +64,7 @@ def _height_or_image(path: str, calib: str | None, background: str | None) -> np
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
 
-    presses = load_presses(args.press_dir)
+    presses = load_press_folder(args.press_dir)
     hyper = {"bins": args.bins} if args.method == "lut" else {}
     cal = calibrate_from_presses(presses, args.mm_per_px, args.ball_radius_mm, args.method,
                                  sensor=args.sensor, **hyper)
@@ -82,16 +84,18 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_height(args: argparse.Namespace) -> int:
+    if bench_live.wants_bench(args):
+        return bench_live.height(args)
+    bench_live.need_files(args, "calib", "images", "output")
     rec = _reconstructor(args.calib, args.background, args.solver)
     out = Path(args.output)
     written = []
     if len(args.images) == 1:
         target = out if out.suffix == ".npy" else out.with_suffix(".npy")
-        target.parent.mkdir(parents=True, exist_ok=True)
         np.save(target, rec.height_mm(_read_image(args.images[0])))
         written.append(str(target))
     else:
-        out.mkdir(parents=True, exist_ok=True)
+        out.mkdir(exist_ok=True)  # the parent exists (output_path): only the leaf is made
         for img in args.images:
             target = out / (Path(img).stem + ".npy")
             np.save(target, rec.height_mm(_read_image(img)))
@@ -115,9 +119,26 @@ def _print_result(res, as_json: bool) -> int:
     return 0 if res.ok else 1
 
 
-def _params(args: argparse.Namespace):
+# Every registration threshold and its flag; defaults and meanings come from RegistrationParams.
+_REG_FLAGS: tuple[tuple[str, Callable[[str], Any], str], ...] = (
+    ("ransac_iters", int_in(1, 100_000), "two-pair RANSAC samples"),
+    ("inlier_px", float_in(0.0, 100.0, "px", low_open=True), "RANSAC residual threshold in px"),
+    ("min_inliers", int_in(2, 100_000), "fewer RANSAC inliers refuse the keypoint answer"),
+    ("min_confidence", float_in(0.0, 1.0), "Li's confidence c = 1 - |1 - det R| below this is refused"),
+    ("min_ncc", float_in(-1.0, 1.0), "normalised correlation of the aligned heights below this is refused"),
+    ("min_overlap", float_in(0.0, 1.0), "overlap (fraction of A's steep pixels) below this is refused"),
+    ("max_sigma_rot_deg", float_in(0.0, 180.0, "deg", low_open=True),
+     "refuse when the dense fit pins rotation worse than this (1 sigma, deg)"),
+    ("max_sigma_px", float_in(0.0, 10_000.0, "px", low_open=True),
+     "refuse when the dense fit pins translation worse than this (1 sigma, px)"),
+    ("detect_short_px", int_in(16, 8192, "px"), "keypoints are found on the map resized to this short side (px)"),
+    ("orb_features", int_in(10, 100_000), "ORB keypoints per touch-sized image"),
+)
 
-    return RegistrationParams(detector=args.detector, ransac_iters=args.ransac_iters)
+
+def _params(args: argparse.Namespace) -> RegistrationParams:
+    knobs = {name: getattr(args, name) for name, _, _ in _REG_FLAGS}
+    return RegistrationParams(detector=args.detector, dense_fallback=not args.no_dense_fallback, **knobs)
 
 
 def _cmd_register(args: argparse.Namespace) -> int:
@@ -128,7 +149,8 @@ def _cmd_register(args: argparse.Namespace) -> int:
 
 def _cmd_map(args: argparse.Namespace) -> int:
 
-    tmap = TactileMap(args.mm_per_px, canvas_factor=args.canvas_factor, params=_params(args))
+    tmap = TactileMap(args.mm_per_px, canvas_factor=args.canvas_factor, params=_params(args),
+                      accept_confidence=args.accept_confidence)
     rows = []
     for path in args.heights:
         rec = tmap.add_touch(_height_or_image(path, args.calib, args.background))
@@ -136,73 +158,93 @@ def _cmd_map(args: argparse.Namespace) -> int:
                      "confidence": rec.result.confidence,
                      "g_T_m": None if rec.g_T_m is None else rec.g_T_m.tolist()})
     saved = tmap.save(args.output)
+    rejected = sum(not r["accepted"] for r in rows)
     if args.json:
-        print_json({"map": str(saved), "touches": rows})
+        print_json({"map": str(saved), "touches": rows, "rejected": rejected})
     else:
         for r in rows:
             print(f"{r['touch']}: {'accepted' if r['accepted'] else 'rejected (' + str(r['reason']) + ')'}")
-        print(f"map: {saved}")
-    return 0
+        print(f"map: {saved}" + (f" ({rejected} of {len(rows)} touches rejected)" if rejected else ""))
+    return 1 if rejected else 0
 
 
 def _cmd_localize(args: argparse.Namespace) -> int:
 
-    tmap = TactileMap.load(args.map, params=_params(args))
+    tmap = load_tactile_map(args.map, params=_params(args))
     res = tmap.localize(_height_or_image(args.touch, args.calib, args.background))
     return _print_result(res, args.json)
 
 
 def _add_reg_knobs(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--detector", default="orb", choices=["orb", "brisk", "both"], help="keypoints (default orb)")
-    p.add_argument("--ransac-iters", type=int, default=256, help="two-pair RANSAC samples (default 256)")
+    d = RegistrationParams()
+    p.add_argument("--detector", default=d.detector, choices=["orb", "brisk", "both"],
+                   help=f"keypoints (default {d.detector})")
+    for name, kind, text in _REG_FLAGS:
+        p.add_argument("--" + name.replace("_", "-"), type=kind, default=getattr(d, name),
+                       help=f"{text} (default {getattr(d, name)})")
+    p.add_argument("--no-dense-fallback", action="store_true",
+                   help="do not try Fourier-Mellin when keypoints fail (default: try it)")
     add_json_flag(p)
+
+
+MM_PER_PX = float_in(0.0, 100.0, "mm/px", low_open=True)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``gelsight`` command group."""
-    g = subparsers.add_parser("gelsight", help="GelSight calibration, height maps, registration, tactile maps")
+    g = subparsers.add_parser("gelsight", help="GelSight calibration, height maps, registration, tactile maps",
+                              description="Exit codes: 0 done, 1 refused (register/localize) or a touch rejected "
+                              "(map), 2 bad input (file, frame or map the pipeline cannot read; one line).")
     sub = g.add_subparsers(dest="gelsight_command", metavar="SUBCOMMAND", required=True)
 
     p = sub.add_parser("calibrate", help="fit a colour->gradient calibration from ball presses")
     p.add_argument("press_dir", help="folder with background.png, press images and labels.csv")
-    p.add_argument("--mm-per-px", type=float, required=True, help="pixel pitch in mm")
-    p.add_argument("--ball-radius-mm", type=float, required=True, help="calibration ball radius in mm")
+    p.add_argument("--mm-per-px", type=MM_PER_PX, required=True, help="pixel pitch in mm")
+    p.add_argument("--ball-radius-mm", type=float_in(0.0, 100.0, "mm", low_open=True), required=True, help="calibration ball radius in mm")
     p.add_argument("--method", default="mlp", choices=["lut", "poly", "mlp"], help="model (default mlp)")
-    p.add_argument("--bins", type=int, default=32, help="LUT bins per channel (method lut)")
+    p.add_argument("--bins", type=int_in(2, 256), default=32, help="LUT bins per channel (method lut)")
     p.add_argument("--sensor", default="gelsight", help="sensor name stored in the metadata")
     p.add_argument("--report", action="store_true", help="also cross-validate on held-out presses")
-    p.add_argument("--folds", type=int, default=5, help="folds of the report (default 5)")
-    p.add_argument("-o", "--output", required=True, help="output base path (writes .npz and .json)")
+    p.add_argument("--folds", type=int_in(2, 1000), default=5, help="folds of the report (default 5)")
+    p.add_argument("-o", "--output", type=output_file(), required=True,
+                   help="output base path (writes .npz and .json); its folder must exist")
     add_json_flag(p)
     p.set_defaults(func=_cmd_calibrate)
 
     p = sub.add_parser("height", help="height maps (mm, .npy) from frames")
-    p.add_argument("calib", help="calibration (.npz/.json base path)")
-    p.add_argument("images", nargs="+", help="BGR frames")
+    p.add_argument("calib", nargs="?", help="calibration (.npz/.json base path; --bench: default the camera's)")
+    p.add_argument("images", nargs="*", help="BGR frames (or --bench: live from the bench's GelSight camera)")
     p.add_argument("--background", help="a fresh no-contact frame replacing the calibration's")
     p.add_argument("--solver", choices=["dst", "dct", "fc"], help="Poisson solver (default: the pipeline's)")
-    p.add_argument("-o", "--output", required=True, help="OUT.npy for one image, a folder for several")
+    p.add_argument("-o", "--output", type=output_dir,
+                   help="OUT.npy for one image, a folder for several (its parent must exist; required with "
+                   "files; --bench: the last map)")
     add_json_flag(p)
+    bench_live.add_bench_camera_arguments(p)
     p.set_defaults(func=_cmd_height)
 
-    p = sub.add_parser("register", help="rigid transform taking height map B into A")
+    p = sub.add_parser("register", help="rigid transform taking height map B into A (exit 1 when refused)")
     p.add_argument("a", help="reference height map A (.npy, mm)")
     p.add_argument("b", help="height map B (.npy, mm)")
-    p.add_argument("--mm-per-px", type=float, required=True, help="pixel pitch in mm")
+    p.add_argument("--mm-per-px", type=MM_PER_PX, required=True, help="pixel pitch in mm")
     _add_reg_knobs(p)
     p.set_defaults(func=_cmd_register)
 
-    p = sub.add_parser("map", help="mosaic touches (height maps or frames) into a tactile map (.npz)")
+    p = sub.add_parser("map", help="mosaic touches (height maps or frames) into a tactile map (.npz); "
+                       "exit 1 when a touch is rejected")
     p.add_argument("heights", nargs="+", help="touches: .npy height maps, or frames with --calib")
-    p.add_argument("--mm-per-px", type=float, required=True, help="pixel pitch in mm")
-    p.add_argument("--canvas-factor", type=float, default=3.0, help="map size / touch size (default 3)")
+    p.add_argument("--mm-per-px", type=MM_PER_PX, required=True, help="pixel pitch in mm")
+    p.add_argument("--canvas-factor", type=float_in(1.0, 20.0), default=3.0, help="map size / touch size (default 3)")
+    p.add_argument("--accept-confidence", type=float_in(0.0, 1.0), default=ACCEPT_CONFIDENCE,
+                   help=f"a touch joins the map above this confidence c (default {ACCEPT_CONFIDENCE}, Li 2014)")
     p.add_argument("--calib", help="calibration for frames given as images")
     p.add_argument("--background", help="no-contact frame for --calib")
-    p.add_argument("-o", "--output", required=True, help="output map .npz")
+    p.add_argument("-o", "--output", type=output_file(".npz"), required=True,
+                   help="output map .npz (its folder must exist)")
     _add_reg_knobs(p)
     p.set_defaults(func=_cmd_map)
 
-    p = sub.add_parser("localize", help="where a touch lies in a tactile map")
+    p = sub.add_parser("localize", help="where a touch lies in a tactile map (exit 1 when refused)")
     p.add_argument("map", help="tactile map .npz from 'gelsight map'")
     p.add_argument("touch", help="touch: .npy height map, or a frame with --calib")
     p.add_argument("--calib", help="calibration for a frame given as an image")

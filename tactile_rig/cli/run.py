@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
+from tactile_rig.cli.bench_live import add_live_arguments, live_from_args
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.rig.jig_accuracy import (
     JigAccuracyConfig,
@@ -61,6 +62,7 @@ def register(subparsers: Any) -> None:
                    help="exit 1 when the rotation MAE exceeds this")
     p.add_argument("--max-translation-mae-mm", type=float, metavar="MM",
                    help="exit 1 when the translation MAE exceeds this")
+    add_live_arguments(p)
     add_json_flag(p)
     p.set_defaults(func=_jig_accuracy)
     run.set_defaults(func=lambda args: (run.print_help(), 2)[1])
@@ -85,13 +87,17 @@ def _jig_accuracy(args: argparse.Namespace) -> int:
         elif progress is not None:
             progress.update(1)
 
+    live = live_from_args(args)
     try:
         outcome = execute_jig_accuracy(cfg, out_dir, bench=bench, calibration=args.calibration, camera=args.camera,
                                        resume=True if args.resume else None, overwrite=args.overwrite,
-                                       record=not args.no_record, report=not args.no_report, on_point=on_point)
+                                       record=not args.no_record, report=not args.no_report, on_point=on_point,
+                                       live=live)
     finally:
         if progress is not None:
             progress.close()
+        if live is not None:
+            live.close()
     s = outcome.summary
     if args.json:
         print_json({**s, "out": str(outcome.out_dir), "resumed_from": outcome.resumed_from, "files": outcome.files})

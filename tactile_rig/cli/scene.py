@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 
+from tactile_rig.cli import bench_live
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.rig.scene_runner import list_scenes, run_episodes
 
@@ -29,6 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     run.add_argument("--speed-mps", type=float, default=None,
                      help="approach speed in m/s (collision scenes; above the cap is refused)")
     add_json_flag(run)
+    bench_live.add_live_arguments(run)
     run.set_defaults(func=_run)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
@@ -55,7 +57,10 @@ def _run(args: argparse.Namespace) -> int:
             figs = " ".join(f"{k}={v:.4g}" for k, v in r.figures.items() if isinstance(v, float))
             print(f"episode {r.episode:>4} seed {r.seed:>6} {'ok ' if r.ok else 'BAD'} {r.outcome:<10} {figs}")
 
-    summary = run_episodes(args.name, args.seed, args.episodes, speed_mps=args.speed_mps, on_episode=show)
+    if args.live:
+        summary = bench_live.scene_live(args, show)
+    else:
+        summary = run_episodes(args.name, args.seed, args.episodes, speed_mps=args.speed_mps, on_episode=show)
     if args.json:
         print_json(summary)
     else:

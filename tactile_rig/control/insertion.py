@@ -111,7 +111,7 @@ class Insertion:
     # -- pieces ------------------------------------------------------------------------------------
     def localize(self) -> Localization | None:
         """Average a few localizations; None when the confidence is below ``min_confidence``."""
-        locs = []
+        locs: list[Localization] = []
         while len(locs) < max(1, self.p.localize_frames):
             r = self.sensor.read(self.p.frame_timeout_s)
             if r is None:

@@ -18,11 +18,23 @@ the device latched a fault      DeviceFault                            3
   ... an unasked reset          GrblReset (DeviceFault)                3
 outside a configured limit      LimitError (ValueError)                2
 a calibration unusable          CalibrationError (ValueError)          2
+  ... would replace a file      CalibrationExists (CalibrationError)   2
+  ... no markers to calibrate   MarkersNotFound (CalibrationError)     2
+frame outside the valid input   InvalidFrame (ValueError)              2
 a camera kept no setting        ControlReadbackError (ValueError)      2
 a camera stream frozen          FrozenStream (DeviceTimeout)           2
 a bench file unusable           BenchError (ValueError)                2
+perception input out of range   PerceptionError (ValueError)           2
+  ... nothing touches the gel   NoContact (PerceptionError)            2
+  ... clipped (black/white)     SaturatedFrame (PerceptionError)       2
+  ... beyond the calibration    GradientOutOfRange (PerceptionError)   2
+  ... not a gel surface         HeightOutOfRange (PerceptionError)     2
+  ... a squashed transform      DegenerateTransform (PerceptionError)  2
 a run folder of another run     RunConflict (ValueError)               2
 several devices failed          ConnectErrors                          2
+an answer lost on the wire      ReplyLost (LinkCorrupt)                2
+a port another handle holds     PortInUse (NotConnected)               2
+a scale zero no longer true     ZeroLost (ValueError)                  2
 ==============================  =====================================  =====================
 
 Device-specific texts (GRBL's messages, Dynamixel error names) are device facts and live in
@@ -66,6 +78,16 @@ class LinkCorrupt(RigError, IOError):
     Examples: a CRC or checksum mismatch, a packet cut off mid-way, a status packet from the wrong
     ID, a line that does not parse.
     """
+
+
+class ReplyLost(LinkCorrupt):
+    """A device executed a request but its answer was lost on the wire (a GRBL ``ok``/``error`` the
+    host never received, detected from a later status report). ``line`` is what was sent; whether
+    the device accepted it is unknown, so read the state back before relying on it."""
+
+    def __init__(self, message: str, *, device: str | None = None, line: str | None = None) -> None:
+        super().__init__(message, device=device)
+        self.line = line
 
 
 class DeviceFault(RigError):
@@ -159,6 +181,24 @@ class CalibrationError(RigError, ValueError):
     """A calibration is missing, of the wrong version or sensor, or cannot be fitted from the data."""
 
 
+class ZeroLost(RigError, ValueError):
+    """A scale's zero can no longer be trusted (its sketch re-tared with an unknown load on it and
+    sends no raw counts the host could correct with); ``tare()`` sets a new zero."""
+
+
+class CalibrationExists(CalibrationError, FileExistsError):
+    """Writing a calibration would replace an existing file (a version, or an unversioned file at the
+    stable name); pass ``force=True`` (``--force``) to overwrite it."""
+
+
+class MarkersNotFound(CalibrationError):
+    """A marker sensor's calibration frames hold no marker lattice (black, white, flat, covered)."""
+
+
+class InvalidFrame(RigError, ValueError):
+    """A frame outside a perception entry point's valid input: shape, channels, dtype or size."""
+
+
 class ControlReadbackError(RigError, ValueError):
     """The camera did not keep a format or control value we wrote (read back differs)."""
 
@@ -182,6 +222,40 @@ class RunConflict(RigError, ValueError):
     """A run folder holds a run with another configuration (or an unreadable one)."""
 
 
+class PerceptionError(RigError, ValueError):
+    """A perception input outside the range its function can turn into a physical result.
+
+    ``value`` is what was seen (a fraction, a slope, a height in mm, a determinant) and ``limit`` the
+    bound it broke; the message names both and the component (``device``).
+    """
+
+    def __init__(self, message: str, *, device: str | None = None, value: float | None = None,
+                 limit: float | None = None) -> None:
+        super().__init__(message, device=device)
+        self.value = value
+        self.limit = limit
+
+
+class NoContact(PerceptionError):
+    """Nothing presses the gel (a flat map), where the function needs a contact."""
+
+
+class SaturatedFrame(PerceptionError):
+    """Too much of a frame is clipped at 0 or 255 (covered lens, lights off, over-exposure)."""
+
+
+class GradientOutOfRange(PerceptionError):
+    """Colours or slopes beyond what the calibration was fitted on (its heights would be invented)."""
+
+
+class HeightOutOfRange(PerceptionError):
+    """Heights no gel can show (beyond its range of a few mm): the input is not a gel surface."""
+
+
+class DegenerateTransform(PerceptionError):
+    """Two maps are related by a squashing transform (det R far from 1), not a rigid move."""
+
+
 class ConnectErrors(RigError):
     """Several devices failed to connect; ``errors`` maps each device name to its exception."""
 
@@ -197,3 +271,32 @@ def check_range(name: str, value: float, low: float, high: float, unit: str = ""
         u = f" {unit}" if unit else ""
         raise ValueError(f"{name}={value!r}{u} is outside the allowed range [{low}, {high}]{u}")
     return value
+
+
+class PortInUse(NotConnected):
+    """The port is held by another process or handle (opened exclusively); ``port`` names it."""
+
+    def __init__(self, message: str, *, device: str | None = None, port: str | None = None) -> None:
+        super().__init__(message, device=device)
+        self.port = port
+
+
+class BadFile(RigError, ValueError):
+    """A file that cannot be used as it is: ``path`` names it, ``problem`` says what is wrong with it
+    and ``expected`` what was expected (a directory given for a file, zero bytes, a truncated
+    archive, a pickle or complex ``.npy``, a 65535 x 65535 image header, JSON nested too deep)."""
+
+    def __init__(self, path: Any, problem: str, expected: str = "") -> None:
+        self.path = str(path)
+        self.problem = problem
+        self.expected = expected
+        super().__init__(f"{self.path}: {problem}" + (f"; expected {expected}" if expected else ""))
+
+
+class MissingFile(RigError, FileNotFoundError):
+    """A file the command needs does not exist; ``path`` names it and ``what`` says what it was for."""
+
+    def __init__(self, path: Any, what: str = "file") -> None:
+        self.path = str(path)
+        self.what = what
+        RigError.__init__(self, f"{self.path}: the {what} does not exist")

@@ -124,6 +124,24 @@ MASK_BUFFER = 2  # Bf:planner,rx
 STATUS_FIELDS = ("MPos", "WPos", "Bf", "Ln", "F", "FS", "WCO", "Pn", "Ov", "A")
 PIN_LETTERS = "XYZAPDHRS"  # Pn: limits X Y Z (A), probe, door, hold, soft-reset, cycle-start
 
+# How GRBL prints the numbers of a status report (report.c through print.c's printFloat): a sign
+# only when negative, at least one integer digit, then a fixed number of decimals. Coordinates
+# (MPos, WPos, WCO) have 3 decimals in mm and 4 in inches ($13=1); feed and spindle rates 0 in mm/min
+# and 1 in inches/min; Bf, Ln and Ov are unsigned integers. A report whose numbers break these
+# formats was corrupted on the wire (GRBL's lines carry no checksum: the format is all we have).
+COORD_DECIMALS = {"mm": 3, "inch": 4}
+RATE_DECIMALS = {"mm": 0, "inch": 1}
+COORD_FIELDS = ("MPos", "WPos", "WCO")
+MAX_AXES = 6  # N_AXIS never exceeds 6 in GRBL and grblHAL builds
+SUBSTATES = {"Hold": range(0, 2), "Door": range(0, 4)}  # the only states GRBL prints with ':<n>'
+ACCESSORY_LETTERS = "SCFM"  # A: spindle CW, CCW, flood, mist
+PIN_OVERRIDE_LETTERS = "BCUVW"  # grblHAL's extra Pn letters (block delete, ..., optional stop)
+# Fields grblHAL adds after GRBL's (kept as text in ``extras``); any other name is line noise.
+GRBLHAL_FIELDS = ("SD", "H", "T", "TLR", "Sc", "MPG", "FW", "In", "Ld", "D", "TH", "THC", "Q")
+# The states in which GRBL executes no motion and has nothing queued in its planner: a line it
+# read is answered within milliseconds (a dwell, G4, is the exception, and is never presumed lost).
+QUIESCENT_STATES = ("Idle", "Alarm", "Check")
+
 
 def error(code: int, *, device: str | None = None, line: str | None = None) -> GrblError:
     """The typed error for GRBL's ``error:<code>`` answering ``line``, with GRBL 1.1's name and message."""

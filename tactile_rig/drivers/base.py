@@ -13,15 +13,43 @@ things that move (the gripper, the jig) are ``active`` when they may move; a lat
 camera) never need activation: they stay ``connected`` until closed.
 
 Subclasses implement ``_close()`` (release the port; called once) and, when they move,
-``_activate()`` / ``_deactivate()``.
+``_activate()`` / ``_deactivate()``. A driver used from several threads marks its public methods
+:func:`locked`: one call at a time holds the driver's re-entrant lock for its whole exchange, so two
+threads never interleave their bytes or steal each other's replies.
 """
 
 from __future__ import annotations
 
 import enum
-from typing import Any
+import functools
+import threading
+from typing import Any, Callable, TypeVar
 
 from tactile_rig.core.errors import DeviceFault, NotConnected
+
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def locked(method: F) -> F:
+    """Run ``method`` holding the driver's call lock (re-entrant: a locked method may call another).
+
+    Around the call the driver's hooks run: ``_before_call()`` (a driver whose port vanished fails
+    fast or reconnects there) and, when the call raises :class:`NotConnected`, ``_on_not_connected``
+    (the port is gone: release it and start the reconnect backoff)."""
+
+    @functools.wraps(method)
+    def wrapper(self: "Driver", *args: Any, **kwargs: Any) -> Any:
+        with self.call_lock:
+            self._before_call()
+            try:
+                return method(self, *args, **kwargs)
+            except NotConnected as exc:
+                if self.lifecycle is not Lifecycle.CLOSED:
+                    self._on_not_connected(exc)
+                raise
+
+    return wrapper  # type: ignore[return-value]
 
 
 class Lifecycle(str, enum.Enum):
@@ -43,6 +71,8 @@ class Driver:
         self.device = device
         self.lifecycle = Lifecycle.CONNECTED
         self.last_fault: DeviceFault | None = None
+        #: held for the whole of each :func:`locked` call (one exchange with the device at a time)
+        self.call_lock = threading.RLock()
 
     # -- lifecycle ---------------------------------------------------------------------------------
     @property
@@ -75,10 +105,13 @@ class Driver:
         """Release the device; safe to call twice and from ``__exit__`` after an error."""
         if self.lifecycle is Lifecycle.CLOSED:
             return
-        try:
-            self._close()
-        finally:
-            self.lifecycle = Lifecycle.CLOSED
+        with self.call_lock:  # after the call in progress, never under it
+            if self.lifecycle is Lifecycle.CLOSED:
+                return
+            try:
+                self._close()
+            finally:
+                self.lifecycle = Lifecycle.CLOSED
 
     def __enter__(self) -> Any:
         return self
@@ -110,6 +143,12 @@ class Driver:
 
     def _close(self) -> None:
         """Subclass hook: release the port (default: nothing to release)."""
+
+    def _before_call(self) -> None:
+        """Subclass hook run before each :func:`locked` call (default: nothing)."""
+
+    def _on_not_connected(self, error: NotConnected) -> None:
+        """Subclass hook: a :func:`locked` call found the port gone (default: nothing)."""
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.device!r}, {self.lifecycle.value})"

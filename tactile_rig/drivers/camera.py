@@ -42,6 +42,7 @@ from tactile_rig.core.errors import (
 )
 from tactile_rig.core.types import RawFrame
 from tactile_rig.drivers.base import Driver, Lifecycle
+from tactile_rig.drivers.camera_http import HttpCameraSource, is_http_camera
 from tactile_rig.devices.camera import (
     AUTO_SWITCHES,
     PHOTOMETRIC_CONTROLS,
@@ -161,9 +162,12 @@ class FingertipCamera(Driver):
                  clock: Clock | None = None, threaded: bool | None = None, name: str | None = None,
                  fourcc: str | None = None, width: int | None = None, height: int | None = None,
                  fps: float | None = None, controls: dict[str, float] | None = None) -> None:
-        """``source`` is a :class:`FrameSource`, or a V4L2 path/index opened through :class:`OpenCVSource`.
+        """``source`` is a :class:`FrameSource`, a V4L2 path/index opened through :class:`OpenCVSource`, or
+        an ``http://`` MJPEG stream URL (:class:`~tactile_rig.drivers.camera_http.HttpCameraSource`).
         ``fourcc``, ``width``, ``height``, ``fps``, ``controls`` override fields of ``config``."""
-        if isinstance(source, (str, int)):
+        if is_http_camera(source):
+            source = HttpCameraSource(str(source), name=name)
+        elif isinstance(source, (str, int)):
             source = OpenCVSource(source)
         self.source = source
         config = config or CameraConfig()

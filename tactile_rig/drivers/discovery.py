@@ -119,13 +119,13 @@ def discover(*, backend: Any = None, sysfs_root: str | Path = "/sys", dev_root: 
     usb_base = sysfs / "bus" / "usb" / "devices"
     usb_dirs = {p.name: p.resolve() for p in usb_base.glob("*")} if usb_base.is_dir() else {}
     owners: dict[str, list[tuple[str, str]]] = {}
-    for cls, kind in (("tty", "tty"), ("video4linux", "video")):
+    for cls, node_kind in (("tty", "tty"), ("video4linux", "video")):
         for entry in sorted((sysfs / "class" / cls).glob("*")):
-            if kind == "video" and _read(entry / "index") not in (None, "0"):
+            if node_kind == "video" and _read(entry / "index") not in (None, "0"):
                 continue  # metadata node of a UVC camera
             owner = _owner(entry, usb_dirs)
             if owner:
-                owners.setdefault(owner, []).append((kind, entry.name))
+                owners.setdefault(owner, []).append((node_kind, entry.name))
     links = {k: _links(dev, k) for k in ("serial/by-id", "v4l/by-id", "serial/by-path", "v4l/by-path")}
     result = []
     for vid, pid, bus, port_path in found:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Callable, Iterable
@@ -24,11 +25,14 @@ from tactile_rig.core.errors import (
     GrblReset,
     LimitError,
     LinkCorrupt,
+    NotConnected,
+    ReplyLost,
     check_range,
 )
 from tactile_rig.core.geometry import Pose
 from tactile_rig.devices import grbl as gp
-from tactile_rig.drivers.base import Driver, Lifecycle
+from tactile_rig.drivers.base import Driver, Lifecycle, locked
+from tactile_rig.drivers.reconnect import Reconnect
 from tactile_rig.drivers.transport import SerialTransport
 
 log = logging.getLogger("tactile_rig.jig")
@@ -58,74 +62,129 @@ class GrblStatus:
     extras: dict[str, str] = field(default_factory=dict)
     t_host_s: float = 0.0
     raw: str = ""
+    inches: bool = False  # GRBL reported in inches ($13=1); the values above are converted to mm
 
     @property
     def idle(self) -> bool:
         return self.state == "Idle"
 
 
-def _floats(name: str, text: str, line: str) -> tuple[float, ...]:
-    try:
-        vals = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        raise LinkCorrupt(f"status field {name}:{text!r} is not a list of numbers in {line!r}") from None
-    if not all(math.isfinite(v) for v in vals):
-        raise LinkCorrupt(f"status field {name}:{text!r} has a non-finite value in {line!r}")
-    return vals
+_UINT = re.compile(r"[0-9]{1,7}")
+_COORD = {d: re.compile(r"-?[0-9]{1,7}\.[0-9]{%d}" % d) for d in gp.COORD_DECIMALS.values()}
+_RATE = {d: re.compile(r"[0-9]{1,7}" + (r"\.[0-9]{%d}" % d if d else "")) for d in gp.RATE_DECIMALS.values()}
+_LETTERS = re.compile(r"[A-Z]+")
+MM_PER_INCH = 25.4
+
+
+def _corrupt(what: str, line: str) -> LinkCorrupt:
+    return LinkCorrupt(f"corrupt status report {line!r}: {what}")
+
+
+def _coords(name: str, text: str, line: str) -> tuple[int, tuple[float, ...]]:
+    """(decimals, values) of a coordinate field; every value must print with GRBL's fixed decimals."""
+    vals = text.split(",")
+    if not 1 <= len(vals) <= gp.MAX_AXES:
+        raise _corrupt(f"{name} has {len(vals)} values (expected 1 to {gp.MAX_AXES})", line)
+    for d, rx in _COORD.items():
+        if all(rx.fullmatch(v) for v in vals):
+            return d, tuple(float(v) for v in vals)
+    raise _corrupt(f"{name}:{text!r} is not GRBL's fixed-decimal format (3 decimals in mm, 4 in inches)", line)
+
+
+def _uints(name: str, text: str, n: int, line: str) -> tuple[int, ...]:
+    vals = text.split(",")
+    if len(vals) != n or not all(_UINT.fullmatch(v) for v in vals):
+        raise _corrupt(f"{name}:{text!r} is not {n} unsigned integer(s)", line)
+    return tuple(int(v) for v in vals)
 
 
 def parse_status(line: str, t_s: float = 0.0, wco: tuple[float, ...] | None = None) -> GrblStatus:
     """Parse a GRBL 1.1 status report (any field order and presence); raise LinkCorrupt if malformed.
 
-    ``wco`` is the last work coordinate offset seen, used to derive the position not reported.
+    Strict, because GRBL's lines carry no checksum: the state must be one GRBL prints (with a
+    substate only on Hold and Door), field names GRBL's own or grblHAL's (each at most once),
+    exactly one of MPos and WPos, and every number in GRBL's fixed format (coordinates with 3
+    decimals in mm or 4 in inches, the same in every coordinate field; rates with 0 or 1 decimal to
+    match; counters unsigned integers). Inch reports are converted to mm. ``wco`` is the last work
+    coordinate offset seen, used to derive the position not reported.
     """
     s = line.strip()
     if len(s) < 3 or s[0] != "<" or s[-1] != ">":
         raise LinkCorrupt(f"not a status report: {line!r} (expected '<State|...>')")
     parts = s[1:-1].split("|")
-    state, _, sub = parts[0].partition(":")
+    state, colon, sub = parts[0].partition(":")
     if state not in gp.STATES:
         raise LinkCorrupt(f"unknown machine state {parts[0]!r} in {line!r}; expected one of {gp.STATES}")
     kw: dict = {"state": state, "raw": s, "t_host_s": t_s}
-    if sub:
-        if not sub.isdigit():
+    if colon:
+        allowed = gp.SUBSTATES.get(state)
+        if allowed is None or not (sub.isascii() and sub.isdigit() and len(sub) == 1 and int(sub) in allowed):
             raise LinkCorrupt(f"bad substate {parts[0]!r} in {line!r}")
         kw["substate"] = int(sub)
     extras: dict[str, str] = {}
+    seen: set[str] = set()
+    decimals: set[int] = set()
+    coords: dict[str, tuple[float, ...]] = {}
+    rates: dict[str, str] = {}
     for part in parts[1:]:
         name, sep, val = part.partition(":")
         if not sep:
             raise LinkCorrupt(f"status field {part!r} has no ':' in {line!r}")
-        if name in ("MPos", "WPos", "WCO"):
-            kw[name.lower()] = _floats(name, val, line)
+        if name in seen:
+            raise _corrupt(f"field {name} appears twice", line)
+        seen.add(name)
+        if name in gp.COORD_FIELDS:
+            d, vals = _coords(name, val, line)
+            decimals.add(d)
+            coords[name] = vals
         elif name == "Bf":
-            v = _floats(name, val, line)
-            if len(v) != 2:
-                raise LinkCorrupt(f"Bf needs 2 values, got {val!r} in {line!r}")
-            kw["planner_free"], kw["rx_free"] = int(v[0]), int(v[1])
+            kw["planner_free"], kw["rx_free"] = _uints(name, val, 2, line)
         elif name == "Ln":
-            kw["line_number"] = int(_floats(name, val, line)[0])
-        elif name == "F":
-            kw["feed_mm_per_min"] = _floats(name, val, line)[0]
-        elif name == "FS":
-            v = _floats(name, val, line)
-            if len(v) != 2:
-                raise LinkCorrupt(f"FS needs 2 values, got {val!r} in {line!r}")
-            kw["feed_mm_per_min"], kw["spindle_rpm"] = v
+            kw["line_number"] = _uints(name, val, 1, line)[0]
+        elif name in ("F", "FS"):
+            if {"F", "FS"} & (seen - {name}):
+                raise _corrupt("both F and FS", line)
+            vals = val.split(",")
+            if len(vals) != (1 if name == "F" else 2):
+                raise _corrupt(f"{name}:{val!r} has {len(vals)} value(s)", line)
+            rates["feed"] = vals[0]
+            if name == "FS":
+                if not _UINT.fullmatch(vals[1]):
+                    raise _corrupt(f"spindle speed {vals[1]!r} is not an integer (GRBL prints RPM without decimals)",
+                                   line)
+                kw["spindle_rpm"] = float(vals[1])
         elif name == "Pn":
-            if any(c not in gp.PIN_LETTERS + "BCUVW" for c in val):
+            if not val or any(c not in gp.PIN_LETTERS + gp.PIN_OVERRIDE_LETTERS for c in val) \
+                    or len(set(val)) != len(val):
                 raise LinkCorrupt(f"unknown pin letters in Pn:{val!r} in {line!r}")
             kw["pins"] = val
         elif name == "Ov":
-            v = _floats(name, val, line)
-            if len(v) != 3:
-                raise LinkCorrupt(f"Ov needs 3 values, got {val!r} in {line!r}")
-            kw["overrides"] = (int(v[0]), int(v[1]), int(v[2]))
+            kw["overrides"] = _uints(name, val, 3, line)
         elif name == "A":
+            if not val or any(c not in gp.ACCESSORY_LETTERS for c in val) or len(set(val)) != len(val):
+                raise _corrupt(f"unknown accessory letters in A:{val!r}", line)
             kw["accessories"] = val
+        elif name in gp.GRBLHAL_FIELDS:
+            extras[name] = val  # grblHAL's own fields, kept as text
         else:
-            extras[name] = val  # grblHAL adds fields; keep them
+            raise _corrupt(f"unknown field name {name!r} (GRBL 1.1 prints {', '.join(gp.STATUS_FIELDS)})", line)
+    if ("MPos" in coords) == ("WPos" in coords):
+        raise _corrupt("exactly one of MPos and WPos expected", line)
+    if len(decimals) > 1:
+        raise _corrupt("coordinate fields mix 3 and 4 decimals", line)
+    if len({len(v) for v in coords.values()}) > 1:
+        raise _corrupt("coordinate fields have different numbers of axes", line)
+    inches = decimals == {gp.COORD_DECIMALS["inch"]}
+    unit = "inch" if inches else "mm"
+    if "feed" in rates:
+        if not _RATE[gp.RATE_DECIMALS[unit]].fullmatch(rates["feed"]):
+            raise _corrupt(f"feed {rates['feed']!r} is not GRBL's format for {unit} "
+                           f"({gp.RATE_DECIMALS[unit]} decimal(s))", line)
+        kw["feed_mm_per_min"] = float(rates["feed"]) * (MM_PER_INCH if inches else 1.0)
+    for name, vals in coords.items():
+        kw[name.lower()] = tuple(v * MM_PER_INCH for v in vals) if inches else vals
     kw["extras"] = extras
+    kw["inches"] = inches
     offset = kw.get("wco") or wco
     if offset is not None:
         if "mpos" in kw and "wpos" not in kw and len(offset) == len(kw["mpos"]):
@@ -139,11 +198,14 @@ def parse_status(line: str, t_s: float = 0.0, wco: tuple[float, ...] | None = No
 
 @dataclass
 class StreamResult:
-    """What a character-counted stream did: lines sent, ``ok`` count, and rejected lines (number, code)."""
+    """What a character-counted stream did: lines sent, ``ok`` count, rejected lines (number, code,
+    text), and lines whose answer was lost on the wire (GRBL executed them; the result is unknown)."""
 
     sent: int = 0
     ok: int = 0
     errors: list[tuple[int, int, str]] = field(default_factory=list)
+    lost: list[int] = field(default_factory=list)
+    uncertain: list[int] = field(default_factory=list)  # errors whose line a lost answer makes ambiguous
 
 
 @dataclass
@@ -151,6 +213,19 @@ class _Outstanding:
     ident: int
     line: str
     nbytes: int
+
+
+@dataclass
+class _Fence:
+    """A ``?`` in flight: lines with ``ident < next_ident`` reached GRBL before it; ``reports_seen``
+    how many reports the host had read when it sent it; ``t_s`` when."""
+
+    next_ident: int
+    reports_seen: int
+    t_s: float
+
+
+_DWELL = re.compile(r"G0*4(?![0-9.])")
 
 
 def clean_gcode_line(line: str) -> str:
@@ -194,6 +269,7 @@ class Jig(Driver):
         y_range_mm: tuple[float, float] | None = None,
         theta_range_deg: tuple[float, float] | None = None,
         device: str | None = None,
+        reconnect_policy: Reconnect | None = None,
     ) -> None:
         theta_axis = theta_axis.upper()
         if theta_axis not in ("Z", "A"):
@@ -204,6 +280,12 @@ class Jig(Driver):
         self.ranges = {"x_mm": x_range_mm, "y_mm": y_range_mm, "theta_deg": theta_range_deg}
         self.transport = SerialTransport(port, baudrate=baudrate, device=self.device, clock=clock)
         self.clock: Clock = self.transport.clock
+        self.baudrate = baudrate
+        self.boot_timeout_s = boot_timeout_s
+        #: when to try reopening a port that vanished (backoff on the port's clock)
+        self.reconnect_policy = reconnect_policy if reconnect_policy is not None else Reconnect(self.clock)
+        self.disconnects = 0
+        self.reconnects = 0
         self._rx = bytearray()
         self._responses: deque[str] = deque()
         self._outstanding: deque[_Outstanding] = deque()
@@ -223,12 +305,64 @@ class Jig(Driver):
         self.last_alarm: int | None = None
         self.last_status: GrblStatus | None = None
         self._wco: tuple[float, ...] | None = None
+        # Resynchronisation of the character counting (see _reconcile).
+        self.rx_buffer_bytes = gp.RX_BUFFER_SIZE
+        self.ack_poll_s = 0.1  # no answer for this long while lines are outstanding: ask for a report
+        self.replies_lost = 0  # ok/error lines GRBL printed that never arrived intact (detected)
+        self.corrupt_reports = 0
+        self._fences: deque[_Fence] = deque()
+        self._status_errors: deque[LinkCorrupt] = deque()
+        self._reports_seen = 0
+        self._replies_seen = 0
+        self._quiet: tuple[int, int, int] | None = None  # (report no, replies seen, fence ident) of a quiet report
+        self._clean_mark = 0  # first ident sent since nothing was outstanding
+        self._uncertain: list[tuple[int, int]] = []  # ident ranges whose answers may be shifted by a loss
         try:
             self._await_banner(boot_timeout_s)
         except BaseException:
             self.transport.close()
             raise
         self.lifecycle = Lifecycle.CONNECTED if self.alarm_on_boot else Lifecycle.ACTIVE
+
+    # -- unplug and replug --------------------------------------------------------------------------------
+    def _on_not_connected(self, error: NotConnected) -> None:
+        """The port failed (unplugged): release it; calls fail fast until the backoff allows a reopen."""
+        if self.reconnect_policy.away:
+            return
+        self.transport.close()
+        self.reconnect_policy.lost(str(error))
+        self.disconnects += 1
+        log.warning("%s: port lost (%s)", self.device, error)
+
+    def _before_call(self) -> None:
+        """While the port is away: ``NotConnected`` at once, or, when the backoff allows, a reopen.
+        GRBL resets on the reopen: motion in its buffers is gone, so the jig comes back in fault
+        (``GrblReset``) and moves are refused until :meth:`activate` starts from the measured pose."""
+        policy = getattr(self, "reconnect_policy", None)
+        if policy is None or not policy.away or self.closed:
+            return
+        if not policy.due():
+            raise policy.not_connected(self.device, self.port)
+        try:
+            self.transport = SerialTransport(self.port, baudrate=self.baudrate, device=self.device, clock=self.clock)
+            self._rx.clear()
+            self.lines_lost += len(self._outstanding)
+            for item in (self._outstanding, self._results, self._statuses, self._status_errors, self._fences,
+                         self._alarms):
+                item.clear()
+            self._quiet = None
+            self._expect_banner = True
+            self._await_banner(self.boot_timeout_s)
+        except (NotConnected, DeviceTimeout) as exc:
+            self.transport.close()
+            policy.failed(str(exc))
+            raise NotConnected(f"port {self.port!r} is still gone: {exc}", device=self.device) from exc
+        policy.succeeded()
+        self.reconnects += 1
+        self._unexpected_reset = False
+        self.resets += 1
+        self.fault(GrblReset("the port came back after an unplug: GRBL rebooted and buffered motion was lost; "
+                             "activate() to continue from the measured pose", device=self.device))
 
     # -- plumbing ---------------------------------------------------------------------------------------
     def _await_banner(self, timeout_s: float) -> None:
@@ -271,22 +405,35 @@ class Jig(Driver):
         return n
 
     def _on_line(self, line: str, t_s: float) -> None:
-        if line == "ok" or line.startswith("error:"):
+        if line == "ok" or (line.startswith("error:") and line[6:].isdigit()):
+            self._replies_seen += 1
             if self._outstanding:
                 item = self._outstanding.popleft()
                 self._results[item.ident] = line
+                if not self._outstanding:
+                    self._clean_mark = self._next_id
             else:
                 log.warning("%s: %r with no line outstanding", self.device, line)
         elif line.startswith("<"):
+            fence = self._answer_fence(t_s)
             try:
                 st = parse_status(line, t_s, self._wco)
             except LinkCorrupt as exc:
+                self.corrupt_reports += 1
                 log.warning("%s: %s", self.device, exc)
+                exc.device = self.device
+                self._status_errors.append(exc)
+                self._quiet = None
                 return
+            self._reports_seen += 1
             if st.wco is not None:
                 self._wco = st.wco
             self.last_status = st
             self._statuses.append(st)
+            while len(self._statuses) > 8:
+                self._statuses.popleft()
+            if fence is not None:
+                self._reconcile(st, fence)
         elif line.startswith("ALARM:"):
             try:
                 self._alarms.append(int(line[6:]))
@@ -300,6 +447,9 @@ class Jig(Driver):
             self.needs_reset = False
             self.lines_lost += len(self._outstanding)
             self._outstanding.clear()  # a reset empties GRBL's buffers: those lines never run
+            self._fences.clear()
+            self._quiet = None
+            self._clean_mark = self._next_id
             if self._expect_banner:
                 self._expect_banner = False
             else:
@@ -313,6 +463,77 @@ class Jig(Driver):
                 self.alarm_on_boot = True
         else:
             self._info.append(line)
+
+    # -- resynchronisation -------------------------------------------------------------------------------
+    def _request_status(self) -> None:
+        """Write ``?`` unless one is already in flight (GRBL merges ``?`` sent before it reports)."""
+        now = self.clock.now_s()
+        while self._fences and now - self._fences[0].t_s > self.ack_poll_s:
+            self._fences.popleft()  # its report never arrived intact
+        if self._fences:
+            return
+        self._fences.append(_Fence(self._next_id, self._reports_seen, now))
+        self.transport.write(gp.RT_STATUS)
+
+    def _answer_fence(self, t_s: float) -> _Fence | None:
+        while self._fences and t_s - self._fences[0].t_s > 1.0:
+            self._fences.popleft()
+        return self._fences.popleft() if self._fences else None
+
+    def _reconcile(self, st: GrblStatus, fence: _Fence) -> None:
+        """Find answers GRBL printed that never arrived, from a status report, and stop waiting for them.
+
+        GRBL prints a report only at a checkpoint of its main loop: before executing a line it has
+        read, or when its receive buffer is empty. Every line written before the ``?`` had reached
+        it, and every answer printed before the report arrives before it. So (1) with ``Bf:`` the
+        unread lines are the newest outstanding ones whose sizes add up to the bytes in its buffer;
+        the line before them may be executing; any older one was answered and the answer lost.
+        (2) Two reports in a quiescent state (Idle, Alarm, Check; buffer empty when reported), the
+        second asked for after the first arrived, with no answer between them: every line written
+        before the first has been answered (a dwell, G4, excepted: it waits in Idle).
+        """
+        out = self._outstanding
+        if any(o.ident >= fence.next_ident for o in out):
+            self._quiet = None  # a line may still be on the wire: nothing can be concluded
+            return
+        lost = 0
+        if st.rx_free is not None:
+            used = self.rx_buffer_bytes - st.rx_free
+            k, acc = len(out), 0
+            while acc < used and k > 0:
+                k -= 1
+                acc += out[k].nbytes
+            if acc == used:
+                lost = max(0, k - 1)
+        quiet = st.state in gp.QUIESCENT_STATES and (st.rx_free is None or st.rx_free >= self.rx_buffer_bytes)
+        if quiet and self._quiet is not None:
+            q_report, q_replies, q_fence = self._quiet
+            if fence.reports_seen >= q_report and self._replies_seen == q_replies:
+                n = 0
+                for o in out:
+                    if o.ident >= q_fence or _DWELL.search(o.line):
+                        break
+                    n += 1
+                lost = max(lost, n)
+        self._quiet = (self._reports_seen, self._replies_seen, fence.next_ident) if quiet else None
+        if lost:
+            self._uncertain.append((self._clean_mark, out[lost - 1].ident + 1))
+            del self._uncertain[:-16]
+            for _ in range(lost):
+                item = out.popleft()
+                self._results[item.ident] = "lost"
+                self.replies_lost += 1
+                log.warning("%s: the answer to %r was lost on the wire (GRBL has executed it: %s)",
+                            self.device, item.line, st.raw)
+            if not out:
+                self._clean_mark = self._next_id
+
+    def _wait_progress(self, deadline: Deadline) -> None:
+        """Read what arrives; while lines are outstanding and nothing comes, ask for a status report
+        (the report is how a lost answer is found)."""
+        got = self._pump(min(self.ack_poll_s, deadline.remaining_s() or 0.0))
+        if not got and self._outstanding and not deadline.expired():
+            self._request_status()
 
     def _check_events(self) -> None:
         if self._unexpected_reset:
@@ -332,8 +553,10 @@ class Jig(Driver):
             if deadline.expired():
                 raise DeviceTimeout(f"GRBL's receive buffer did not drain within {deadline.timeout_s:.3g} s",
                                     device=self.device)
-            self._pump(deadline.remaining_s() or 0.0)
+            self._wait_progress(deadline)
         ident = self._next_id
+        if not self._outstanding:
+            self._clean_mark = ident
         self._next_id += 1
         self._outstanding.append(_Outstanding(ident, line, len(data)))
         self.transport.write(data)
@@ -347,9 +570,10 @@ class Jig(Driver):
             if deadline.expired():
                 raise DeviceTimeout(f"no 'ok' or 'error' for {what} within {deadline.timeout_s:.3g} s",
                                     device=self.device)
-            self._pump(deadline.remaining_s() or 0.0)
+            self._wait_progress(deadline)
         return self._results.pop(ident)
 
+    @locked
     def command(self, line: str, timeout_s: float = 2.0) -> list[str]:
         """Send one line, wait for its ``ok``; return the info lines it printed. ``error:N`` → GrblError."""
         self._check_events()
@@ -362,11 +586,16 @@ class Jig(Driver):
         result = self._await_result(ident, dl, repr(line))
         info = list(self._info)
         self._info.clear()
+        if result == "lost":
+            raise ReplyLost(f"GRBL executed {line!r} but its answer was lost on the wire (a later status "
+                            "report shows its buffer empty); read the state back before relying on it",
+                            device=self.device, line=line)
         if result != "ok":
             raise gp.error(_error_code(result), device=self.device, line=line)
         return info
 
     # -- status and waiting ---------------------------------------------------------------------------------
+    @locked
     def status(self, timeout_s: float = 0.5) -> GrblStatus:
         """Ask for a status report (``?``) and return it parsed. GRBL answers none in a critical
         alarm (hard or soft limit) until a soft reset: that, or a report that an alarm held back
@@ -375,18 +604,26 @@ class Jig(Driver):
             raise self.fault(gp.alarm(self.last_alarm or 0, device=self.device,
                                       hint="GRBL sends no status until a soft reset (soft_reset() or activate())"))
         self._statuses.clear()
-        self.transport.write(gp.RT_STATUS)
+        self._status_errors.clear()
+        self._request_status()
         dl = Deadline(self.clock, timeout_s)
         while not self._statuses:
+            if self._status_errors:
+                err = self._status_errors.popleft()
+                self._status_errors.clear()
+                raise err
             if dl.expired():
                 if self._alarms:
                     raise self.fault(gp.alarm(self._alarms.popleft(), device=self.device))
                 raise DeviceTimeout(f"no status report within {timeout_s:.3g} s of '?'", device=self.device)
-            self._pump(dl.remaining_s() or 0.0)
+            self._pump(min(self.ack_poll_s, dl.remaining_s() or 0.0))
+            if not self._statuses and not self._status_errors:
+                self._request_status()  # re-asks only once the first '?' has gone unanswered
         st = self._statuses.pop()
         self._statuses.clear()
         return st
 
+    @locked
     def wait_idle(self, timeout_s: float = 30.0, poll_s: float = 0.05) -> GrblStatus:
         """Poll until every sent line is answered and the machine is Idle; alarms raise GrblAlarm."""
         dl = Deadline(self.clock, timeout_s)
@@ -405,12 +642,14 @@ class Jig(Driver):
             self._pump(0.0)
 
     # -- machine commands -------------------------------------------------------------------------------------
+    @locked
     def home(self, timeout_s: float = 60.0) -> None:
         """Run the homing cycle (``$H``); returns when GRBL answers ``ok`` (the cycle is done)."""
         self.command("$H", timeout_s)
         self.alarm_on_boot = False
         self._unlocked()
 
+    @locked
     def unlock(self) -> None:
         """Clear an alarm lock without homing (``$X``): only if you know where the stage is."""
         self.command("$X")
@@ -421,6 +660,7 @@ class Jig(Driver):
         self.lifecycle = Lifecycle.ACTIVE
         self.last_fault = None
 
+    @locked
     def activate(self, *, home: bool = True, timeout_s: float = 60.0) -> None:  # type: ignore[override]
         """Make the jig ready to move from wherever it is: a soft reset if a critical alarm needs one,
         then, if GRBL is locked (Alarm), ``$H`` (``home=True``) or ``$X`` (only if you know where the
@@ -439,7 +679,8 @@ class Jig(Driver):
         self._unlocked()
 
     def feed_hold(self) -> None:
-        """Decelerate to a stop, keeping the rest of the program (``!``); ``resume`` continues."""
+        """Decelerate to a stop, keeping the rest of the program (``!``); ``resume`` continues.
+        Takes no lock (like ``resume`` and ``jog_cancel``): another thread can stop a stream at once."""
         self.transport.write(gp.RT_FEED_HOLD)
 
     def resume(self) -> None:
@@ -450,6 +691,7 @@ class Jig(Driver):
         """Stop a jog and drop the queued jog motions (0x85)."""
         self.transport.write(gp.RT_JOG_CANCEL)
 
+    @locked
     def soft_reset(self, timeout_s: float = 2.0) -> None:
         """Ctrl-X: GRBL stops at once and reboots; waits for the banner. Unanswered lines are lost
         (counted in ``lines_lost``); a reset while moving leaves ALARM:3 (reported by ``status``)."""
@@ -482,6 +724,7 @@ class Jig(Driver):
                 raise LimitError(f"{name}={v!r} {unit} is outside the jig's travel [{rng[0]}, {rng[1]}] {unit}",
                                  device=self.device)
 
+    @locked
     def move_to(self, x_mm: float | None = None, y_mm: float | None = None, theta_deg: float | None = None,
                 feed_mm_per_min: float | None = None, *, wait: bool = False, timeout_s: float = 60.0) -> None:
         """Go to a work-coordinate pose (None: that axis stays). ``feed_mm_per_min`` None: a rapid (G0),
@@ -500,6 +743,7 @@ class Jig(Driver):
         if wait:
             self.wait_idle(timeout_s)
 
+    @locked
     def jog(self, dx_mm: float = 0.0, dy_mm: float = 0.0, dtheta_deg: float = 0.0, *,
             feed_mm_per_min: float, relative: bool = True) -> None:
         """Jog (``$J=``): relative by default; absolute work coordinates with ``relative=False``.
@@ -516,6 +760,7 @@ class Jig(Driver):
         self.command(f"$J={'G91' if relative else 'G90'}{words}F{feed_mm_per_min:.1f}")
 
     # -- settings --------------------------------------------------------------------------------------------------
+    @locked
     def read_settings(self) -> dict[int, float]:
         """``$$`` → {setting number: value}."""
         out: dict[int, float] = {}
@@ -528,6 +773,7 @@ class Jig(Driver):
                     continue
         return out
 
+    @locked
     def write_setting(self, number: int, value: float) -> None:
         """``$N=value`` (persists in GRBL's EEPROM); unknown numbers are refused here, bad values by GRBL."""
         if number not in gp.SETTINGS:
@@ -535,6 +781,7 @@ class Jig(Driver):
         text = str(int(value)) if number in gp.INTEGER_SETTINGS else f"{float(value):.3f}"
         self.command(f"${number}={text}")
 
+    @locked
     def set_check_mode(self, enabled: bool, timeout_s: float = 2.0) -> None:
         """Enter or leave check mode (``$C``: lines are parsed and answered but nothing moves).
         Leaving it soft-resets GRBL, as the firmware does; this waits for that banner."""
@@ -549,13 +796,16 @@ class Jig(Driver):
                 raise DeviceTimeout(f"no banner within {timeout_s:.3g} s of leaving check mode", device=self.device)
             self._pump(dl.remaining_s() or 0.0)
 
+    @locked
     def build_info(self) -> list[str]:
         return self.command("$I")
 
+    @locked
     def parser_state(self) -> list[str]:
         return self.command("$G")
 
     # -- streaming ------------------------------------------------------------------------------------------------------
+    @locked
     def stream(self, lines: Iterable[str], *, timeout_s: float = 600.0, stop_on_error: bool = True,
                on_progress: Callable[[int, str, str], None] | None = None) -> StreamResult:
         """Stream G-code with character counting; returns when every sent line is answered.
@@ -568,7 +818,24 @@ class Jig(Driver):
         dl = Deadline(self.clock, timeout_s)
         res = StreamResult()
         pending: deque[tuple[int, int, str]] = deque()  # (ident, line number, text)
-        first_error: GrblError | None = None
+        first_error: tuple[int, int, int, str] | None = None  # (ident, line number, code, text)
+        numbers: dict[int, int] = {}  # ident -> line number, to name the lines an answer may belong to
+        errors_at: list[int] = []  # idents of res.errors, in order
+        self._uncertain.clear()
+
+        def window(ident: int) -> list[int] | None:
+            # An answer lost before this one shifts it by a line: the line numbers it may belong to.
+            for lo, hi in self._uncertain:
+                if lo <= ident < hi:
+                    nos = [numbers[i] for i in range(lo, hi) if i in numbers]
+                    return nos if len(nos) > 1 else None
+            return None
+
+        def which(ident: int, no: int, text: str) -> str:
+            nos = window(ident)
+            if nos is not None:
+                return f"one of lines {nos[0]}-{nos[-1]} (an answer was lost on the wire)"
+            return f"{no}: {text}"
 
         def collect() -> None:
             nonlocal first_error
@@ -579,11 +846,14 @@ class Jig(Driver):
                     on_progress(no, text, r)
                 if r == "ok":
                     res.ok += 1
+                elif r == "lost":
+                    res.lost.append(no)
                 else:
                     code = _error_code(r)
                     res.errors.append((no, code, text))
+                    errors_at.append(ident)
                     if first_error is None:
-                        first_error = gp.error(code, device=self.device, line=f"{no}: {text}")
+                        first_error = (ident, no, code, text)
 
         for no, raw in enumerate(lines, start=1):
             text = clean_gcode_line(raw)
@@ -592,7 +862,9 @@ class Jig(Driver):
             collect()
             if first_error is not None and stop_on_error:
                 break
-            pending.append((self._send_line(text, dl), no, text))
+            ident = self._send_line(text, dl)
+            numbers[ident] = no
+            pending.append((ident, no, text))
             res.sent += 1
             self._pump(0.0)
         while pending:
@@ -603,12 +875,16 @@ class Jig(Driver):
             if dl.expired():
                 raise DeviceTimeout(f"{len(pending)} streamed line(s) unanswered after {timeout_s:.3g} s",
                                     device=self.device)
-            self._pump(dl.remaining_s() or 0.0)
+            self._wait_progress(dl)
+        # Attribution is settled only once every answer is in: a loss found late shifts earlier ones.
+        res.uncertain = [no for (no, _, _), ident in zip(res.errors, errors_at) if window(ident) is not None]
         if first_error is not None and stop_on_error:
-            raise first_error
+            ident, no, code, text = first_error
+            raise gp.error(code, device=self.device, line=which(ident, no, text))
         return res
 
     # -- Motion protocol -------------------------------------------------------------------------------------------------
+    @locked
     def move_toward(self, target: Pose, speed_mps: float) -> None:
         """Start moving toward ``target`` (a Pose: x_mm, y_mm, theta_deg) at ``speed_mps`` (mm/s × 1000
         along the combined path, θ counted in degrees as GRBL does). A newer call replaces an older one."""
@@ -621,6 +897,7 @@ class Jig(Driver):
         words = self._axis_words(target.x_mm, target.y_mm, target.theta_deg)
         self.command(f"$J=G90{words}F{speed_mps * 60000.0:.1f}")
 
+    @locked
     def pose(self) -> Pose:
         """The work-coordinate pose now (mm, θ in degrees)."""
         return self.pose_from_status(self.status())
@@ -636,6 +913,7 @@ class Jig(Driver):
                               device=self.device)
         return Pose(x_mm=pos[0], y_mm=pos[1], z_mm=0.0, theta_deg=pos[idx])
 
+    @locked
     def stop(self) -> None:
         """Stop as fast as GRBL allows: jog cancel when jogging, else feed hold, then flush the plan
         with a soft reset once stopped (position is kept; no alarm)."""

@@ -16,7 +16,7 @@ import math
 import os
 import re
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -27,10 +27,12 @@ from tactile_rig.core.errors import (
     CalibrationError,
     DeviceTimeout,
     NotConnected,
+    ZeroLost,
     check_range,
 )
 from tactile_rig.devices import scale as sp
-from tactile_rig.drivers.base import Driver, Lifecycle
+from tactile_rig.drivers.base import Driver, Lifecycle, locked
+from tactile_rig.drivers.reconnect import Reconnect
 from tactile_rig.drivers.transport import SerialTransport
 
 log = logging.getLogger("tactile_rig.scale")
@@ -61,11 +63,14 @@ def crc8(data: bytes) -> int:
 
 @dataclass(frozen=True)
 class ScaleReading:
-    """One HX711 sample. ``grams`` is tared and calibrated by the sketch; ``newtons`` = weight force.
+    """One HX711 sample. ``grams`` is the load relative to the driver's zero; ``newtons`` = weight force.
 
-    ``raw`` is the 24-bit conversion (None for the stock sketch), ``seq`` the sketch's sequence number
-    mod 65536 (the stock sketch has none: the driver numbers those), ``t_host_s`` when the line
-    arrived on the host (on the port's clock), ``saturated`` when the ADC clamped.
+    With our sketch the driver computes ``grams`` itself from the absolute ``raw`` counts, its own
+    zero (``Scale.zero_raw``) and the calibration factor, in the sketch's integer arithmetic, so a
+    sketch reboot (which re-tares) changes nothing; ``sketch_grams`` is what the sketch printed.
+    ``raw`` is None for the stock sketch (its grams are the sketch's), ``seq`` the sketch's sequence
+    number mod 65536 (the stock sketch has none: the driver numbers those), ``t_host_s`` when the
+    line arrived on the host (on the port's clock), ``saturated`` when the ADC clamped.
     """
 
     grams: float
@@ -74,6 +79,7 @@ class ScaleReading:
     t_host_s: float
     saturated: bool = False
     source: str = "tactile"
+    sketch_grams: float | None = None
 
     @property
     def newtons(self) -> float:
@@ -210,6 +216,30 @@ def _decode_frame(tag: str, body: str, text: str, t_s: float) -> ParsedLine | No
     return None
 
 
+# -- grams from raw counts -----------------------------------------------------------------------------
+
+def _div_round(n: int, d: int) -> int:
+    """``n / d`` rounded half away from zero (the sketch's integer rounding; ``d != 0``)."""
+    if d < 0:
+        n, d = -n, -d
+    return (n + d // 2) // d if n >= 0 else -((-n + d // 2) // d)
+
+
+def grams_mg(raw: int, zero_raw: int, cal_milli: int) -> int:
+    """Milligrams for ``raw`` counts above ``zero_raw`` at ``cal_milli`` thousandths of a count per
+    gram, computed as the sketch computes it (so the host's grams equal the sketch's for one zero)."""
+    return _div_round((raw - zero_raw) * 1_000_000, cal_milli)
+
+
+def infer_zero_raw(raw: int, mg: int, cal_milli: int) -> int | None:
+    """The sketch's zero (raw counts) that turns ``raw`` into ``mg`` milligrams; None if none does."""
+    guess = round(mg * cal_milli / 1_000_000)
+    for d in sorted(range(guess - 3, guess + 4), key=lambda v: abs(v - mg * cal_milli / 1_000_000)):
+        if grams_mg(raw, raw - d, cal_milli) == mg:
+            return raw - d
+    return None
+
+
 # -- the driver -----------------------------------------------------------------------------------
 
 @dataclass
@@ -224,11 +254,16 @@ class ScaleStats:
     rejected_lines: int = 0  # lines that are neither readings nor known messages
     saturated: int = 0  # readings at the 24-bit limit (delivered, flagged)
     overflowed: int = 0  # readings discarded because the caller did not consume them
+    rezeroed: int = 0  # the sketch's zero moved with no reboot or tare seen (a missed reboot)
+    untrusted: int = 0  # readings withheld because the zero was lost (stock sketch rebooted)
+    disconnects: int = 0  # the port vanished (USB unplugged)
+    reconnects: int = 0  # ... and came back
 
 
 @dataclass(frozen=True)
 class ScaleEvent:
-    """Something the driver detected: ``kind`` ∈ drop, reset, checksum; ``count`` how many."""
+    """Something the driver detected: ``kind`` ∈ drop, reset (the sketch rebooted), rezero (its zero
+    moved with no reboot seen), zero_lost (grams can no longer be trusted), checksum; ``count`` how many."""
 
     kind: str
     t_host_s: float
@@ -269,6 +304,7 @@ class Scale(Driver):
         max_queue: int = 100_000,
         on_event: Callable[[ScaleEvent], None] | None = None,
         device: str | None = None,
+        reconnect_policy: Reconnect | None = None,
     ) -> None:
         check_range("boot_timeout_s", boot_timeout_s, 0.0, 600.0, "s")
         self.port = port
@@ -290,8 +326,20 @@ class Scale(Driver):
         self._last_seq: int | None = None
         self._stock_seq = 0
         self._started = False
+        # The driver's zero in raw counts (None until the first sample with raw counts) and the
+        # calibration in the sketch's thousandths of a count per gram: grams are computed here.
+        self.zero_raw: int | None = None
+        self.cal_milli: int | None = None
+        self._sketch_zero: int | None = None  # where the sketch's own zero is, inferred from its grams
+        self._sketch_rezero_expected = False  # a reboot or tare was seen: the sketch's zero may move
+        self._await_zero = False  # a tare was confirmed: the next sample sets the zero
+        self.zero_lost = False
+        self._last_sample_s: float | None = None
         self.transport: SerialTransport | None = None
         self._open(self.port)
+        assert self.transport is not None
+        #: when to try reopening a port that vanished (backoff on the port's clock)
+        self.reconnect_policy = reconnect_policy if reconnect_policy is not None else Reconnect(self.transport.clock)
 
     # -- connection -----------------------------------------------------------------------------
     @property
@@ -352,6 +400,7 @@ class Scale(Driver):
                 )
             self._pump(dl.remaining_s() or 0.0)
 
+    @locked
     def reconnect(self, timeout_s: float = 10.0) -> None:
         """Close and reopen by the stable path (the port may come back under another ttyACM name)."""
         self.close()
@@ -372,6 +421,39 @@ class Scale(Driver):
         if self.transport is not None:
             self.transport.close()
             self.transport = None
+
+    # -- unplug and replug ------------------------------------------------------------------------
+    def _on_not_connected(self, error: NotConnected) -> None:
+        """The port failed (unplugged): release it; calls fail fast until the backoff allows a reopen."""
+        policy = self.reconnect_policy
+        if policy.away:
+            return
+        if self.transport is not None:
+            self.transport.close()
+            self.transport = None
+        policy.lost(str(error))
+        self.stats.disconnects += 1
+        self._event("disconnect", policy.clock.now_s(), detail=str(error))
+
+    def _before_call(self) -> None:
+        """While the port is away: ``NotConnected`` at once, or, when the backoff allows, a reopen by
+        the stable path (the Arduino resets on it: a reset event; the driver's zero stands)."""
+        policy = getattr(self, "reconnect_policy", None)
+        if policy is None or not policy.away or self.closed:
+            return
+        if not policy.due():
+            raise policy.not_connected(self.device, self.reconnect_port)
+        try:
+            self._open(self.reconnect_port)
+        except (NotConnected, DeviceTimeout) as exc:
+            if self.transport is not None:
+                self.transport.close()
+                self.transport = None
+            policy.failed(str(exc))
+            raise NotConnected(f"port {self.reconnect_port!r} is still gone: {exc}", device=self.device) from exc
+        policy.succeeded()
+        self.stats.reconnects += 1
+        self._event("reconnect", policy.clock.now_s(), detail=self.reconnect_port)
 
     # -- reading --------------------------------------------------------------------------------
     def _pump(self, wait_s: float) -> int:
@@ -399,11 +481,11 @@ class Scale(Driver):
         k = line.kind
         if k in ("banner", "stock_start"):
             if self._started or self.stats.readings:
-                self.stats.resets += 1
-                self._event("reset", line.t_s, detail=line.text)
+                self._reset_seen(line.t_s, line.text)
             self._last_seq = None
             if line.info is not None:
                 self.info = line.info
+                self._set_cal(line.info.cal_factor)
             self.format = "tactile" if k == "banner" else "stock"
             # The stock sketch is ready only after its stabilising time ("Startup is complete").
             self._started = k == "banner"
@@ -414,6 +496,11 @@ class Scale(Driver):
         elif k in ("id", "tare", "cal", "error", "stock_tare"):
             if line.info is not None:
                 self.info = line.info
+                self._set_cal(line.info.cal_factor)
+            if k == "cal" and line.value is not None:
+                self._set_cal(line.value)  # the sketch uses it from this conversion on
+            if k in ("tare", "stock_tare"):
+                self._confirm_tare()
             self._replies.append(line)
         elif k == "corrupt":
             self.stats.bad_checksum += 1
@@ -425,11 +512,74 @@ class Scale(Driver):
         else:
             self.stats.rejected_lines += 1
 
+    # -- the zero ------------------------------------------------------------------------------------
+    def _set_cal(self, cal_factor: float | None) -> None:
+        if cal_factor is not None and math.isfinite(cal_factor) and round(cal_factor * 1000) != 0:
+            self.cal_milli = round(cal_factor * 1000)
+
+    def _reset_seen(self, t_s: float, detail: str) -> None:
+        """The sketch rebooted: it re-tared with whatever is on the scale. Our zero stands if the
+        sketch sends raw counts and we know the calibration; else grams are no longer true."""
+        self.stats.resets += 1
+        self._event("reset", t_s, detail=detail)
+        self._sketch_rezero_expected = True
+        if self.format == "stock" or self.zero_raw is None or self.cal_milli is None:
+            self._lose_zero(t_s, "the sketch rebooted and re-tared with an unknown load on the scale")
+
+    def _lose_zero(self, t_s: float, why: str) -> None:
+        if not self.zero_lost:
+            self.zero_lost = True
+            self._event("zero_lost", t_s, detail=why)
+
+    def _confirm_tare(self) -> None:
+        """The sketch confirmed a tare: the host's zero follows it (set from the next sample)."""
+        self._await_zero = True
+        self._sketch_rezero_expected = True
+        self.zero_lost = False
+
+    def _apply_zero(self, r: ScaleReading) -> ScaleReading:
+        """Grams from raw counts with the driver's zero (tactile sketch), or the sketch's (stock)."""
+        if r.raw is None or self.cal_milli is None:
+            return r
+        mg = round(r.grams * 1000)
+        sketch_zero = infer_zero_raw(r.raw, mg, self.cal_milli)
+        if sketch_zero is not None:
+            if (self._sketch_zero is not None and abs(sketch_zero - self._sketch_zero) > 1
+                    and not self._sketch_rezero_expected):
+                # The sketch's zero moved with no reboot or tare seen: its banner and the sequence
+                # restart were both lost. Our zero is unaffected; note it.
+                self.stats.rezeroed += 1
+                self._event("rezero", r.t_host_s, detail=f"sketch zero {self._sketch_zero} -> {sketch_zero}")
+            self._sketch_zero = sketch_zero
+            self._sketch_rezero_expected = False
+        if self._await_zero or self.zero_raw is None:
+            if sketch_zero is None:
+                return r
+            self.zero_raw = sketch_zero
+            self._await_zero = False
+            self.zero_lost = False
+        return replace(r, grams=grams_mg(r.raw, self.zero_raw, self.cal_milli) / 1000.0, sketch_grams=r.grams)
+
+    @locked
+    def set_zero_raw(self, zero_raw: int) -> None:
+        """Use ``zero_raw`` counts as zero from now on (e.g. a zero kept from an earlier session)."""
+        check_range("zero_raw", zero_raw, sp.RAW_MIN, sp.RAW_MAX, "counts")
+        self.zero_raw = int(zero_raw)
+        self._await_zero = False
+        self.zero_lost = False
+
     def _accept(self, line: ParsedLine) -> None:
         r = line.reading
         assert r is not None
         if r.source == "stock":
             self.format = self.format or "stock"
+            period = 1.0 / (self.rate_sps or 10)
+            if self._last_sample_s is not None and r.t_host_s - self._last_sample_s > max(1.0, 10 * period):
+                # The stock sketch goes quiet for its 1.5 s boot and 2 s settling: a gap that long is a
+                # reboot whose "Starting..." line may have been lost.
+                self._lose_zero(r.t_host_s, f"the stock sketch went quiet for {r.t_host_s - self._last_sample_s:.2g} s "
+                                "(a reboot re-tares it)")
+            self._last_sample_s = r.t_host_s
             r = ScaleReading(r.grams, None, self._stock_seq, r.t_host_s, False, "stock")
             self._stock_seq = (self._stock_seq + 1) % sp.SEQ_MODULO
         else:
@@ -437,13 +587,16 @@ class Scale(Driver):
             if self._last_seq is not None:
                 gap = (r.seq - self._last_seq - 1) % sp.SEQ_MODULO  # type: ignore[operator]
                 if gap >= sp.SEQ_MODULO // 2:  # went backwards: the sketch restarted
-                    self.stats.resets += 1
-                    self._event("reset", r.t_host_s, detail=f"seq {self._last_seq} -> {r.seq}")
+                    self._reset_seen(r.t_host_s, f"seq {self._last_seq} -> {r.seq}")
                 elif gap:
                     self.stats.dropped += gap
                     self._event("drop", r.t_host_s, gap, f"seq {self._last_seq} -> {r.seq}")
             self._last_seq = r.seq
+            r = self._apply_zero(r)
         self._started = True
+        if self.zero_lost:
+            self.stats.untrusted += 1
+            return
         if r.saturated:
             self.stats.saturated += 1
         if len(self._queue) >= self.max_queue:
@@ -452,13 +605,20 @@ class Scale(Driver):
         self._queue.append(r)
         self.stats.readings += 1
 
+    @locked
     def read(self, timeout_s: float | None = None) -> ScaleReading:
-        """The next reading in order; waits up to ``timeout_s`` (default ``stale_after_s``) for one."""
+        """The next reading in order; waits up to ``timeout_s`` (default ``stale_after_s``) for one.
+
+        :class:`ZeroLost` when the zero can no longer be trusted (a stock sketch rebooted): ``tare()``."""
         if self._queue:
             return self._queue.popleft()
         timeout = self.stale_after_s if timeout_s is None else timeout_s
         dl = Deadline(self.clock, timeout)
         while not self._queue:
+            if self.zero_lost:
+                raise ZeroLost("the scale's zero is lost: the sketch rebooted and re-tared with the load on it, "
+                               "and it sends no raw counts to correct with; call tare() with the scale empty",
+                               device=self.device)
             if dl.expired():
                 raise DeviceTimeout(
                     f"no reading for {timeout:.3g} s (expected {self.rate_sps or '10 or 80'} per second): "
@@ -466,10 +626,12 @@ class Scale(Driver):
             self._pump(dl.remaining_s() or 0.0)
         return self._queue.popleft()
 
+    @locked
     def read_many(self, n: int, timeout_s: float | None = None) -> list[ScaleReading]:
         """The next ``n`` readings; each may take up to ``timeout_s`` to come."""
         return [self.read(timeout_s) for _ in range(int(n))]
 
+    @locked
     def poll(self) -> list[ScaleReading]:
         """Every reading that has arrived so far, without waiting."""
         while self._pump(0.0):
@@ -478,11 +640,13 @@ class Scale(Driver):
         self._queue.clear()
         return out
 
+    @locked
     def latest(self, timeout_s: float | None = None) -> ScaleReading:
         """The newest reading (older queued ones are consumed); waits for one if none is queued."""
         got = self.poll()
         return got[-1] if got else self.read(timeout_s)
 
+    @locked
     def force_n(self, timeout_s: float | None = None) -> float:
         """The newest reading as a force in newtons (weight of the grams on the scale)."""
         return self.latest(timeout_s).newtons
@@ -507,6 +671,7 @@ class Scale(Driver):
                 raise DeviceTimeout(f"no answer to {what} within {timeout_s:.3g} s", device=self.device)
             self._pump(dl.remaining_s() or 0.0)
 
+    @locked
     def tare(self, timeout_s: float | None = None) -> None:
         """Zero the scale with what is on it now; returns when the sketch confirms (one smoothing window).
 
@@ -516,6 +681,7 @@ class Scale(Driver):
         self.transport.write(sp.CMD_TARE)  # type: ignore[union-attr]
         self._await_reply(("tare", "stock_tare"), timeout, "tare ('t')")
 
+    @locked
     def calibrate(self, known_mass_g: float, timeout_s: float | None = None) -> float:
         """Calibrate with ``known_mass_g`` on the (tared) scale; return the new factor (counts per gram)."""
         check_range("known_mass_g", known_mass_g, 1e-3, 1e6, "g")
@@ -534,6 +700,7 @@ class Scale(Driver):
             self.info = ScaleInfo(self.info.firmware, self.info.version, self.info.rate_sps, rep.value)
         return rep.value
 
+    @locked
     def identify(self, timeout_s: float = 0.5) -> ScaleInfo:
         """Ask the sketch for its ID line (firmware, version, rate, calibration factor)."""
         self._replies.clear()

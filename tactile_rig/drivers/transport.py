@@ -11,13 +11,14 @@ from __future__ import annotations
 
 import errno
 import logging
+import os
 import threading
 from typing import Any
 
 import serial
 
 from tactile_rig.core.clock import Clock, Deadline, RealClock
-from tactile_rig.core.errors import DeviceTimeout, NotConnected
+from tactile_rig.core.errors import DeviceTimeout, NotConnected, PortInUse
 
 log = logging.getLogger("tactile_rig.transport")
 
@@ -31,12 +32,29 @@ def bus_lock(port: str) -> threading.RLock:
         return _BUS_LOCKS.setdefault(port, threading.RLock())
 
 
+def is_device_path(port: str) -> bool:
+    """True for a device path (``/dev/ttyUSB0``, a pty), False for a pyserial URL (``rigsim://...``)."""
+    return "://" not in port
+
+
 def open_serial(port: str, *, baudrate: int, device: str, timeout_s: float | None = 0.0,
                 **kwargs: Any) -> serial.SerialBase:
-    """Open ``port`` (path or URL) with pyserial's ``serial_for_url``; errors become :class:`NotConnected`."""
+    """Open ``port`` (path or URL) with pyserial's ``serial_for_url``; errors become :class:`NotConnected`.
+
+    A device path is opened exclusively (an advisory ``flock``, as pyserial's ``exclusive=True``
+    takes it): a second handle on the same port, in this process or another, gets
+    :class:`PortInUse` naming the port instead of silently sharing (and stealing) its bytes.
+    """
+    if is_device_path(port) and os.name == "posix":
+        kwargs.setdefault("exclusive", True)
     try:
         return serial.serial_for_url(port, baudrate=baudrate, timeout=timeout_s, **kwargs)
     except (serial.SerialException, OSError, ValueError) as exc:
+        code = getattr(exc, "errno", None)
+        if kwargs.get("exclusive") and (code in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EACCES)
+                                        or "exclusively lock" in str(exc)):
+            raise PortInUse(f"port {port!r} is already in use (another program or driver holds it open); "
+                            f"close it there first", device=device, port=port) from exc
         raise NotConnected(
             f"cannot open port {port!r} at {baudrate} baud: {exc} "
             "(check the path, that the device is plugged in, and the permissions on the port)",
@@ -76,7 +94,6 @@ class SerialTransport:
         self.device = device
         self.clock: Clock = clock if clock is not None else port_clock(self.serial)
         self.lock = bus_lock(self.port_name)
-        self._rx_log_enabled = log.isEnabledFor(logging.DEBUG)
 
     # -- basic I/O -------------------------------------------------------------------------
     def write(self, data: bytes) -> None:

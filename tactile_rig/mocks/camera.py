@@ -102,7 +102,15 @@ class UvcControlTable:
         return True
 
     def get(self, name: str) -> int | None:
+        """The control's value, or None for a control this camera does not have."""
         return self.values.get(canonical_control(name))
+
+    def value(self, name: str) -> int:
+        """The value of a control this camera has (KeyError names it otherwise)."""
+        v = self.get(name)
+        if v is None:
+            raise KeyError(f"simulated camera has no control {name!r}")
+        return v
 
 
 def _renderer_from_url(url: str, world: Any) -> Any:
@@ -288,28 +296,28 @@ class SimulatedCamera:
     def effective_exposure(self, t_s: float) -> float:
         """Exposure (100 µs units) in use: the manual value, or auto exposure's drifting choice."""
         if self.table.get("auto_exposure") == 1:
-            return float(self.table.get("exposure_time_absolute"))
+            return float(self.table.value("exposure_time_absolute"))
         drift = 0.25 * math.sin(2 * math.pi * t_s / 7.0) if self.auto_drift else 0.0
         return 166.0 * (1.0 + drift)
 
     def channel_gains(self, t_s: float) -> np.ndarray:
         """BGR gains from white balance: manual temperature, or auto WB's drifting choice."""
         if self.table.get("white_balance_automatic") == 0:
-            shift = (self.table.get("white_balance_temperature") - 4000.0) / 20000.0
+            shift = (self.table.value("white_balance_temperature") - 4000.0) / 20000.0
         else:
             shift = 0.08 * math.sin(2 * math.pi * t_s / 5.0) if self.auto_drift else 0.0
         return np.array([1.0 + shift, 1.0, 1.0 - shift], dtype=np.float32)
 
     def _expose(self, img: np.ndarray, t_s: float) -> np.ndarray:
         """Exposure x gain x white balance, brightness offset, read noise; saturating 8-bit arithmetic."""
-        gain = (self.effective_exposure(t_s) / 166.0) * (self.table.get("gain") / 64.0) ** 0.5
+        gain = (self.effective_exposure(t_s) / 166.0) * (self.table.value("gain") / 64.0) ** 0.5
         wb = self.channel_gains(t_s) * gain
-        bright = (self.table.get("brightness") - 128) * 0.5
+        bright = (self.table.value("brightness") - 128) * 0.5
         out = img
         if not np.allclose(wb, 1.0):
-            out = cv2.multiply(out, (float(wb[0]), float(wb[1]), float(wb[2]), 0.0))
+            out = cv2.multiply(out, (float(wb[0]), float(wb[1]), float(wb[2]), 0.0))  # type: ignore[call-overload]  # a Scalar is valid; the stubs omit it
         if bright != 0:
-            out = cv2.add(out, (bright, bright, bright, 0.0))
+            out = cv2.add(out, (bright, bright, bright, 0.0))  # type: ignore[call-overload]  # a Scalar is valid; the stubs omit it
         if self.noise_sigma > 0:
             if self._noise is None or self._noise.shape != out.shape:
                 self._noise = SensorNoise(out.shape, self.noise_sigma, self._rng)
@@ -391,7 +399,7 @@ class FakeVideoCapture:
             return -1.0 if prop not in (cv2.CAP_PROP_FRAME_WIDTH, cv2.CAP_PROP_FRAME_HEIGHT) else 0.0
         s = self.sim
         if prop == cv2.CAP_PROP_FOURCC:
-            return float(int(cv2.VideoWriter_fourcc(*s.fourcc)))
+            return float(int(cv2.VideoWriter.fourcc(*s.fourcc)))
         if prop == cv2.CAP_PROP_FRAME_WIDTH:
             return float(s.width)
         if prop == cv2.CAP_PROP_FRAME_HEIGHT:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import importlib
 import threading
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, overload
 from urllib.parse import parse_qsl, urlsplit
 
 from tactile_rig.core.clock import Clock, RealClock, VirtualClock
@@ -41,11 +41,21 @@ class Params:
     def has(self, key: str) -> bool:
         return key in self.raw
 
-    def str(self, key: str, default: str | None = None) -> str | None:
+    @overload
+    def text(self, key: str, default: str) -> str: ...
+    @overload
+    def text(self, key: str, default: None = None) -> str | None: ...
+    def text(self, key: str, default: str | None = None) -> str | None:
+        """The parameter as a string, or ``default`` when absent."""
         v = self._get(key)
         return default if v is None else v
 
-    def int(self, key: str, default: int | None = None) -> int | None:
+    @overload
+    def integer(self, key: str, default: int) -> int: ...
+    @overload
+    def integer(self, key: str, default: None = None) -> int | None: ...
+    def integer(self, key: str, default: int | None = None) -> int | None:
+        """The parameter as an integer (decimal, ``0x`` hex or ``0b`` binary), or ``default`` when absent."""
         v = self._get(key)
         if v is None:
             return default
@@ -54,7 +64,12 @@ class Params:
         except ValueError:
             raise ValueError(f"{self.source}: {key}={v!r} is not an integer") from None
 
-    def float(self, key: str, default: float | None = None) -> float | None:
+    @overload
+    def number(self, key: str, default: float) -> float: ...
+    @overload
+    def number(self, key: str, default: None = None) -> float | None: ...
+    def number(self, key: str, default: float | None = None) -> float | None:
+        """The parameter as a float, or ``default`` when absent."""
         v = self._get(key)
         if v is None:
             return default
@@ -63,7 +78,8 @@ class Params:
         except ValueError:
             raise ValueError(f"{self.source}: {key}={v!r} is not a number") from None
 
-    def bool(self, key: str, default: bool = False) -> bool:
+    def flag(self, key: str, default: bool = False) -> bool:
+        """The parameter as a boolean (1/0, true/false, yes/no, on/off), or ``default`` when absent."""
         v = self._get(key)
         if v is None:
             return default
@@ -74,7 +90,8 @@ class Params:
             return False
         raise ValueError(f"{self.source}: {key}={v!r} is not a boolean (use 1/0, true/false, on/off)")
 
-    def ints(self, key: str, default: list[int] | None = None) -> list[int]:
+    def integers(self, key: str, default: list[int] | None = None) -> list[int]:
+        """The parameter as a comma- or semicolon-separated list of integers, or ``default`` when absent."""
         v = self._get(key)
         if v is None:
             return list(default or [])
@@ -164,7 +181,7 @@ def device_from_url(url: str) -> tuple[SerialDevice, Clock]:
                 )
             return _INSTANCES[name]
     params = Params(dict(parse_qsl(parts.query, keep_blank_values=True)), source=url)
-    clock_name = params.str("clock", "virtual")
+    clock_name = params.text("clock", "virtual")
     if clock_name == "virtual":
         clock: Clock = VirtualClock()
     elif clock_name == "real":
@@ -172,8 +189,8 @@ def device_from_url(url: str) -> tuple[SerialDevice, Clock]:
     else:
         raise ValueError(f"{url}: clock={clock_name!r} must be 'virtual' or 'real'")
     world = None
-    scene = params.str("scene")
+    scene = params.text("scene")
     if scene:
 
-        world = load_scene(scene, clock=clock, seed=params.int("seed")).world
+        world = load_scene(scene, clock=clock, seed=params.integer("seed")).world
     return create_device(target, params, clock=clock, world=world), clock

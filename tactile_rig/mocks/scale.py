@@ -504,12 +504,12 @@ class ScaleMock(SerialDevice):
             self._line.append(b)
 
     def _command(self, line: bytes, t: float) -> None:
-        if line == b"t":
+        if line == sp.CMD_TARE.rstrip(b"\n"):
             self._tare_left = WINDOW  # let the window refill with what is on the scale now
-        elif line == b"?":
+        elif line == sp.CMD_ID.rstrip(b"\n"):
             self._emit(frame(self._id_body(sp.TAG_ID)), t + self._lat(T_ID_S), reply=True)
-        elif line.startswith(b"c,"):
-            mg = parse_mass_mg(line[2:].decode("latin-1"))
+        elif line.startswith(sp.CMD_CALIBRATE_PREFIX):
+            mg = parse_mass_mg(line[len(sp.CMD_CALIBRATE_PREFIX):].decode("latin-1"))
             if mg is None:
                 self._emit(frame(f"{sp.TAG_ERROR},2,{sp.ERRORS[2]}"), t + self._lat(T_MASS_ERROR_S), reply=True)
             else:
@@ -560,9 +560,9 @@ class ScaleMock(SerialDevice):
 
 
 def _factory(params: Params, *, clock: Clock, world: Any = None) -> ScaleMock:
-    cell_name = params.str("load_cell", "load_cell") or "load_cell"
+    cell_name = params.text("load_cell", "load_cell") or "load_cell"
     cell = world.require(cell_name, who="the scale mock") if world is not None else None
-    force_n = params.float("force_n")
+    force_n = params.number("force_n")
     if cell is None:
         cell = LoadCell(applied_force_n=force_n or 0.0)
     elif force_n is not None:
@@ -570,20 +570,20 @@ def _factory(params: Params, *, clock: Clock, world: Any = None) -> ScaleMock:
     return ScaleMock(
         clock=clock,
         load_cell=cell,
-        rate_sps=params.int("rate", 80),
-        boot_s=params.float("boot_s", BOOTLOADER_S),
-        baud=params.int("baud", sp.BAUD),
-        firmware=params.str("firmware", "tactile") or "tactile",
-        timing=params.bool("timing", True),
-        seed=params.int("seed", 0),
-        counts_per_g=params.float("counts_per_g", sp.DEFAULT_CAL_FACTOR),
-        offset_counts=params.float("offset_counts", 84_000.0),
-        noise_counts=params.float("noise_counts"),
-        drift_counts=params.float("drift_counts", 1500.0),
-        drift_tau_s=params.float("drift_tau_s", 180.0),
-        spike_prob=params.float("spike_prob", 0.002),
-        boot_junk=params.bool("boot_junk", True),
-        stock_settle_s=params.float("stock_settle_s", 2.0),
+        rate_sps=params.integer("rate", 80),
+        boot_s=params.number("boot_s", BOOTLOADER_S),
+        baud=params.integer("baud", sp.BAUD),
+        firmware=params.text("firmware", "tactile") or "tactile",
+        timing=params.flag("timing", True),
+        seed=params.integer("seed", 0),
+        counts_per_g=params.number("counts_per_g", sp.DEFAULT_CAL_FACTOR),
+        offset_counts=params.number("offset_counts", 84_000.0),
+        noise_counts=params.number("noise_counts"),
+        drift_counts=params.number("drift_counts", 1500.0),
+        drift_tau_s=params.number("drift_tau_s", 180.0),
+        spike_prob=params.number("spike_prob", 0.002),
+        boot_junk=params.flag("boot_junk", True),
+        stock_settle_s=params.number("stock_settle_s", 2.0),
     )
 
 

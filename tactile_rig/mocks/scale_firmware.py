@@ -390,8 +390,9 @@ class SimulatedScaleBoard:
 
     def _read_first_line(self) -> str:
         assert self.proc is not None and self.proc.stdout is not None
+        stdout = self.proc.stdout
         result: list[str] = []
-        reader = threading.Thread(target=lambda: result.append(self.proc.stdout.readline()), daemon=True)
+        reader = threading.Thread(target=lambda: result.append(stdout.readline()), daemon=True)
         reader.start()
         reader.join(self.start_timeout_s)
         return result[0].strip() if result else ""

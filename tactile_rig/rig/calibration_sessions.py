@@ -20,6 +20,12 @@ writes ``<out>.json`` (or, for GelSight, ``<out>.npz`` + ``<out>.json`` from
 
 JSON calibration files share one envelope (:func:`write_calibration`): ``format``, ``version``,
 ``kind``, ``created``, ``device``, the values, and the report.
+
+Files are versioned (:mod:`tactile_rig.rig.calibrations`): asked for ``calib/scale.json`` a session
+writes ``calib/scale-vN.json`` (N one more than the newest on disk) and points the stable name at it;
+``force=True`` rewrites the newest version instead. Every session also records what it measured to
+``<stem>-vN.mcap`` (:class:`SessionRecording`: readings, frames, jig poses, commands, and the
+calibration files as attachments) when the ``record`` extra (mcap) is installed.
 """
 
 from __future__ import annotations
@@ -46,11 +52,14 @@ from tactile_rig.perception.fingervision import (
 )
 from tactile_rig.perception.gelsight.calibration import PressSet, calibrate_from_presses
 from tactile_rig.perception.gelsight.report import cross_validate
+from tactile_rig.rig.calibrations import CalibrationVersion, plan_version, publish
+from tactile_rig.rig.recording import Recorder
 
 __all__ = [
     "CALIBRATION_FORMAT",
     "CALIBRATION_VERSION",
     "SessionOutcome",
+    "SessionRecording",
     "Guide",
     "write_calibration",
     "read_calibration",
@@ -68,6 +77,76 @@ __all__ = [
 
 CALIBRATION_FORMAT = "tactile_rig.calibration"
 CALIBRATION_VERSION = 1
+# Files of one calibration version that get a stable link (those that exist).
+LINKED_SUFFIXES = (".json", ".npz", ".report.json", ".report.md", ".mcap", "_presses")
+JSON_SUFFIXES = (".json", ".report.json", ".report.md")
+
+
+class SessionRecording:
+    """The MCAP of what a calibration session measured, at ``path`` on the session's ``clock``.
+
+    A no-op (``path`` None) when the optional ``mcap`` package is missing: a calibration must not
+    fail for want of its recording. Topics are those of :mod:`tactile_rig.rig.recording`.
+    """
+
+    def __init__(self, path: str | Path | None, clock: Any, *, kind: str, bench: Any = None,
+                 **meta: Any) -> None:
+        self.rec: Recorder | None = None
+        self.path: Path | None = None
+        if path is None:
+            return
+        try:
+            self.rec = Recorder(path, clock=clock)
+        except ModuleNotFoundError:
+            return
+        self.path = Path(path)
+        self.rec.add_metadata("session", {"kind": kind, **meta})
+        if bench is not None:
+            self.rec.add_bench(bench)
+
+    def scale(self, reading: Any, **extra: Any) -> None:
+        if self.rec is not None:
+            grams = float(reading.grams)
+            self.rec.write_scale(grams / 1000.0 * 9.80665, grams=grams, seq=reading.seq, **extra)
+
+    def frame(self, camera: str, image: np.ndarray, **extra: Any) -> None:
+        if self.rec is not None:
+            self.rec.write_frame(camera, np.ascontiguousarray(image), compress="png")
+
+    def perception(self, name: str, values: dict[str, Any]) -> None:
+        if self.rec is not None:
+            self.rec.write_perception(name, values)
+
+    def jig(self, x_mm: float, y_mm: float, **extra: Any) -> None:
+        if self.rec is not None:
+            self.rec.write_jig_pose({"x_mm": float(x_mm), "y_mm": float(y_mm)}, **extra)
+
+    def command(self, device: str, command: str, **args: Any) -> None:
+        if self.rec is not None:
+            self.rec.write_command(device, command, **args)
+
+    def state(self, device: str, state: Any) -> None:
+        if self.rec is not None:
+            self.rec.write_state(device, state)
+
+    def attach(self, name: str, *paths: str | Path | None, values: dict[str, Any] | None = None) -> None:
+        """The calibration's files as attachments (every file: ``.json`` and ``.npz``)."""
+        if self.rec is None:
+            return
+        files = [Path(p) for p in paths if p is not None and Path(p).is_file()]
+        for p in files:
+            self.rec.add_attachment(f"calibration/{name}/{p.name}", p.read_bytes(),
+                                    media_type="application/json" if p.suffix == ".json" else "application/octet-stream")
+        self.rec.add_metadata(f"calibration.{name}", {"files": [str(p) for p in files], **(values or {})})
+
+    def close(self) -> None:
+        if self.rec is not None:
+            self.rec.close()
+            self.rec = None
+
+
+def _session_version(out: str | Path, suffixes: Sequence[str], force: bool) -> CalibrationVersion:
+    return plan_version(out, suffixes, force=force)
 
 
 @dataclass
@@ -121,20 +200,23 @@ _ENVELOPE = ("format", "version", "kind", "created", "device", "report")
 
 
 def write_calibration(path: str | Path, kind: str, values: dict[str, Any], report: dict[str, Any], *,
-                      device: str | None = None) -> tuple[Path, Path]:
-    """Write a JSON calibration (``path``) and its report (``<stem>.report.json`` and ``.md``).
+                      device: str | None = None, force: bool = False,
+                      version: CalibrationVersion | None = None) -> tuple[Path, Path]:
+    """Write a JSON calibration and its report (``.report.json`` and ``.md``) as a new version of ``path``.
 
-    The file is flat: the envelope keys (``format``, ``version``, ``kind``, ``created``, ``device``),
-    the values at the top level (so a driver's ``from_dict`` reads it as it is, e.g.
-    ``GripperCalibration.from_dict``) and the ``report``. Returns (calibration path, report path).
+    ``path`` ``calib/scale.json`` writes ``calib/scale-vN.json`` and links ``calib/scale.json`` to it
+    (see :mod:`tactile_rig.rig.calibrations`; ``force`` rewrites the newest version; ``version`` is
+    one already chosen by the session). The file is flat: the envelope keys (``format``,
+    ``version``, ``kind``, ``created``, ``device``), the values at the top level (so a driver's
+    ``from_dict`` reads it as it is, e.g. ``GripperCalibration.from_dict``) and the ``report``.
+    Returns (calibration path, report path) of the version written.
     """
 
     clash = sorted(set(values) & set(_ENVELOPE))
     if clash:
         raise ValueError(f"calibration values may not be named {', '.join(clash)} (envelope keys)")
-    p = Path(path)
-    if p.suffix != ".json":
-        p = p.with_suffix(".json")
+    ver = version if version is not None else plan_version(path, JSON_SUFFIXES, force=force)
+    p = ver.path(".json")
     p.parent.mkdir(parents=True, exist_ok=True)
     doc = {"format": CALIBRATION_FORMAT, "version": CALIBRATION_VERSION, "kind": kind, "created": utc_now(),
            "device": device, **to_jsonable(values), "report": to_jsonable(report)}
@@ -142,6 +224,7 @@ def write_calibration(path: str | Path, kind: str, values: dict[str, Any], repor
     rpath = p.with_name(p.stem + ".report.json")
     rpath.write_text(json.dumps(to_jsonable({"kind": kind, **report}), indent=2) + "\n", encoding="utf-8")
     _write_report_md(p.with_name(p.stem + ".report.md"), kind, p, values, report)
+    publish(ver, LINKED_SUFFIXES)
     return p, rpath
 
 
@@ -297,7 +380,8 @@ def even_colour_direction(frames: Sequence[np.ndarray], background_bgr: np.ndarr
 
 
 def collect_ball_presses(rig: PressRig, plan: BallPressPlan, mm_per_px: float, out_dir: str | Path | None = None,
-                         *, guide: Guide | None = None) -> Any:
+                         *, guide: Guide | None = None, recording: SessionRecording | None = None,
+                         camera: str = "gelsight") -> Any:
     """Press the ball at every grid position; return a labelled PressSet (and write a ``presses/`` folder).
 
     The ball's offset from the sensor centre at the jig's home is the median over the presses of
@@ -306,20 +390,29 @@ def collect_ball_presses(rig: PressRig, plan: BallPressPlan, mm_per_px: float, o
     """
 
     guide = guide or Guide(False, quiet=True)
+    rec = recording or SessionRecording(None, None, kind="gelsight")
     check_range("mm_per_px", float(mm_per_px), 1e-4, 10.0, "mm/px")
     bx, by = plan.background_mm
     guide.say(f"moving the ball out of view ({bx:+.1f}, {by:+.1f}) mm for the no-contact frame")
+    rec.command("jig", "move_to", x_mm=float(bx), y_mm=float(by), purpose="background")
     rig.move_to(Pose(float(bx), float(by)))
+    rec.jig(bx, by, purpose="background")
     # The mean of several no-contact frames: the sensor noise and the lamp flicker of one frame would
     # otherwise be subtracted from every later frame as a false colour change.
-    stack = np.stack([rig.touch() for _ in range(int(plan.background_frames))]).astype(np.float32)
+    bg_frames = [rig.touch() for _ in range(int(plan.background_frames))]
+    for f in bg_frames:
+        rec.frame(camera, f)
+    stack = np.stack(bg_frames).astype(np.float32)
     background = np.ascontiguousarray(np.clip(stack.mean(axis=0) + 0.5, 0, 255).astype(np.uint8))
     positions = press_positions(plan)
     frames: list[np.ndarray] = []
     guide.say(f"pressing at {len(positions)} jig positions")
-    for x, y in positions:
+    for k, (x, y) in enumerate(positions):
+        rec.command("jig", "move_to", x_mm=x, y_mm=y, purpose="press", press=k)
         rig.move_to(Pose(x, y))
+        rec.jig(x, y, purpose="press", press=k)
         frames.append(np.ascontiguousarray(rig.touch()))
+        rec.frame(camera, frames[-1])
     rows, cols = background.shape[:2]
     centre = np.array([(cols - 1) / 2.0, (rows - 1) / 2.0])
     commanded_px = np.array([[x / mm_per_px, y / mm_per_px] for x, y in positions]) + centre
@@ -362,20 +455,28 @@ def collect_ball_presses(rig: PressRig, plan: BallPressPlan, mm_per_px: float, o
 
 
 def gelsight_session(rig: PressRig, plan: BallPressPlan, mm_per_px: float, out: str | Path, *,
-                     sensor: str = "gelsight", guide: Guide | None = None) -> SessionOutcome:
+                     sensor: str = "gelsight", guide: Guide | None = None, force: bool = False,
+                     bench: Any = None, clock: Any = None, camera: str = "gelsight") -> SessionOutcome:
     """Collect ball presses with the jig, fit the GelSight calibration, write it with its report.
 
-    ``out`` is the calibration's base path (``out.npz`` + ``out.json``); the presses go to
-    ``<out>_presses/`` and the report to ``<out>.report.json`` / ``.md``.
+    ``out`` is the calibration's stable base path: version N writes ``<out>-vN.npz`` + ``.json``,
+    the presses to ``<out>-vN_presses/``, the report to ``<out>-vN.report.json`` / ``.md`` and the
+    recording (jig poses and frames) to ``<out>-vN.mcap``; the stable names link to the newest.
     """
 
     guide = guide or Guide(False, quiet=True)
-    base = Path(out)
-    if base.suffix in (".npz", ".json"):
-        base = base.with_suffix("")
+    ver = _session_version(out, (".npz", ".json", ".report.json", "_presses"), force)
+    base = ver.stem
     guide.step(f"mount the {2 * plan.ball_radius_mm:g} mm ball on the jig and set the press depth to "
                f"{plan.press_depth_mm:g} mm")
-    presses = collect_ball_presses(rig, plan, mm_per_px, base.parent / f"{base.name}_presses", guide=guide)
+    rec = SessionRecording(ver.path(".mcap"), clock if clock is not None else getattr(rig, "clock", None),
+                           kind="gelsight", bench=bench, camera=camera)
+    try:
+        presses = collect_ball_presses(rig, plan, mm_per_px, base.parent / f"{base.name}_presses", guide=guide,
+                                       recording=rec, camera=camera)
+    except BaseException:
+        rec.close()
+        raise
     cal = calibrate_from_presses(presses, float(mm_per_px), float(plan.ball_radius_mm), plan.method, sensor=sensor)
     cal.extra.update({"session": "jig ball presses", "press_depth_mm": plan.press_depth_mm,
                       "ball_offset_px": list(presses.offset_px)})  # type: ignore[attr-defined]
@@ -394,11 +495,17 @@ def gelsight_session(rig: PressRig, plan: BallPressPlan, mm_per_px: float, out: 
 
     rpath.write_text(json.dumps(to_jsonable({"kind": "gelsight", **report}), indent=2) + "\n", encoding="utf-8")
     _write_report_md(base.with_name(base.name + ".report.md"), "gelsight", npz, cal.metadata(), report)
+    rec.attach("gelsight", base.with_suffix(".json"), npz)
+    rec.close()
+    report["recording"] = None if rec.path is None else str(rec.path)
+    links = publish(ver, LINKED_SUFFIXES)
     guide.say(f"GelSight calibration: {len(presses.frames)} presses, held-out normal error "
               f"{cv.mean_normal_deg:.2f} deg, height RMS {cv.mean_height_rms_mm * 1000:.1f} um -> {npz}")
     return SessionOutcome("gelsight", base.with_suffix(".json"), rpath, report,
                           {"npz": str(npz), "json": str(base.with_suffix(".json")),
-                           "presses": str(base.parent / f"{base.name}_presses")})
+                           "presses": str(base.parent / f"{base.name}_presses"),
+                           "recording": report["recording"], "version": ver.version,
+                           "links": [str(p) for p in links]})
 
 
 # -- scale: tare and known mass -----------------------------------------------------------------
@@ -426,7 +533,8 @@ def wait_for_load(scale: Any, empty_g: float, noise_g: float, *, timeout_s: floa
 
 
 def scale_session(scale: Any, known_mass_g: float, out: str | Path, *, place_mass: Callable[[float], None] | None = None,
-                  guide: Guide | None = None, samples: int = 20, wait_timeout_s: float = 60.0) -> SessionOutcome:
+                  guide: Guide | None = None, samples: int = 20, wait_timeout_s: float = 60.0,
+                  force: bool = False, bench: Any = None) -> SessionOutcome:
     """Tare the empty scale, calibrate it with ``known_mass_g``, verify, write the calibration and report.
 
     ``place_mass(grams)`` puts a mass on the scale (mocks: the world's load cell; 0 removes it);
@@ -436,25 +544,41 @@ def scale_session(scale: Any, known_mass_g: float, out: str | Path, *, place_mas
     guide = guide or Guide(False, quiet=True)
     check_range("known_mass_g", float(known_mass_g), 1e-3, 1e6, "g")
     check_range("samples", float(samples), 3, 10000)
-    if place_mass is not None:
-        place_mass(0.0)
-    guide.step("empty the scale")
-    scale.tare()
-    scale.poll()  # readings queued before the tare was confirmed are not tared
-    empty = _grams(scale.read_many(int(samples)))
-    noise_g = float(empty.std())
-    if place_mass is not None:
-        place_mass(float(known_mass_g))
+    ver = _session_version(out, JSON_SUFFIXES, force)
+    rec = SessionRecording(ver.path(".mcap"), getattr(scale, "clock", None), kind="scale", bench=bench,
+                           known_mass_g=float(known_mass_g))
+
+    def read_many(phase: str) -> list[Any]:
+        rs = scale.read_many(int(samples))
+        for r in rs:
+            rec.scale(r, phase=phase)
+        return rs
+
+    try:
+        if place_mass is not None:
+            place_mass(0.0)
+        guide.step("empty the scale")
+        rec.command("scale", "tare")
+        scale.tare()
+        scale.poll()  # readings queued before the tare was confirmed are not tared
+        empty = _grams(read_many("empty"))
+        noise_g = float(empty.std())
+        if place_mass is not None:
+            place_mass(float(known_mass_g))
+            scale.poll()
+            read_many("settling")  # the sketch's moving average settles on the new load
+        elif guide.interactive:
+            guide.step(f"place the {known_mass_g:g} g mass on the scale")
+        else:
+            guide.say(f"waiting up to {wait_timeout_s:g} s for the {known_mass_g:g} g mass")
+            wait_for_load(scale, float(empty.mean()), noise_g, timeout_s=wait_timeout_s)
+        rec.command("scale", "calibrate", known_mass_g=float(known_mass_g))
+        factor = float(scale.calibrate(float(known_mass_g)))
         scale.poll()
-        scale.read_many(int(samples))  # the sketch's moving average settles on the new load
-    elif guide.interactive:
-        guide.step(f"place the {known_mass_g:g} g mass on the scale")
-    else:
-        guide.say(f"waiting up to {wait_timeout_s:g} s for the {known_mass_g:g} g mass")
-        wait_for_load(scale, float(empty.mean()), noise_g, timeout_s=wait_timeout_s)
-    factor = float(scale.calibrate(float(known_mass_g)))
-    scale.poll()
-    loaded = _grams(scale.read_many(int(samples)))
+        loaded = _grams(read_many("verify"))
+    except BaseException:
+        rec.close()
+        raise
     error_g = float(loaded.mean() - known_mass_g)
     values = {"cal_factor_counts_per_g": factor, "known_mass_g": float(known_mass_g)}
     info = getattr(scale, "info", None)
@@ -462,56 +586,95 @@ def scale_session(scale: Any, known_mass_g: float, out: str | Path, *, place_mas
               "loaded_noise_g": float(loaded.std()), "verify_error_g": error_g,
               "verify_error_percent": 100.0 * error_g / float(known_mass_g), "samples": int(samples),
               "firmware": None if info is None else f"{info.firmware} {info.version}"}
-    cal, rpath = write_calibration(out, "scale", values, report, device=str(getattr(scale, "port", "scale")))
+    report["recording"] = None if rec.path is None else str(rec.path)
+    cal, rpath = write_calibration(out, "scale", values, report, device=str(getattr(scale, "port", "scale")),
+                                   version=ver)
+    rec.attach("scale", cal, values=values)
+    rec.close()
     guide.say(f"scale: factor {factor:.4g} counts/g; with the mass it reads {loaded.mean():.3f} g "
               f"({error_g:+.3f} g), empty noise {noise_g:.3f} g -> {cal}")
     if place_mass is not None:
         place_mass(0.0)
-    return SessionOutcome("scale", cal, rpath, {**values, **report})
+    return SessionOutcome("scale", cal, rpath, {**values, **report},
+                          {"json": str(cal), "recording": report["recording"], "version": ver.version,
+                           "latest": str(ver.link(".json"))})
 
 
 # -- gripper: closed and open stops --------------------------------------------------------------
 def gripper_session(gripper: Any, out: str | Path, *, effort: float = 0.2, max_opening_m: float | None = None,
-                    closing_sign: int = -1, guide: Guide | None = None) -> SessionOutcome:
+                    closing_sign: int = -1, guide: Guide | None = None, force: bool = False,
+                    bench: Any = None) -> SessionOutcome:
     """Find the gripper's closed and open stops at a low effort and write them (``GripperCalibration``
-    fields at the top level, so ``tactile-rig gripper --calibration`` reads the file as it is)."""
+    fields at the top level, so ``tactile-rig gripper --calibration`` reads the file as it is); the
+    recording holds the commands and the servo's state before and after."""
     guide = guide or Guide(False, quiet=True)
+    ver = _session_version(out, JSON_SUFFIXES, force)
     guide.step("clear the fingers: the gripper will close and open fully")
-    cal = gripper.calibrate(effort=effort, max_opening_m=max_opening_m, closing_sign=closing_sign)
+    rec = SessionRecording(ver.path(".mcap"), getattr(gripper, "clock", None), kind="gripper", bench=bench)
+    try:
+        rec.state("gripper", _state_or_none(gripper))
+        rec.command("gripper", "calibrate", effort=float(effort), closing_sign=int(closing_sign))
+        cal = gripper.calibrate(effort=effort, max_opening_m=max_opening_m, closing_sign=closing_sign)
+        rec.state("gripper", _state_or_none(gripper))
+    except BaseException:
+        rec.close()
+        raise
     values = dict(cal.to_dict())
     span = int(values["open_ticks"]) - int(values["closed_ticks"])
     report = {"span_ticks": span, "effort": float(effort), "closing_sign": int(closing_sign),
               "m_per_tick": float(values["max_opening_m"]) / abs(span) if span else None}
-    path, rpath = write_calibration(out, "gripper", values, report, device=str(getattr(gripper, "device", "gripper")))
+    report["recording"] = None if rec.path is None else str(rec.path)
+    path, rpath = write_calibration(out, "gripper", values, report, device=str(getattr(gripper, "device", "gripper")),
+                                    version=ver)
+    rec.attach("gripper", path, values=values)
+    rec.close()
     guide.say(f"gripper: closed {values['closed_ticks']} ticks, open {values['open_ticks']} ticks -> {path}")
-    return SessionOutcome("gripper", path, rpath, {**values, **report})
+    return SessionOutcome("gripper", path, rpath, {**values, **report},
+                          {"json": str(path), "recording": report["recording"], "version": ver.version,
+                           "latest": str(ver.link(".json"))})
+
+
+def _state_or_none(device: Any) -> dict[str, Any]:
+    """A device's state for the recording ({} when it cannot report one)."""
+    try:
+        return to_jsonable(device.state())
+    except Exception:  # noqa: BLE001 - a state that cannot be read is simply not recorded
+        return {}
 
 
 # -- FingerVision: marker baseline and proximity-vision histograms --------------------------------
 def fingervision_session(camera: Any, out: str | Path, *, frames: int = 10, guide: Guide | None = None,
-                         params: Any = None) -> SessionOutcome:
+                         params: Any = None, force: bool = False, bench: Any = None) -> SessionOutcome:
     """Average ``frames`` no-contact frames into the marker baseline (rest positions, sizes, valid
-    flags) and the proximity-vision background histogram; write ``<out>.npz`` (arrays) and
-    ``<out>.json`` (versioned, with the report)."""
+    flags) and the proximity-vision background histogram; write ``<out>-vN.npz`` (arrays),
+    ``<out>-vN.json`` (with the report) and ``<out>-vN.mcap`` (the frames), linked from ``<out>.*``."""
 
     guide = guide or Guide(False, quiet=True)
     check_range("frames", float(frames), 1, 1000)
+    ver = _session_version(out, (".npz", *JSON_SUFFIXES), force)
+    name = str(getattr(camera, "name", "camera"))
     guide.step("nothing in contact with the skin and nothing behind it")
+    rec = SessionRecording(ver.path(".mcap"), getattr(camera, "clock", None), kind="fingervision", bench=bench,
+                           camera=name)
     imgs = []
-    for _ in range(int(frames)):
-        fr = camera.read(timeout_s=2.0)
-        imgs.append(np.ascontiguousarray(getattr(fr, "image", fr)))
+    try:
+        for _ in range(int(frames)):
+            fr = camera.read(timeout_s=2.0)
+            imgs.append(np.ascontiguousarray(getattr(fr, "image", fr)))
+            rec.frame(name, imgs[-1])
+    except BaseException:
+        rec.close()
+        raise
     fv = FingerVision(params or FingerVisionParams())
     base = fv.calibrate(imgs)
     n, n_valid = len(base), int(np.count_nonzero(base.valid))
     if n_valid < 3:
+        rec.close()
         raise CalibrationError(f"only {n_valid} stable markers in {frames} frames: check focus and lighting",
                                device="fingervision.calibration")
-    p = Path(out)
-    if p.suffix in (".json", ".npz"):
-        p = p.with_suffix("")
+    p = ver.stem
     p.parent.mkdir(parents=True, exist_ok=True)
-    npz = p.with_suffix(".npz")
+    npz = p.with_name(p.name + ".npz")
     bg_hist = fv.proximity.bg_hist
     np.savez_compressed(npz, positions_px=base.positions_px, sizes_px=base.sizes_px, valid=base.valid,
                         bg_hist=np.zeros(0) if bg_hist is None else bg_hist)
@@ -530,7 +693,13 @@ def fingervision_session(camera: Any, out: str | Path, *, frames: int = 10, guid
               "median_marker_jitter_px": float(np.median(jitter)) if jitter else None,
               "mean_marker_size_px": float(np.mean(base.sizes_px[base.valid])) if n_valid else None,
               "background_histogram_bins": int(0 if bg_hist is None else np.size(bg_hist))}
-    path, rpath = write_calibration(p.with_suffix(".json"), "fingervision", values, report,
-                                    device=str(getattr(camera, "name", "camera")))
+    for k, j in enumerate(jitter):
+        rec.perception(name, {"frame": k, "median_marker_offset_px": j})
+    report["recording"] = None if rec.path is None else str(rec.path)
+    path, rpath = write_calibration(out, "fingervision", values, report, device=name, version=ver)
+    rec.attach("fingervision", path, npz, values={"markers": n, "valid_markers": n_valid})
+    rec.close()
     guide.say(f"FingerVision: {n_valid}/{n} stable markers -> {path}")
-    return SessionOutcome("fingervision", path, rpath, {**values, **report}, {"npz": str(npz), "json": str(path)})
+    return SessionOutcome("fingervision", path, rpath, {**values, **report},
+                          {"npz": str(npz), "json": str(path), "recording": report["recording"],
+                           "version": ver.version, "latest": str(ver.link(".json"))})

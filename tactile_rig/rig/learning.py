@@ -33,6 +33,7 @@ import numpy as np
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.core.errors import CalibrationError
 from tactile_rig.core.jsonable import to_jsonable
+from tactile_rig.rig.calibrations import plan_version, publish
 from tactile_rig.rig.recording import Recorder, read_recording
 from tactile_rig.rig.reports import (
     Report,
@@ -85,15 +86,6 @@ def _check_features(X: np.ndarray, n_features: int, who: str) -> np.ndarray:
     return x
 
 
-def robust_scale_params(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Median and interquartile range per column (a zero IQR becomes 1, as sklearn's RobustScaler)."""
-    center = np.median(X, axis=0)
-    q75, q25 = np.percentile(X, [75, 25], axis=0)
-    scale = q75 - q25
-    scale[scale == 0] = 1.0
-    return center, scale
-
-
 # -- force map --------------------------------------------------------------------------------
 @dataclass
 class ForceMapModel:
@@ -117,6 +109,22 @@ class ForceMapModel:
             d2 = (np.sum(xb**2, 1)[:, None] + np.sum(self.x_fit**2, 1)[None, :] - 2.0 * xb @ self.x_fit.T)
             out[i:i + 2048] = np.exp(-self.gamma * np.maximum(d2, 0.0)) @ self.dual_coef
         return out
+
+    def to_newtons(self, force_px: Sequence[float], torque_px2: Sequence[float]
+                   ) -> tuple[np.ndarray, np.ndarray, float]:
+        """One fingertip's marker force (px) and torque (px²) → (force N (3,), torque N·px (3,), |F| N).
+
+        The map was fitted on the force the scale measured, so it gives the magnitude ``|F|``
+        (clamped at 0 N); the direction is the marker force's. Force and torque are scaled by the
+        same ``|F| / |force_px|`` (zero when the markers do not move); multiply the torque by the
+        camera's mm/px for N·mm.
+        """
+        f = np.asarray(force_px, float).reshape(3)
+        tq = np.asarray(torque_px2, float).reshape(3)
+        magnitude = max(0.0, float(self.predict(np.concatenate([f, tq])[None, :])[0]))
+        norm = float(np.linalg.norm(f))
+        k = magnitude / norm if norm > 1e-9 else 0.0
+        return f * k, tq * k, magnitude
 
     def save(self, path: str | Path) -> tuple[Path, Path]:
         """Write ``<stem>.npz`` (arrays) and ``<stem>.json`` (metadata); no pickle anywhere."""
@@ -144,6 +152,35 @@ class ForceMapModel:
                         feature_names=tuple(meta.get("features", FORCE_FEATURES)))
         model.meta = {k: v for k, v in meta.items() if k not in ("format", "version", "arrays")}
         return model
+
+
+def _model_path(path: str | Path, name: str) -> Path:
+    """A model named by its .json, .npz, stem, or the session's output folder (``<folder>/<name>``)."""
+    p = Path(path)
+    return p / name if p.is_dir() else p
+
+
+def load_force_map(path: str | Path) -> ForceMapModel:
+    """The force map a bench names (``calib/force_map``, ``.../force_map.json`` or ``.npz``; the
+    stable name reads the newest version). Raises CalibrationError naming the file and the command."""
+    p = _model_path(path, "force_map")
+    try:
+        model = ForceMapModel.load(p)
+    except CalibrationError as exc:
+        raise CalibrationError(f"{exc}; make it with: tactile-rig calibrate force-map", device="force-map") from None
+    model.meta.setdefault("path", str(_paths(p)[1]))
+    return model
+
+
+def load_substance_model(path: str | Path) -> SubstanceModel:
+    """The substance classifier a bench names (folder, ``.json``, ``.npz`` or stem)."""
+    p = _model_path(path, "substance")
+    try:
+        model = SubstanceModel.load(p)
+    except CalibrationError as exc:
+        raise CalibrationError(f"{exc}; make it with: tactile-rig calibrate substance", device="substance") from None
+    model.meta.setdefault("path", str(_paths(p)[1]))
+    return model
 
 
 def _load_meta(js: Path, fmt: str) -> dict[str, Any]:
@@ -243,8 +280,8 @@ def force_trials_from_recording(path: str | Path, *, camera: str | None = None,
     t_sorted, f_sorted = t_scale[order], f_scale[order]
     for m in rec.on(topic):
         d = m.data
-        if "force_px" not in d or "torque_px2" not in d:
-            continue
+        if "force_px" not in d or "torque_px2" not in d or d.get("phase", "press") != "press":
+            continue  # a live session also records the fingertip at rest, probing and released
         trial = d.get("trial")
         if trial is None:
             trial = max((k for ts, k in starts if ts <= m.t_s), default=0)
@@ -290,24 +327,33 @@ def fit_force_map_trials(trials: Sequence[ForceTrialData], *, holdout: int | Non
 def force_map_session(out_dir: str | Path, *, n_trials: int = 10, max_force_n: float = 20.0, seed: int = 0,
                       recording: str | Path | None = None, holdout: int | None = None, alpha: float = 0.02,
                       gamma: float | None = DEFAULT_GAMMA, camera: str | None = None, bench: Any = None,
-                      figures: bool = True) -> dict[str, Any]:
-    """The whole session: collect (mock) or read (``recording``) trials, fit, save, report.
+                      figures: bool = True, force: bool = False, collect: Any = None) -> dict[str, Any]:
+    """The whole session: collect (mock, or live with ``collect``) or read (``recording``) trials, fit,
+    save, report.
 
+    The model is versioned (:mod:`tactile_rig.rig.calibrations`): ``OUT/force_map-vN.npz`` + ``.json``
+    with ``OUT/force_map.npz`` / ``.json`` linking to the newest; ``force`` rewrites the newest.
     On mocks the trials come from :class:`~tactile_rig.sim.world.stick_press.StickPressScene` and are
-    recorded to ``OUT/force_map.mcap`` first; the fit always reads a recording.
+    recorded to ``OUT/force_map-vN.mcap`` first; ``collect(path) -> path`` records a live session
+    there instead (:mod:`tactile_rig.rig.live_collection`); the fit always reads a recording.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    ver = plan_version(out / "force_map", (".npz", ".json"), force=force)
     scene = None
-    if recording is None:
+    if recording is None and collect is not None:
+        recording = collect(ver.path(".mcap"))
+        camera = camera or "fingervision"
+    elif recording is None:
 
         scene = StickPressScene()
         trials_sim = scene.trials(increasing_peaks(n_trials, max_force_n), seed=seed)
-        recording = record_force_map_session(out / "force_map.mcap", trials_sim, bench=bench)
+        recording = record_force_map_session(ver.path(".mcap"), trials_sim, bench=bench)
         camera = camera or "fingervision"
     trials = force_trials_from_recording(recording, camera=camera)
     model, report = fit_force_map_trials(trials, holdout=holdout, alpha=alpha, gamma=gamma)
-    report["source"] = "mock stick-press scene" if scene is not None else str(recording)
+    report["source"] = ("mock stick-press scene" if scene is not None
+                        else "live collection" if collect is not None else str(recording))
     report["recording"] = str(recording)
     test = next(t for t in trials if t.index == report["holdout_trial"])
     pred = model.predict(test.features)
@@ -316,8 +362,10 @@ def force_map_session(out_dir: str | Path, *, n_trials: int = 10, max_force_n: f
         report["scene_noise_rms_n"] = float(np.sqrt(np.mean(noise**2)))
         report["scene"] = {"marker_noise_px": scene.marker_noise_px, "scale_noise_n": scene.scale_noise_n,
                            "gain_sd": scene.gain_sd, "seed": seed}
-    npz, js = model.save(out / "force_map")
-    report["model"] = {"npz": str(npz), "json": str(js)}
+    npz, js = model.save(ver.stem)
+    links = publish(ver, (".npz", ".json", ".mcap"))
+    report["model"] = {"npz": str(npz), "json": str(js), "version": ver.version,
+                       "latest": [str(p) for p in links]}
     if figures:
 
         f1 = plot_estimated_vs_true(test.force_n, pred, out / "force_map_holdout.png", quantity="force", unit="N",
@@ -419,6 +467,9 @@ class SubstanceModel:
     def load(cls, path: str | Path) -> "SubstanceModel":
         npz, js = _paths(path)
         meta = _load_meta(js, SUBSTANCE_FORMAT)
+        if not npz.is_file():
+            raise CalibrationError(f"substance model arrays {npz} are missing (the .json is there)",
+                                   device="substance")
         with np.load(npz, allow_pickle=False) as z:
             n = int(meta["layers"])
             model = cls(center=z["center"], scale=z["scale"], weights=[z[f"W{i}"] for i in range(n)],
@@ -507,15 +558,20 @@ def stirring_trials_from_recording(path: str | Path, *, camera: str | None = Non
 
 def substance_session(out_dir: str | Path, *, per_substance: int = 12, seed: int = 0,
                       recording: str | Path | None = None, test_fraction: float = 0.25, window_s: float = 2.0,
-                      camera: str | None = None, figures: bool = True) -> dict[str, Any]:
-    """Collect (mock) or read stirring trials, fit the MLP on some trials, report held-out accuracy."""
+                      camera: str | None = None, figures: bool = True, force: bool = False,
+                      collect: Any = None) -> dict[str, Any]:
+    """Collect (mock, or live with ``collect(path) -> path``) or read stirring trials, fit the MLP on
+    some trials, report held-out accuracy. Versioned as the force map: ``OUT/substance-vN.*``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if not 0 < test_fraction < 1:
         raise ValueError(f"test_fraction={test_fraction!r} must be in (0, 1)")
-    if recording is None:
+    ver = plan_version(out / "substance", (".npz", ".json"), force=force)
+    if recording is None and collect is not None:
+        recording = collect(ver.path(".mcap"))
+    elif recording is None:
 
-        recording = record_stirring_session(out / "substance.mcap", StirringScene().trials(per_substance, seed=seed))
+        recording = record_stirring_session(ver.path(".mcap"), StirringScene().trials(per_substance, seed=seed))
     trials = stirring_trials_from_recording(recording, camera=camera)
     rng = np.random.default_rng(seed)
     by_label: dict[str, list[int]] = {}
@@ -550,8 +606,10 @@ def substance_session(out_dir: str | Path, *, per_substance: int = 12, seed: int
               "n_train_trials": len(train_sel), "n_test_trials": len(test_idx), "n_train_windows": len(ytr),
               "n_test_windows": len(yte), "window_s": window_s, "recording": str(recording), "seed": seed}
     model.meta.update({k: report[k] for k in ("accuracy_holdout", "n_train_windows", "window_s")})
-    npz, js = model.save(out / "substance")
-    report["model"] = {"npz": str(npz), "json": str(js)}
+    npz, js = model.save(ver.stem)
+    links = publish(ver, (".npz", ".json", ".mcap"))
+    report["model"] = {"npz": str(npz), "json": str(js), "version": ver.version,
+                       "latest": [str(p) for p in links]}
     if figures:
 
         write_summary(out, report, [{"true": t, "predicted": p} for t, p in zip(yte, pred)], name="substance_summary")
@@ -564,3 +622,57 @@ def substance_session(out_dir: str | Path, *, per_substance: int = 12, seed: int
          .table("Confusion (held-out windows)", rows)
          .write("substance.md"))
     return report
+
+
+def predict_substance(model: SubstanceModel, series: np.ndarray, rate_hz: float, *,
+                      window_s: float | None = None) -> dict[str, Any]:
+    """Classify a stirring series (T × 3: fx, fy, tz in px) window by window, then by majority.
+
+    ``window_s`` defaults to the window the model was trained on. Returns the per-window labels and
+    probabilities, the majority ``substance`` and its share of the windows (``agreement``).
+    """
+    w = float(window_s if window_s is not None else model.meta.get("window_s", 2.0))
+    X = stirring_features(series, rate_hz, window_s=w)
+    if X.shape[0] == 0:
+        raise ValueError(f"the series has {np.asarray(series).shape[0]} samples at {rate_hz:.3g} Hz: shorter "
+                         f"than one {w:g} s window")
+    proba = model.predict_proba(X)
+    labels = [model.classes[i] for i in np.argmax(proba, axis=1)]
+    counts = {c: labels.count(c) for c in model.classes}
+    best = max(model.classes, key=lambda c: (counts[c], float(proba[:, model.classes.index(c)].mean())))
+    return {"substance": best, "agreement": counts[best] / len(labels), "windows": len(labels),
+            "window_s": w, "counts": counts, "per_window": labels,
+            "mean_probability": {c: float(proba[:, i].mean()) for i, c in enumerate(model.classes)}}
+
+
+def stirring_series_from_recording(path: str | Path, *, camera: str | None = None
+                                   ) -> list[dict[str, Any]]:
+    """Every trial's marker series (T × 3: fx, fy, tz px) in a recording, labelled or not.
+
+    Messages without a ``trial`` field form one series (trial None). Each item: ``trial``, ``label``
+    (the trial start's label, or None), ``series``, ``rate_hz``.
+    """
+    rec = read_recording(path)
+    labels = {int(m.data["trial"]): str(m.data["label"]) for m in rec.on("/command/session")
+              if m.data.get("command") == "trial_start" and "label" in m.data and "trial" in m.data}
+    perc = sorted({m.topic for m in rec.messages if m.topic.startswith("/perception/")})
+    topic = f"/perception/{camera}" if camera else (perc[0] if len(perc) == 1 else None)
+    if topic is None or topic not in perc:
+        raise CalibrationError(f"{path}: pick the camera's perception topic with --camera; found: "
+                               f"{', '.join(perc) or '(none)'}", device="substance")
+    rows: dict[int | None, list[tuple[float, list[float]]]] = {}
+    for m in rec.on(topic):
+        f, tq = m.data.get("force_px"), m.data.get("torque_px2")
+        if f is None or tq is None:
+            continue
+        k = m.data.get("trial")
+        rows.setdefault(None if k is None else int(k), []).append((m.t_s, [f[0], f[1], tq[2]]))
+    out = []
+    for k, samples in sorted(rows.items(), key=lambda kv: -1 if kv[0] is None else kv[0]):
+        t = np.array([s[0] for s in samples])
+        rate = (t.size - 1) / (t[-1] - t[0]) if t.size > 1 and t[-1] > t[0] else 30.0
+        out.append({"trial": k, "label": labels.get(k) if k is not None else None,
+                    "series": np.array([s[1] for s in samples], float), "rate_hz": float(rate)})
+    if not out:
+        raise CalibrationError(f"{path}: no marker forces (force_px, torque_px2) on {topic}", device="substance")
+    return out

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import base64
 import json
+import struct
 import threading
 import time
 from dataclasses import dataclass, field
@@ -37,6 +38,8 @@ from typing import Any, Iterator, Mapping
 import numpy as np
 
 from tactile_rig.core.clock import Clock, RealClock
+from tactile_rig.core.errors import BadFile
+from tactile_rig.core.files import MAX_JSON_DEPTH, check_file, decode_image_bytes, json_depth
 from tactile_rig.core.jsonable import to_jsonable
 
 __all__ = ["Recorder", "Recording", "Message", "read_recording", "iter_messages", "SCHEMAS"]
@@ -129,9 +132,10 @@ class Recorder:
             raise ValueError(f"compression={compression!r} must be 'zstd', 'lz4' or 'none'")
         self._file = open(self.path, "wb")
         try:
-            self._writer = Writer(self._file, chunk_size=chunk_size, compression=comp)
+            self._writer = Writer(self._file, chunk_size=chunk_size, compression=comp, enable_data_crcs=True)
         except Exception:  # noqa: BLE001 - the codec library is missing: write uncompressed
-            self._writer = Writer(self._file, chunk_size=chunk_size, compression=CompressionType.NONE)
+            self._writer = Writer(self._file, chunk_size=chunk_size, compression=CompressionType.NONE,
+                                  enable_data_crcs=True)
         self._writer.start(profile=PROFILE, library=LIBRARY)
         self._lock = threading.RLock()
         self._schemas: dict[str, int] = {}
@@ -355,24 +359,30 @@ class Message:
 
     def image(self) -> np.ndarray:
         """Decode a RawImage / CompressedImage message into a BGR (or mono) uint8 array."""
-        return decode_image(self.schema, self.data)
+        return decode_image(self.schema, self.data, f"message on {self.topic}")
 
 
-def decode_image(schema: str, data: Mapping[str, Any]) -> np.ndarray:
-    raw = base64.b64decode(data["data"])
+def decode_image(schema: str, data: Mapping[str, Any], source: str = "recording") -> np.ndarray:
+    """A recorded image message as a uint8 array; sizes are checked before anything is allocated
+    or decoded (a :class:`BadFile` naming ``source`` otherwise)."""
+    try:
+        raw = base64.b64decode(data["data"], validate=True)
+    except (KeyError, TypeError, ValueError):
+        raise BadFile(source, f"a {schema} message has no valid base64 'data'", "a recorded image") from None
     if schema == "foxglove.CompressedImage":
-        import cv2
-
-        img = cv2.imdecode(np.frombuffer(raw, np.uint8), cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise ValueError(f"cannot decode a {data.get('format')} image of {len(raw)} bytes")
-        return img
+        return decode_image_bytes(raw, source, f"a {data.get('format')} image message")
     if schema != "foxglove.RawImage":
         raise ValueError(f"schema {schema!r} is not an image")
-    h, w, step = int(data["height"]), int(data["width"]), int(data["step"])
-    channels = {"bgr8": 3, "rgb8": 3, "mono8": 1, "8UC1": 1, "8UC3": 3}.get(data["encoding"])
+    try:
+        h, w, step = int(data["height"]), int(data["width"]), int(data["step"])
+    except (KeyError, TypeError, ValueError):
+        raise BadFile(source, "a RawImage message lacks integer height, width, step", "a foxglove.RawImage") from None
+    channels = {"bgr8": 3, "rgb8": 3, "mono8": 1, "8UC1": 1, "8UC3": 3}.get(data.get("encoding"))
     if channels is None:
-        raise ValueError(f"unsupported RawImage encoding {data['encoding']!r}")
+        raise BadFile(source, f"unsupported RawImage encoding {data.get('encoding')!r}", "bgr8, rgb8 or mono8")
+    if not (0 < h <= 16384 and 0 < w <= 16384 and w * channels <= step <= 4 * w * channels and len(raw) >= h * step):
+        raise BadFile(source, f"a RawImage message declares {w}x{h} px, step {step}, with {len(raw)} bytes",
+                      "a consistent size of at most 16384 px a side")
     rows = np.frombuffer(raw, np.uint8)[: h * step].reshape(h, step)[:, : w * channels]
     img = rows.reshape(h, w, channels) if channels == 3 else rows.reshape(h, w)
     if data["encoding"] == "rgb8":
@@ -411,48 +421,129 @@ class Recording:
         return out
 
 
-def _records(path: Path, result: Recording) -> Iterator[Any]:
-    """Every record of the file in order; a cut-off tail ends the iteration and sets ``truncated``."""
-    _require_mcap()
-    from mcap.exceptions import InvalidMagic
-    from mcap.records import Footer
-    from mcap.stream_reader import StreamReader
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+MAX_RECORD_BYTES = 1 << 30  # no record this rig writes comes near it; a flipped length field does
 
-    with open(path, "rb") as f:
+
+def _where(kind: str, index: int, offset: int) -> str:
+    return f"{kind} {index} (byte {offset})"
+
+
+def _records(path: Path, result: Recording) -> Iterator[tuple[Any, str]]:
+    """Every record of the file in order with where it lies (``"chunk 3 (byte 1234) message 7"``).
+
+    CRCs are checked (each chunk's, the attachments', the data section's). A file cut off
+    mid-record (SIGKILL, full disk, power loss: no end magic) ends the iteration and sets
+    ``truncated``; a file that is complete but fails a check, or whose records do not parse, is
+    a :class:`BadFile` naming the chunk or record (exit 2 in the CLI)."""
+    _require_mcap()
+    from mcap.exceptions import EndOfFile, McapError
+    from mcap.records import Chunk, DataEnd, Footer
+    from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
+
+    p = check_file(path, "recording")
+    size = p.stat().st_size
+    with open(p, "rb") as f:
         head = f.read(8)
+        f.seek(max(0, size - 8))
+        tail = f.read(8)
         f.seek(0)
-        if len(head) == 8 and not head.startswith(b"\x89MCAP"):
-            raise ValueError(f"{path} is not an MCAP recording (it starts with {head!r})")
-        reader = StreamReader(f, skip_magic=False, emit_chunks=False)
+        if len(head) < 8 or not head.startswith(b"\x89MCAP"):
+            raise BadFile(p, f"recording is not an MCAP recording (it starts with {head!r})",
+                          "an MCAP file (magic \\x89MCAP0)")
+        complete = size >= 16 and tail == MCAP_MAGIC  # closed properly: an early end is damage, not a crash
+        reader = StreamReader(f, skip_magic=False, emit_chunks=True, validate_crcs=True,
+                              record_size_limit=MAX_RECORD_BYTES)
         it = reader.records
+        n_chunks = 0
+        n_records = 0
         while True:
+            pos = f.tell() if n_records else 8
             try:
                 rec = next(it)
             except StopIteration:
                 return
-            except InvalidMagic as exc:  # the file's start is fine (checked above): a cut-off end magic
-                result.truncated = True
-                result.error = str(exc)
+            except CRCValidationError as exc:
+                if isinstance(exc.record, DataEnd):
+                    raise BadFile(p, f"the data section fails its CRC (stored {exc.expected:#010x}, computed "
+                                  f"{exc.actual:#010x}): a record outside the chunks is damaged",
+                                  "an intact MCAP recording") from None
+                raise BadFile(p, f"{type(exc.record).__name__.lower()} at byte {pos} fails its CRC",
+                              "an intact MCAP recording") from None
+            except (EndOfFile, McapError, ValueError, struct.error, UnicodeDecodeError, MemoryError,
+                    OverflowError, IndexError) as exc:
+                declared_end = _declared_end(p, pos, size)
+                cut_off = declared_end is None or declared_end > size
+                if cut_off and not complete:
+                    result.truncated = True
+                    result.error = f"cut off at byte {pos} of {size} ({type(exc).__name__}{': ' + str(exc) if str(exc) else ''})"
+                    return
+                raise BadFile(p, f"record {n_records} at byte {pos} is corrupt ({type(exc).__name__}"
+                              f"{': ' + str(exc)[:120] if str(exc) else ''})", "an intact MCAP recording") from None
+            n_records += 1
+            if isinstance(rec, Chunk):
+                where = _where("chunk", n_chunks, pos)
+                t0, t1 = rec.message_start_time / 1e9, rec.message_end_time / 1e9
+                if rec.uncompressed_size > MAX_RECORD_BYTES:
+                    raise BadFile(p, f"{where} declares {rec.uncompressed_size} bytes uncompressed",
+                                  f"at most {MAX_RECORD_BYTES} bytes (a damaged chunk header)")
+                try:
+                    inner = breakup_chunk(rec, validate_crc=True)
+                except CRCValidationError as exc:
+                    raise BadFile(p, f"{where}, log time {t0:.3f}..{t1:.3f} s, fails its CRC (stored "
+                                  f"{exc.expected:#010x}, computed {exc.actual:#010x}): its messages are corrupt",
+                                  "an intact MCAP recording") from None
+                except Exception as exc:  # noqa: BLE001 - the codec's own errors (zstd, lz4) vary by version
+                    raise BadFile(p, f"{where}, log time {t0:.3f}..{t1:.3f} s, cannot be decoded "
+                                  f"({type(exc).__name__}: {str(exc)[:120]})", "an intact MCAP recording") from None
+                for k, r in enumerate(inner):
+                    yield r, f"{where} record {k}"
+                n_chunks += 1
+                continue
+            yield rec, f"record {n_records - 1} (byte {pos})"
+            # The data section ends at DataEnd (its CRC checked above); the summary after it only
+            # repeats the data section's schemas and channels, so it is not read.
+            if isinstance(rec, (DataEnd, Footer)):
                 return
-            except Exception as exc:  # noqa: BLE001 - any decode failure at the tail is a truncation
-                result.truncated = True
-                result.error = f"{type(exc).__name__}: {exc}".strip()
-                return
-            yield rec
-            if isinstance(rec, Footer):
-                return
+
+
+def _declared_end(p: Path, pos: int, size: int) -> int | None:
+    """Where the record starting at ``pos`` would end by its length field (None: no full header)."""
+    with open(p, "rb") as f:
+        f.seek(pos)
+        head = f.read(9)
+    if len(head) < 9:
+        return None
+    return pos + 9 + struct.unpack("<Q", head[1:9])[0]
+
+
+def _decode_json(data: bytes, p: Path, where: str, topic: str) -> dict[str, Any]:
+    # Brackets are rare in this rig's messages (base64 images have none): scan the depth only when
+    # there are enough of them to matter, so a hostile nesting never reaches json's recursion.
+    if data.count(b"[") + data.count(b"{") > MAX_JSON_DEPTH:
+        depth = json_depth(data)
+        if depth > MAX_JSON_DEPTH:
+            raise BadFile(p, f"{where} on {topic} nests its JSON {depth} levels deep",
+                          f"at most {MAX_JSON_DEPTH} levels")
+    try:
+        value = json.loads(data)
+    except (ValueError, RecursionError):
+        return {"raw": base64.b64encode(data).decode("ascii")}
+    return value if isinstance(value, dict) else {"value": value}
 
 
 def iter_messages(path: str | Path, *, topics: set[str] | None = None,
                   into: Recording | None = None) -> Iterator[Message]:
-    """Stream the messages of a (possibly truncated) recording; metadata goes into ``into``."""
+    """Stream the messages of a (possibly truncated) recording, CRCs checked; metadata goes into
+    ``into``. A corrupt chunk or message is a :class:`BadFile` naming it."""
     from mcap.records import Attachment, Channel, Metadata, Schema
     from mcap.records import Message as McapMessage
 
-    rec_out = into if into is not None else Recording(Path(path))
+    p = Path(path)
+    rec_out = into if into is not None else Recording(p)
     schemas: dict[int, str] = {}
     channels: dict[int, tuple[str, int]] = {}
-    for rec in _records(Path(path), rec_out):
+    for rec, where in _records(p, rec_out):
         if isinstance(rec, Schema):
             schemas[rec.id] = rec.name
         elif isinstance(rec, Channel):
@@ -461,11 +552,7 @@ def iter_messages(path: str | Path, *, topics: set[str] | None = None,
             topic, sid = channels.get(rec.channel_id, (f"<channel {rec.channel_id}>", 0))
             if topics is not None and topic not in topics:
                 continue
-            try:
-                data = json.loads(rec.data)
-            except ValueError:
-                data = {"raw": base64.b64encode(rec.data).decode("ascii")}
-            yield Message(topic, schemas.get(sid, ""), rec.log_time, data)
+            yield Message(topic, schemas.get(sid, ""), rec.log_time, _decode_json(rec.data, p, where, topic))
         elif isinstance(rec, Metadata):
             rec_out.metadata[rec.name] = dict(rec.metadata)
         elif isinstance(rec, Attachment):
@@ -474,9 +561,7 @@ def iter_messages(path: str | Path, *, topics: set[str] | None = None,
 
 def read_recording(path: str | Path, *, topics: set[str] | None = None) -> Recording:
     """Read a whole recording (tolerating a truncated tail). ``topics`` keeps only those topics."""
-    p = Path(path)
-    if not p.is_file():
-        raise FileNotFoundError(f"recording {str(p)!r} does not exist")
+    p = check_file(path, "recording")
     out = Recording(p)
     out.messages = list(iter_messages(p, topics=topics, into=out))
     return out

@@ -15,6 +15,7 @@ import numpy as np
 
 from tactile_rig.core.clock import Clock
 from tactile_rig.core.errors import NotConnected
+from tactile_rig.core.files import check_file
 from tactile_rig.drivers.camera import RawFrame
 from tactile_rig.rig.recording import (
     Message,
@@ -29,9 +30,7 @@ IMAGE_SCHEMAS = ("foxglove.RawImage", "foxglove.CompressedImage")
 
 def summarize(path: str | Path) -> dict[str, Any]:
     """Per topic: message count, schema, first/last time (s); plus metadata names, attachments, truncation."""
-    rec = Recording(Path(path))
-    if not Path(path).is_file():
-        raise FileNotFoundError(f"recording {str(path)!r} does not exist")
+    rec = Recording(check_file(path, "recording"))
     topics: dict[str, dict[str, Any]] = {}
     for m in iter_messages(path, into=rec):
         t = topics.setdefault(m.topic, {"count": 0, "schema": m.schema, "first_t_s": m.t_s, "last_t_s": m.t_s})
@@ -138,7 +137,7 @@ class RecordedFrameSource:
     def frames(self) -> Iterator[tuple[float, np.ndarray]]:
         """Every recorded frame as ``(t_s, image)``, in order."""
         for m in self._messages:
-            yield m.t_s, decode_image(m.schema, m.data)
+            yield m.t_s, decode_image(m.schema, m.data, f"{self.name} at {m.t_s:.3f} s")
 
     def read(self, timeout_s: float | None = None) -> Any:
         """The next frame as a ``RawFrame`` (recorded time as device time), or None on timeout."""

@@ -122,7 +122,10 @@ def plot_tactile_map(image: np.ndarray, path: str | Path, *, mm_per_px: tuple[fl
     fig, ax = plt.subplots(figsize=(5.5, 4.2), dpi=100)
     extent = None
     if mm_per_px is not None:
-        sx, sy = (mm_per_px, mm_per_px) if np.isscalar(mm_per_px) else mm_per_px  # type: ignore[misc]
+        if isinstance(mm_per_px, tuple):
+            sx, sy = float(mm_per_px[0]), float(mm_per_px[1])
+        else:
+            sx = sy = float(mm_per_px)
         h, w = img.shape[:2]
         extent = (0.0, w * float(sx), h * float(sy), 0.0)
         ax.set_xlabel("x (mm)")

@@ -21,7 +21,7 @@ import importlib
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import tomllib
@@ -103,7 +103,7 @@ class EpisodeContext:
             return RenderedSensor(self.clock, render, process, name=name, **keep)
         raise ValueError(f"scene {self.scene.name!r}: [sensor] kind={kind!r} must be 'model' or 'rendered'")
 
-    def settle_and_check_still(self, motions: list[Any] = (), grippers: list[Any] = (),
+    def settle_and_check_still(self, motions: Sequence[Any] = (), grippers: Sequence[Any] = (),
                                settle_s: float = 0.5) -> bool:
         """After the run: let time pass and check that no axis or gripper is still moving."""
         self.clock.sleep(settle_s)
@@ -167,7 +167,7 @@ def _set_param(table: dict[str, Any], key: str, value: float) -> None:
     if not idx:
         table[name] = value
         return
-    node = table.get(name)
+    node: Any = table.get(name)
     try:
         for i in idx[:-1]:
             node = node[int(i)]

@@ -25,6 +25,7 @@ from tactile_rig.sim.world import (  # noqa: E402,F401  (registration side effec
     load_cell,
     objects,
     part,
+    scale_press,
     stage,
     stick,
     table,

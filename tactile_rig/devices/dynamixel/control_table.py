@@ -58,11 +58,12 @@ class ControlTable:
         self.items = sorted(items, key=lambda it: it.address)
         self._by_name = {it.name: it for it in self.items}
         self._by_address = {it.address: it for it in self.items}
-        self._owner = [None] * size  # address → item covering it
+        self._owner: list[Item | None] = [None] * size  # address → item covering it
         for it in self.items:
             for a in range(it.address, it.end):
-                if self._owner[a] is not None:
-                    raise ValueError(f"{name}: items {self._owner[a].name} and {it.name} overlap at {a}")
+                other = self._owner[a]
+                if other is not None:
+                    raise ValueError(f"{name}: items {other.name} and {it.name} overlap at {a}")
                 self._owner[a] = it
 
     def __getitem__(self, name: str) -> Item:

@@ -62,18 +62,18 @@ def make_bus(
 
 
 def _factory(params: Params, *, clock: Any, world: Any = None) -> DynamixelBusDevice:
-    protocol = params.int("protocol", 2)
-    model = (params.str("model", "mx64") or "mx64").lower().replace("-", "")
+    protocol = params.integer("protocol", 2)
+    model = (params.text("model", "mx64") or "mx64").lower().replace("-", "")
     if model not in _MODELS:
         raise ValueError(f"{params.source}: model={model!r} must be mx64, 311 or 310")
     if _MODELS[model] is not None and _MODELS[model] != protocol:
         raise ValueError(f"{params.source}: model {model} speaks Protocol {_MODELS[model]}, not {protocol}")
-    ids = params.ints("ids", [1])
+    ids = params.integers("ids", [1])
     t0 = clock.now_s()
-    fingers_name = params.str("fingers", "fingers")
-    width_mm = params.float("object_width_mm")
-    stiffness = params.float("object_stiffness_npm", 5000.0)
-    position = params.int("position")
+    fingers_name = params.text("fingers", "fingers")
+    width_mm = params.number("object_width_mm")
+    stiffness = params.number("object_stiffness_npm", 5000.0)
+    position = params.integer("position")
     plant = world.get(fingers_name) if world is not None else None
     if plant is not None and not isinstance(plant, Fingers):
         raise ValueError(f"{params.source}: world model {fingers_name!r} is not a fingers model")
@@ -83,10 +83,10 @@ def _factory(params: Params, *, clock: Any, world: Any = None) -> DynamixelBusDe
     return make_bus(
         protocol=protocol,
         ids=ids,
-        baud=params.int("baud"),
-        timing=params.bool("timing", True),
-        return_delay_us=params.int("return_delay_us", 500),
-        boot_s=params.float("boot_ms", 50.0) / 1000,
+        baud=params.integer("baud"),
+        timing=params.flag("timing", True),
+        return_delay_us=params.integer("return_delay_us", 500),
+        boot_s=params.number("boot_ms", 50.0) / 1000,
         plants={ids[0]: plant} if ids else None,
         t_s=t0,
     )

@@ -21,16 +21,16 @@ __all__ = ["GrblMock", "default_settings"]
 
 
 def _factory(params: Params, *, clock: Clock, world: Any = None) -> GrblMock:
-    stage_name = params.str("stage", "stage") or "stage"
+    stage_name = params.text("stage", "stage") or "stage"
     stage = world.require(stage_name, who="the jig mock") if world is not None else None
-    firmware = params.str("firmware", "grbl") or "grbl"
-    axes = params.int("axes", 4 if firmware == "grblhal" else 3)
+    firmware = params.text("firmware", "grbl") or "grbl"
+    axes = params.integer("axes", 4 if firmware == "grblhal" else 3)
     return GrblMock(
         clock=clock, stage=stage, axes=axes,
-        theta_axis=params.str("theta_axis", "A" if axes == 4 else "Z") or "Z",
-        firmware=firmware, baud=params.int("baud", gp.BAUD), timing=params.bool("timing", True),
-        seed=params.int("seed", 0), homing=params.bool("homing", True), boot_s=params.float("boot_s", 0.0),
-        work_origin=params.str("work_origin", None),
+        theta_axis=params.text("theta_axis", "A" if axes == 4 else "Z") or "Z",
+        firmware=firmware, baud=params.integer("baud", gp.BAUD), timing=params.flag("timing", True),
+        seed=params.integer("seed", 0), homing=params.flag("homing", True), boot_s=params.number("boot_s", 0.0),
+        work_origin=params.text("work_origin", None),
     )
 
 

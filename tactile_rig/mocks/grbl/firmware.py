@@ -33,11 +33,11 @@ from typing import Any
 import numpy as np
 
 import tactile_rig.mocks.grbl.gcode as gcode
-import tactile_rig.mocks.grbl.homing as homing
 import tactile_rig.mocks.grbl.report as report
 import tactile_rig.mocks.grbl.system as system
 from tactile_rig.core.clock import Clock
 from tactile_rig.devices import grbl as gp
+from tactile_rig.mocks.grbl.homing import HomingLeg
 from tactile_rig.mocks.grbl.motion_control import OK, Job, MotionControl, Wait
 from tactile_rig.mocks.grbl.planner import Limits, Planner, Profile, round_half_away
 from tactile_rig.mocks.grbl.stepper import Stepper
@@ -124,7 +124,7 @@ class GrblMock(MotionControl, Stepper, SerialDevice):
         self._t_now = 0.0 if clock is None else clock.now_s()
         self.state = "Idle"
         self._active: Profile | None = None
-        self._home_leg: homing.HomingLeg | None = None
+        self._home_leg: HomingLeg | None = None
         self._power_up(self._t_now, emit=False)
 
     # == geometry ==================================================================================
@@ -203,18 +203,18 @@ class GrblMock(MotionControl, Stepper, SerialDevice):
         self.gc = gcode.ParserState.fresh(self.n_axes, self.coords[0], self.pos)
         self.rx: deque[int] = deque()
         self._line: list[str] = []
-        self._line_flags = set()
+        self._line_flags: set[str] = set()
         self._job: Job | None = None
         self._job_kind = "line"
         self._wait: Wait | None = None
-        self._active: Profile | None = None
+        self._active = None
         self._event_t: float | None = None
         self._trip: tuple[str, int] | None = None  # what happens at _event_t: ("limit", axis) / ("probe", 0) / ("end", 0)
         self._hold = False  # a feed hold (or jog/motion cancel) is decelerating or complete
         self._hold_done = False
         self._cancel: str | None = None  # "jog" | "motion" (probe) | "soft" (soft limit)
         self._probe_active: tuple[bool, bool] | None = None  # (away, no_error)
-        self._home_leg: homing.HomingLeg | None = None
+        self._home_leg = None
         self._critical = False
         self._asleep = False
         self._busy_until = t_s
@@ -450,7 +450,7 @@ class GrblMock(MotionControl, Stepper, SerialDevice):
         """Steppers off now: the position is where the motion was."""
         if self._active is not None:
             self.pos = self._active.point(self._active.at(t_s)[0])
-        if getattr(self, "_home_leg", None) is not None:
+        if self._home_leg is not None:
             self.pos = self._home_leg.position_at(t_s) - self.origin
             self._home_leg = None
         self._active = None

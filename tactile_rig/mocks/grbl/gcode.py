@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -167,7 +167,7 @@ def parse_block(line: str, state: ParserState, coords: Sequence[np.ndarray], *, 
     modal = state.modal
     if jog:
         modal = replace(modal, motion=LINEAR, inverse_time=False)
-    new = {"motion": modal.motion, "coord_select": modal.coord_select, "plane": modal.plane,
+    new: dict[str, Any] = {"motion": modal.motion, "coord_select": modal.coord_select, "plane": modal.plane,
            "inches": modal.inches, "incremental": modal.incremental, "inverse_time": modal.inverse_time,
            "tlo_dynamic": modal.tlo_dynamic, "spindle": modal.spindle, "coolant_flood": modal.coolant_flood,
            "program_flow": FLOW_RUNNING}

@@ -19,13 +19,14 @@ import tactile_rig.mocks.grbl.gcode as gcode
 import tactile_rig.mocks.grbl.homing as homing
 import tactile_rig.mocks.grbl.report as report
 from tactile_rig.mocks.grbl.planner import arc_points
+from tactile_rig.mocks.grbl.host import GrblHost
 
 OK = 0
 Wait = tuple  # ("space",) ("idle",) ("stopped",) ("time", t) ("resume",) ("forever",)
 Job = Generator[Wait, None, int]
 
 
-class MotionControl:
+class MotionControl(GrblHost):
     """The G-code, homing and probing jobs of the GRBL mock (a mixin of ``GrblMock``)."""
 
     def _gcode_job(self, line: str, *, jog: bool) -> Job:
@@ -33,6 +34,7 @@ class MotionControl:
         if isinstance(block, int):
             return block
         if jog:
+            assert block.target is not None  # the parser gives every jog a target
             if self.settings[20] and self._beyond_travel(block.target):
                 return 15
             yield from self._mc_line(block.target, block.feed_rate, kind="jog", no_feed_override=True)

@@ -16,9 +16,10 @@ import math
 import numpy as np
 
 from tactile_rig.mocks.grbl.planner import Planner, Profile, block_phases
+from tactile_rig.mocks.grbl.host import GrblHost
 
 
-class Stepper:
+class Stepper(GrblHost):
     """Motion execution of the GRBL mock (a mixin of ``GrblMock``)."""
 
     def _speed_now(self, t_s: float) -> float:

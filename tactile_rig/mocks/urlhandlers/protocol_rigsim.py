@@ -23,6 +23,7 @@ class Serial(SerialBase):
     """A pyserial port backed by an in-process :class:`SerialDevice`."""
 
     device: SerialDevice | None = None
+    is_open: bool = False
     clock: Clock | None = None
 
     def open(self) -> None:

@@ -9,6 +9,7 @@ from tactile_rig.perception.fingervision.force import (
     ForceTorque,
     estimate_force_torque,
 )
+from tactile_rig.perception.fingervision.lattice import Lattice, LatticeParams, fit_lattice
 from tactile_rig.perception.fingervision.markers import (
     Detections,
     MarkerBaseline,
@@ -48,6 +49,8 @@ __all__ = [
     "ForceParams",
     "ForceTorque",
     "KalmanBank",
+    "Lattice",
+    "LatticeParams",
     "MarkerBaseline",
     "MarkerDetectorParams",
     "MarkerTracker",
@@ -64,6 +67,7 @@ __all__ = [
     "detect_markers_reference",
     "estimate_force_torque",
     "estimate_shift",
+    "fit_lattice",
     "object_moments",
     "refine_centroids",
 ]

@@ -3,9 +3,13 @@
 Per marker: ``f = (dx, dy, fz)`` with ``(dx, dy)`` the displacement from the rest position and ``fz``
 either the diameter growth ``max(0, ds)`` (a pressed marker looks bigger: ``normal="size"``) or
 ``|d|`` (``normal="norm"``). Torque per marker is ``r x f`` with ``r = (rx, ry, 0)`` the rest position
-relative to the image centre. Units: ``force_px`` is in pixels and ``torque_px2`` in pixels squared
-unless ``newton_per_px`` / ``mm_per_px`` are given (then N and N*mm). Image axes: x right, y down,
-z into the skin, so a positive z torque turns x towards y (clockwise on screen).
+relative to the image centre. Units: ``force_px`` is in pixels and ``torque_px2`` in pixels squared,
+always: converting to newtons is a force map's job (fitted on the rig, applied outside perception).
+Image axes: x right, y down, z into the skin, so a positive z torque turns x towards y (clockwise on
+screen).
+
+Valid input: any positions (non-finite ones and markers not flagged valid are left out); the outputs
+are always finite, zeros when no marker is usable.
 """
 
 from __future__ import annotations
@@ -29,10 +33,6 @@ class ForceParams:
     quantile: float = 0.75
     normal: str = "size"
     """``size``: fz = max(0, diameter growth); ``norm``: fz = |displacement|."""
-    newton_per_px: float | None = None
-    """Scale of force per pixel of displacement, when calibrated; pixels otherwise."""
-    mm_per_px: float | None = None
-    """Scale of the lever arm, when calibrated; pixels otherwise."""
 
     def __post_init__(self) -> None:
         if self.reduction not in _REDUCTIONS:
@@ -45,11 +45,11 @@ class ForceParams:
 
 @dataclass(frozen=True)
 class ForceTorque:
-    """Reduced force (3,) and torque (3,), per-marker forces (N, 3), markers used."""
+    """Reduced force (3,) px and torque (3,) px^2, per-marker forces (N, 3) px, markers used."""
 
-    force: np.ndarray
-    torque: np.ndarray
-    per_marker: np.ndarray
+    force_px: np.ndarray
+    torque_px2: np.ndarray
+    per_marker_px: np.ndarray
     n_used: int
 
 
@@ -74,12 +74,8 @@ def estimate_force_torque(
     ds = np.nan_to_num(ds)
     fz = np.maximum(0.0, ds) if params.normal == "size" else np.hypot(d[:, 0], d[:, 1])
     f = np.column_stack([d, fz])
-    if params.newton_per_px is not None:
-        f = f * params.newton_per_px
     w, h = image_size_wh
     r = rest - np.array([(w - 1) / 2.0, (h - 1) / 2.0])
-    if params.mm_per_px is not None:
-        r = r * params.mm_per_px
     # r x f with r = (rx, ry, 0)
     tau = np.column_stack([r[:, 1] * f[:, 2], -r[:, 0] * f[:, 2], r[:, 0] * f[:, 1] - r[:, 1] * f[:, 0]])
     per = np.where(use[:, None], f, 0.0)

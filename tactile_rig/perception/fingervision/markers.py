@@ -24,6 +24,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from tactile_rig.core.errors import InvalidFrame
+
 __all__ = [
     "MarkerDetectorParams",
     "ReferenceBlobParams",
@@ -127,15 +129,23 @@ class MarkerBaseline:
 
 
 def check_frame_bgr(frame_bgr: np.ndarray) -> np.ndarray:
-    """Validate a frame (HxW or HxWx{1,3}); returns it as uint8 (floats are clipped to 0..255)."""
+    """Validate a frame (HxW or HxWx{1,3}, any size >= 1x1); returns it as uint8.
+
+    Floats are clipped to 0..255 with NaN read as 0 and +-inf as 255/0; integers are clipped; bool,
+    complex and object arrays are refused. Raises :class:`InvalidFrame` (a ``ValueError``).
+    """
     if not isinstance(frame_bgr, np.ndarray) or frame_bgr.ndim not in (2, 3) or frame_bgr.size == 0:
-        raise ValueError(
+        raise InvalidFrame(
             f"frame_bgr: expected a non-empty HxW or HxWx3 uint8 array, got "
-            f"{getattr(frame_bgr, 'shape', type(frame_bgr).__name__)}"
+            f"{getattr(frame_bgr, 'shape', type(frame_bgr).__name__)}", device="fingervision"
         )
     if frame_bgr.ndim == 3 and frame_bgr.shape[2] not in (1, 3):
-        raise ValueError(f"frame_bgr: expected 1 or 3 channels, got shape {frame_bgr.shape}")
+        raise InvalidFrame(f"frame_bgr: expected 1 or 3 channels, got shape {frame_bgr.shape}", device="fingervision")
     if frame_bgr.dtype != np.uint8:
+        if not (np.issubdtype(frame_bgr.dtype, np.floating) or np.issubdtype(frame_bgr.dtype, np.integer)) \
+                or frame_bgr.dtype == np.bool_:
+            raise InvalidFrame(f"frame_bgr: expected uint8 (or a real number type), got {frame_bgr.dtype}",
+                               device="fingervision")
         if np.issubdtype(frame_bgr.dtype, np.floating):
             frame_bgr = np.clip(np.nan_to_num(frame_bgr), 0, 255).astype(np.uint8)
         else:

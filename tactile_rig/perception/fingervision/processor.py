@@ -1,10 +1,20 @@
 """One FingerVision processor: frame (BGR uint8) -> markers, force/torque, object moments, slip.
 
-The first ``n_calib_frames`` frames (no contact, no object) build the marker baseline and the
-background histogram unless :meth:`FingerVision.calibrate` was called; meanwhile results carry
-``calibrating=True`` and zero force. After that every frame costs one closing (the contrast map),
-one vectorised window centroid per marker, a back-projection on a half-size frame and a few
-Lucas-Kanade iterations on a half-size frame; the full-frame blob detector runs only in calibration.
+Markers get their ids on the first frame (``init="lattice"``, the default): the blob detector's
+markers are fitted to the skin's marker lattice (:mod:`.lattice`), which drops dark print behind the
+skin and finds the markers the detector missed, and the tracker measures every marker from that
+frame on. The next ``n_calib_frames`` - 1 frames (no contact) refine the rest positions (the mean of
+each marker's measured positions) while the ids already exist; meanwhile results carry
+``calibrating=True`` and zero force. ``init="frames"`` is the older scheme kept as a baseline: the
+first ``n_calib_frames`` frames build the baseline and report no ids.
+
+After that every frame costs one closing (the contrast map), one vectorised window centroid per
+marker, a back-projection on a half-size frame and a few Lucas-Kanade iterations on a half-size
+frame; the full-frame blob detector runs only on the first frame.
+
+Valid input: BGR (or grey) frames of at least 16 x 16 px, uint8 (floats are clipped to 0..255, NaN
+reads as 0), all of one shape. Outputs are always finite: positions inside the frame, force in px
+bounded by the frame size, torque in px^2 bounded by its square.
 """
 
 from __future__ import annotations
@@ -17,12 +27,15 @@ from typing import Any
 
 import numpy as np
 
+from tactile_rig.core.errors import InvalidFrame, MarkersNotFound
 from tactile_rig.perception.fingervision.force import ForceParams, estimate_force_torque
+from tactile_rig.perception.fingervision.lattice import LatticeParams, fit_lattice
 from tactile_rig.perception.fingervision.markers import (
     Detections,
     MarkerBaseline,
     MarkerDetectorParams,
     build_baseline,
+    check_frame_bgr,
     contrast_map,
     detect_in_contrast,
 )
@@ -34,6 +47,9 @@ from tactile_rig.perception.fingervision.tracking import MarkerTracker, TrackerP
 
 __all__ = ["FingerVisionParams", "FingerVisionResult", "FingerVision"]
 
+_INITS = ("lattice", "frames")
+_MIN_SIDE_PX = 16
+
 
 @dataclass(frozen=True)
 class FingerVisionParams:
@@ -43,8 +59,12 @@ class FingerVisionParams:
     tracker: TrackerParams = field(default_factory=TrackerParams)
     force: ForceParams = field(default_factory=ForceParams)
     proximity: ProximityParams = field(default_factory=ProximityParams)
+    lattice: LatticeParams = field(default_factory=LatticeParams)
+    init: str = "lattice"
+    """``lattice``: ids from the first frame; ``frames``: ids after ``n_calib_frames`` (the old scheme)."""
     n_calib_frames: int = 10
-    """No-contact frames averaged into the baseline (the reference's NCalibPoints)."""
+    """No-contact frames averaged into the baseline (the reference's NCalibPoints); with ``lattice``
+    the ids exist from the first of them and these frames only refine the rest positions."""
     n_background_frames: int = 3
     """Of those, frames used for the background histogram (NCalibBGFrames)."""
     baseline_match_px: float = 3.0
@@ -94,9 +114,9 @@ class FingerVisionResult:
     marker_valid: np.ndarray
     marker_found: np.ndarray
     force_px: np.ndarray
-    """(fx, fy, fz) mean marker displacement / size growth, px (N if ForceParams.newton_per_px)."""
+    """(fx, fy, fz) mean marker displacement / size growth, px (a force map on the rig converts to N)."""
     torque_px2: np.ndarray
-    """Mean r x f about the image centre, px^2 (N*mm if both scales are given)."""
+    """Mean r x f about the image centre, px^2."""
     object_area_px: float
     object_centroid_px: tuple[float, float] | None
     object_orientation_deg: float | None
@@ -127,6 +147,8 @@ class FingerVision:
     def __init__(self, params: FingerVisionParams = FingerVisionParams()) -> None:
         if params.n_calib_frames < 1:
             raise ValueError(f"FingerVisionParams.n_calib_frames: expected >= 1, got {params.n_calib_frames}")
+        if params.init not in _INITS:
+            raise ValueError(f"FingerVisionParams.init: expected one of {_INITS}, got {params.init!r}")
         self.params = params
         self.proximity = ProximityVision(params.proximity)
         self.baseline: MarkerBaseline | None = None
@@ -134,16 +156,34 @@ class FingerVision:
         self._calib: list[Detections] = []
         self._bg_frames: list[np.ndarray] = []
         self._shape: tuple[int, ...] | None = None
+        # running sums of the measured positions/sizes while the baseline refines (lattice init)
+        self._refine_left = 0
+        self._sum_pos: np.ndarray | None = None
+        self._sum_size: np.ndarray | None = None
+        self._n_seen: np.ndarray | None = None
 
     # -- calibration -----------------------------------------------------------------------------
     def calibrate(self, frames_bgr: list[np.ndarray]) -> MarkerBaseline:
         """Build the baseline (and the background histogram) from no-contact frames."""
         if not frames_bgr:
             raise ValueError("FingerVision.calibrate: expected at least one frame, got none")
+        frames = [self._check(f) for f in frames_bgr]
+        self.baseline, self.tracker = None, None
         self._calib, self._bg_frames = [], []
-        for f in frames_bgr:
-            self._add_calibration_frame(f, *contrast_map(f, self.params.detector))
-        return self._finish_calibration()
+        if self.params.init == "frames":
+            for f in frames:
+                self._add_calibration_frame(f, *contrast_map(f, self.params.detector))
+            base = self._finish_calibration()
+        else:
+            self._refine_left = 0
+            for f in frames:
+                self._lattice_step(f, *contrast_map(f, self.params.detector), refine_frames=len(frames))
+            base = self._end_refinement()
+        if not np.any(base.valid):
+            raise MarkersNotFound(
+                f"no markers found in {len(frames)} calibration frame(s); expected a lattice of dark dots "
+                f"(the frames are black, white, flat or covered?)", device="fingervision")
+        return base
 
     def set_baseline(self, baseline: MarkerBaseline) -> None:
         """Use a known baseline (e.g. loaded from disk) instead of calibrating."""
@@ -162,6 +202,65 @@ class FingerVision:
             self._bg_frames.append(frame)
         return det
 
+    def _check(self, frame_bgr: np.ndarray) -> np.ndarray:
+        try:
+            frame = check_frame_bgr(frame_bgr)
+        except ValueError as exc:
+            raise InvalidFrame(str(exc), device="fingervision") from None
+        if frame.shape[0] < _MIN_SIDE_PX or frame.shape[1] < _MIN_SIDE_PX:
+            raise InvalidFrame(f"frame_bgr: expected at least {_MIN_SIDE_PX}x{_MIN_SIDE_PX} px, got "
+                               f"{frame.shape[1]}x{frame.shape[0]}", device="fingervision")
+        if self._shape is not None and frame.shape[:2] != self._shape:
+            raise InvalidFrame(
+                f"FingerVision.process: frame shape {frame.shape[:2]} differs from the first frame's {self._shape}",
+                device="fingervision")
+        return frame
+
+    def _lattice_step(self, frame: np.ndarray, value, bg, contrast, refine_frames: int, t_s: float | None = None):
+        """Lattice init and refinement for one frame; returns the tracker state (None: no lattice yet)."""
+        if self.tracker is None:
+            det = detect_in_contrast(value, bg, contrast, self.params.detector)
+            lat = fit_lattice(det, contrast, value, self.params.lattice)
+            if len(lat) == 0:
+                return None
+            n = len(lat)
+            self.set_baseline(MarkerBaseline(lat.positions_px.copy(), lat.sizes_px.copy(), np.ones(n, bool)))
+            self._refine_left = refine_frames
+            self._sum_pos, self._sum_size, self._n_seen = np.zeros((n, 2)), np.zeros(n), np.zeros(n, np.int64)
+        st = self.tracker.update(contrast, t_s)
+        if self._refine_left > 0:
+            if len(self._bg_frames) < self.params.n_background_frames:
+                self._bg_frames.append(frame)
+            f = st.found
+            self._sum_pos[f] += st.positions_px[f]
+            self._sum_size[f] += st.sizes_px[f]
+            self._n_seen[f] += 1
+            self._refine_left -= 1
+            if self._refine_left == 0:
+                self._end_refinement()
+        return st
+
+    def _end_refinement(self) -> MarkerBaseline:
+        """Rest positions := mean measured positions of the refinement frames; the ids stay."""
+        base = self.baseline if self.baseline is not None else MarkerBaseline(
+            np.zeros((0, 2)), np.zeros(0), np.zeros(0, bool))
+        if self._n_seen is not None and len(base):
+            seen = self._n_seen > 0
+            pos = base.positions_px.copy()
+            size = base.sizes_px.copy()
+            pos[seen] = self._sum_pos[seen] / self._n_seen[seen, None]
+            size[seen] = self._sum_size[seen] / self._n_seen[seen]
+            # a marker never measured in the refinement frames has no trustworthy rest position
+            base = MarkerBaseline(pos, size, base.valid & seen)
+            self.baseline = base
+            self.tracker.baseline = base
+        if self._bg_frames:
+            self.proximity.set_background(self._bg_frames)
+        self._refine_left = 0
+        self._sum_pos = self._sum_size = self._n_seen = None
+        self._bg_frames = []
+        return base
+
     def _finish_calibration(self) -> MarkerBaseline:
         p = self.params
         base = build_baseline(self._calib, p.baseline_match_px, p.baseline_dist_max_px,
@@ -174,15 +273,25 @@ class FingerVision:
 
     # -- per frame -------------------------------------------------------------------------------
     def process(self, frame_bgr: np.ndarray, t_s: float | None = None) -> FingerVisionResult:
-        """Process one frame; see :class:`FingerVisionResult`."""
+        """Process one frame; see :class:`FingerVisionResult`. Raises :class:`InvalidFrame` for a frame
+        outside the valid input (see the module docstring)."""
         t0 = time.perf_counter()
-        if self._shape is not None and frame_bgr.shape[:2] != self._shape:
-            raise ValueError(
-                f"FingerVision.process: frame shape {frame_bgr.shape[:2]} differs from the first frame's {self._shape}"
-            )
+        frame_bgr = self._check(frame_bgr)
         value, bg, contrast = contrast_map(frame_bgr, self.params.detector)
         self._shape = value.shape[:2]
         t1 = time.perf_counter()
+        if self.params.init == "lattice" and (self.tracker is None or self._refine_left > 0):
+            st = self._lattice_step(frame_bgr, value, bg, contrast, self.params.n_calib_frames, t_s)
+            t2 = time.perf_counter()
+            times = {"contrast": (t1 - t0) * 1e3, "track": (t2 - t1) * 1e3, "total": (t2 - t0) * 1e3}
+            if st is None:
+                z = np.zeros(0)
+                return FingerVisionResult(
+                    t_s, True, z.astype(np.int64), np.zeros((0, 2)), z, z.astype(bool), z.astype(bool),
+                    np.zeros(3), np.zeros(3), 0.0, None, None, False, 0.0, None, False, times)
+            return FingerVisionResult(
+                t_s, True, st.ids, st.positions_px, st.sizes_px, st.valid & st.found, st.found,
+                np.zeros(3), np.zeros(3), 0.0, None, None, False, 0.0, None, False, times)
         if self.tracker is None:
             det = self._add_calibration_frame(frame_bgr, value, bg, contrast)
             if len(self._calib) >= self.params.n_calib_frames:
@@ -207,9 +316,9 @@ class FingerVision:
         mom = prox.moments
         return FingerVisionResult(
             t_s, False, st.ids, st.positions_px, st.sizes_px, st.valid, st.found,
-            ft.force, ft.torque, mom.area_px, mom.centroid_px, mom.orientation_deg,
+            ft.force_px, ft.torque_px2, mom.area_px, mom.centroid_px, mom.orientation_deg,
             prox.slip, prox.slip_magnitude_px, prox.slip_direction_deg,
-            bool(np.linalg.norm(ft.force) >= self.params.contact_threshold_px),
+            bool(np.linalg.norm(ft.force_px) >= self.params.contact_threshold_px),
             {"contrast": (t1 - t0) * 1e3, "track": (t2 - t1) * 1e3, "force": (t3 - t2) * 1e3,
              "proximity": (t4 - t3) * 1e3, "total": (t4 - t0) * 1e3},
         )

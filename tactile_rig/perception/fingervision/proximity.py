@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from tactile_rig.core.errors import InvalidFrame
 from tactile_rig.perception.fingervision.markers import check_frame_bgr
 
 __all__ = ["ProximityParams", "ObjectMoments", "ProximityResult", "ProximityVision", "object_moments", "estimate_shift"]
@@ -179,8 +180,18 @@ class ProximityVision:
         self._bp_table: np.ndarray | None = None
 
     # -- histograms -----------------------------------------------------------------------------
-    def _small_hsv(self, frame_bgr: np.ndarray, compensate: bool = True) -> np.ndarray:
+    def _checked(self, frame_bgr: np.ndarray) -> np.ndarray:
+        """The frame as uint8; :class:`InvalidFrame` when it is smaller than 2 x 2 downsampled pixels."""
         f = check_frame_bgr(frame_bgr)
+        k = 2 * max(self.params.downsample, self.params.slip_downsample)
+        if f.shape[0] < k or f.shape[1] < k:
+            raise InvalidFrame(f"frame_bgr: proximity vision needs at least {k}x{k} px at downsample "
+                               f"{self.params.downsample}/{self.params.slip_downsample}, got {f.shape[1]}x{f.shape[0]}",
+                               device="fingervision.proximity")
+        return f
+
+    def _small_hsv(self, frame_bgr: np.ndarray, compensate: bool = True) -> np.ndarray:
+        f = self._checked(frame_bgr)
         if f.ndim == 2 or f.shape[2] == 1:
             f = cv2.cvtColor(f.reshape(f.shape[:2]), cv2.COLOR_GRAY2BGR)
         k = self.params.downsample
@@ -254,7 +265,8 @@ class ProximityVision:
         for x, y, rw, rh in rects or []:
             small[max(0, y // k): max(0, (y + rh) // k), max(0, x // k): max(0, (x + rw) // k)] = 255
         if not np.any(small):
-            return
+            raise ValueError("learn_object: the mask/rectangles select no pixel of the frame; expected a "
+                             "non-empty object region (rectangles as x, y, w, h px inside the frame)")
         h_def = self._hist(hsv, small)
         bg = self.bg_hist if self.bg_hist is not None else np.zeros_like(h_def)
         prev = self.obj_hist if self.obj_hist is not None else np.zeros_like(h_def)
@@ -310,7 +322,7 @@ class ProximityVision:
         if mom.area_px < p.min_object_area_px:
             mom = ObjectMoments(0.0, None, None)
         # slip on the coarse grid
-        f = check_frame_bgr(frame_bgr)
+        f = self._checked(frame_bgr)
         # luminance, not the HSV value: a saturated red channel would flatten an orange object's texture
         gray = f.reshape(f.shape[:2]) if f.ndim == 2 or f.shape[2] == 1 else cv2.cvtColor(f, cv2.COLOR_BGR2GRAY)
         ks = p.slip_downsample

@@ -54,6 +54,8 @@ class TrackerParams:
     use_kalman: bool = True
     dt_s: float = 1.0 / 15.0
     """Kalman time step used when the frames carry no timestamps."""
+    max_dt_s: float = 1.0
+    """A longer gap between timestamps counts as this long (the velocity is stale after a pause)."""
     measurement_noise: float = 0.1
     process_noise: float = 0.01
 
@@ -187,8 +189,9 @@ class MarkerTracker:
     def __init__(self, baseline: MarkerBaseline, params: TrackerParams = TrackerParams()) -> None:
         if params.n_reset < 1:
             raise ValueError(f"TrackerParams.n_reset: expected >= 1, got {params.n_reset}")
-        if params.dt_s <= 0:
-            raise ValueError(f"TrackerParams.dt_s: expected > 0 s, got {params.dt_s}")
+        if not (0 < params.dt_s <= params.max_dt_s < float("inf")):
+            raise ValueError(f"TrackerParams.dt_s, max_dt_s: expected 0 < dt_s <= max_dt_s < inf s, got "
+                             f"{params.dt_s}, {params.max_dt_s}")
         self.params = params
         self.baseline = baseline
         n = len(baseline)
@@ -207,13 +210,20 @@ class MarkerTracker:
         self._last_t_s: float | None = None
 
     def update(self, contrast: np.ndarray, t_s: float | None = None) -> TrackState:
-        """Measure every marker in ``contrast`` (see :func:`markers.contrast_map`); returns the new state."""
+        """Measure every marker in ``contrast`` (see :func:`markers.contrast_map`); returns the new state.
+
+        Valid input: a contrast map (H x W, values 0..1; NaN reads as no contrast) and a finite ``t_s``
+        (s) or None; a time step is at most ``max_dt_s``. Positions stay finite and inside the frame.
+        """
+        contrast = np.nan_to_num(np.asarray(contrast, dtype=np.float32), nan=0.0, posinf=1.0, neginf=0.0)
         p = self.params
         n = len(self.ids)
         dt_s = p.dt_s
         if t_s is not None:
+            if not np.isfinite(t_s):
+                raise ValueError(f"MarkerTracker.update: t_s must be a finite time in s, got {t_s!r}")
             if self._last_t_s is not None and t_s > self._last_t_s:
-                dt_s = t_s - self._last_t_s
+                dt_s = min(t_s - self._last_t_s, p.max_dt_s)
             self._last_t_s = t_s
         if n == 0:
             empty = np.zeros(0)

@@ -16,13 +16,19 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from tactile_rig.core.errors import CalibrationError
+from tactile_rig.core.errors import CalibrationError, GradientOutOfRange, SaturatedFrame
 from tactile_rig.perception.gelsight.models import COLOUR_SCALE, MODELS, LutModel
 
 FORMAT_VERSION = 1
 # A labelled contact radius is clamped to this fraction of the ball radius: a contact circle as wide
 # as the ball would mean the ball sank to its equator, and the source's labels overshoot the rim.
 DEFAULT_MAX_RADIUS_FRACTION = 0.95
+# A frame is refused when more than this fraction of its pixels is newly clipped (0 or 255 in a
+# channel where the background was not) or differs from the background by more than the
+# calibration's colour range: a covered lens, lights off or over-exposure, whose "slopes" would be
+# invented by the table's edge bins (an all-black frame read -7..+7 mm before this check).
+MAX_SATURATED_FRACTION = 0.2
+MAX_OUT_OF_RANGE_FRACTION = 0.2
 
 
 @dataclass
@@ -183,6 +189,9 @@ class GelSightCalibration:
         _check_frame(background_bgr, None, "background_bgr")
         self.model = model
         self.background = np.ascontiguousarray(background_bgr)
+        # Pixels already clipped with nothing touching (hot LEDs) do not count against a frame.
+        self._bg_clipped = self.background.shape[0] * self.background.shape[1] - cv2.countNonZero(
+            cv2.inRange(self.background, (1, 1, 1), (254, 254, 254)))
         self.mm_per_px_x = float(mm_per_px_x)
         self.mm_per_px_y = float(mm_per_px_x if mm_per_px_y is None else mm_per_px_y)
         for name, v in (("mm_per_px_x", self.mm_per_px_x), ("mm_per_px_y", self.mm_per_px_y)):
@@ -269,12 +278,51 @@ class GelSightCalibration:
         return np.ascontiguousarray(g[..., 0]), np.ascontiguousarray(g[..., 1])
 
     def diff(self, frame_bgr: np.ndarray) -> np.ndarray:
-        """Frame minus background as int16 (HxWx3), after checking the frame."""
+        """Frame minus background as int16 (HxWx3), after checking the frame's type and size."""
         _check_frame(frame_bgr, self.shape, "frame_bgr")
         return cv2.subtract(frame_bgr, self.background, dtype=cv2.CV_16S)
 
-    def gradients(self, frame_bgr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Slopes (gx, gy) float32 HxW of a BGR uint8 frame of the calibration's size."""
+    def check_range(self, frame_bgr: np.ndarray, max_diff_u8: np.ndarray | None = None,
+                    max_saturated_fraction: float = MAX_SATURATED_FRACTION,
+                    max_out_of_range_fraction: float = MAX_OUT_OF_RANGE_FRACTION) -> None:
+        """Refuse a frame the calibration cannot read (type and size checked first).
+
+        Raises :class:`SaturatedFrame` when more than ``max_saturated_fraction`` of the pixels are
+        clipped (a channel at 0 or 255) beyond those clipped in the background, and
+        :class:`GradientOutOfRange` when more than ``max_out_of_range_fraction`` differ from the
+        background by more than ``colour_range`` in some channel (the fitted range). max_diff_u8:
+        the per-pixel max-channel ``|frame - background|`` if the caller has it already.
+        """
+        _check_frame(frame_bgr, self.shape, "frame_bgr")
+        n = frame_bgr.shape[0] * frame_bgr.shape[1]
+        clipped = n - cv2.countNonZero(cv2.inRange(frame_bgr, (1, 1, 1), (254, 254, 254)))
+        sat = max(clipped - self._bg_clipped, 0) / n
+        if sat > max_saturated_fraction:
+            raise SaturatedFrame(f"{sat:.1%} of the frame's pixels are clipped at 0 or 255 (the background "
+                                 f"has {self._bg_clipped / n:.1%}); expected at most {max_saturated_fraction:.0%} "
+                                 "more: check the lights, exposure and lens", device="gelsight.calibration",
+                                 value=sat, limit=max_saturated_fraction)
+        if max_diff_u8 is None:
+            b, g, r = cv2.split(cv2.absdiff(frame_bgr, self.background))
+            max_diff_u8 = cv2.max(cv2.max(b, g), r)
+        limit = min(int(self.colour_range), 255)
+        out = cv2.countNonZero(cv2.compare(max_diff_u8, limit, cv2.CMP_GT)) / n
+        if out > max_out_of_range_fraction:
+            raise GradientOutOfRange(f"{out:.1%} of the pixels differ from the background by more than the "
+                                     f"calibration's colour range ({limit} grey levels); expected at most "
+                                     f"{max_out_of_range_fraction:.0%}: another sensor, lighting or a stale "
+                                     "background", device="gelsight.calibration", value=out,
+                                     limit=max_out_of_range_fraction)
+
+    def gradients(self, frame_bgr: np.ndarray, check: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """Slopes (gx, gy) float32 HxW of a BGR uint8 frame of the calibration's size.
+
+        Valid input: uint8 HxWx3 of the calibration's size whose colours lie within the fitted range
+        (see :meth:`check_range`, skipped with ``check=False``); slopes are then bounded by the
+        model's range (|slope| <= tan 1.5 rad ~ 14 for the MLP, the training slopes for a table).
+        """
+        if check:
+            self.check_range(frame_bgr)
         return self._evaluate(self.diff(frame_bgr))
 
     # -- persistence ---------------------------------------------------------------------------

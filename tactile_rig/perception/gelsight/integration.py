@@ -14,6 +14,8 @@ import cv2
 import numpy as np
 from scipy import fft as sfft
 
+from tactile_rig.core.errors import GradientOutOfRange
+
 Solver = Literal["dst", "dct", "fc"]
 SOLVERS: tuple[str, ...] = ("dst", "dct", "fc")
 
@@ -31,17 +33,24 @@ def _check_gradients(gx: np.ndarray, gy: np.ndarray) -> None:
         raise ValueError(f"gradient maps must be at least 3x3 pixels, got {gx.shape}")
 
 
-def _sanitise(g: np.ndarray, max_slope: float) -> np.ndarray:
-    """Slopes as a new float32 array (callers may modify it in place), non-finite -> 0, clipped to
-    +-max_slope (before the cast: no overflow)."""
+def _sanitise(g: np.ndarray, max_slope: float, name: str) -> np.ndarray:
+    """Slopes as a new float32 array (callers may modify it in place), non-finite -> 0; a slope
+    beyond +-max_slope raises :class:`GradientOutOfRange` (checked before the cast: no overflow)."""
     g = np.asarray(g)
     if g.dtype != np.float32:
         g = np.nan_to_num(g.astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
-        return np.clip(g, -max_slope, max_slope).astype(np.float32)
-    if not np.isfinite(g).all():
+    elif not np.isfinite(g).all():
         g = np.nan_to_num(g, nan=0.0, posinf=0.0, neginf=0.0)
-    out = cv2.max(g, -float(max_slope))
-    return cv2.min(out, float(max_slope), dst=out)
+    else:
+        g = g.copy()
+    lo, hi = cv2.minMaxLoc(g if g.dtype == np.float32 else g.astype(np.float64))[:2]
+    peak = max(-lo, hi)
+    if peak > max_slope:
+        raise GradientOutOfRange(f"{name}: a slope of {peak:.3g} exceeds max_slope={max_slope:g} "
+                                 f"({np.degrees(np.arctan(max_slope)):.1f} deg); no gel surface is that steep, "
+                                 "so the height would be invented (see IntegrationParams.max_slope)",
+                                 device="gelsight.integration", value=float(peak), limit=float(max_slope))
+    return g.astype(np.float32, copy=False)
 
 
 @dataclass(frozen=True)
@@ -51,8 +60,10 @@ class IntegrationParams:
     solver: "dst" (Dirichlet: height 0 on the border), "dct" (Neumann: border slopes honoured, mean 0)
     or "fc" (Frankot–Chellappa, periodic FFT). downsample: integer factor (>=1) applied to the
     gradients before solving; the height is upsampled back. border_px: slopes within this many pixels
-    of the edge are zeroed (vignetted, unreliable border). max_slope: slopes are clipped to +-max_slope
-    so that saturated/out-of-range colours cannot blow the height up.
+    of the edge are zeroed (vignetted, unreliable border). max_slope: the steepest slope accepted
+    (20 = 87 deg; a calibration's slopes stay below tan 1.5 rad ~ 14); a steeper one raises
+    :class:`~tactile_rig.core.errors.GradientOutOfRange` instead of being integrated into a height
+    of hundreds of mm.
     """
 
     solver: str = "dct"
@@ -137,8 +148,11 @@ class HeightMapper:
     def height_mm(self, gx: np.ndarray, gy: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
         """Height map in mm (float32, same shape as the gradients) from slopes gx = dz/dx, gy = dz/dy.
 
+        Valid input: real 2-D arrays of the mapper's shape with |slope| <= ``max_slope``; non-finite
+        slopes are unknown and treated as 0 (flat). A steeper slope raises
+        :class:`~tactile_rig.core.errors.GradientOutOfRange`. The result is finite and bounded:
+        |z| <= max_slope x (rows x mm_per_px_y + cols x mm_per_px_x).
         mask: optional boolean map; slopes outside it are set to 0 before integration (contact mask).
-        Non-finite slopes are treated as 0.
         """
         _check_gradients(gx, gy)
         if gx.shape != self.shape:
@@ -147,8 +161,8 @@ class HeightMapper:
         if mask is not None and mask.shape != self.shape:
             raise ValueError(f"mask shape {mask.shape} does not match {self.shape}")
         # Fresh float32 copies from here on: every step below works in place (no temporaries).
-        gx = _sanitise(gx, p.max_slope)
-        gy = _sanitise(gy, p.max_slope)
+        gx = _sanitise(gx, p.max_slope, "gx")
+        gy = _sanitise(gy, p.max_slope, "gy")
         if mask is not None:
             np.multiply(gx, mask, out=gx)
             np.multiply(gy, mask, out=gy)
@@ -218,7 +232,9 @@ def height_map_mm(gx: np.ndarray, gy: np.ndarray, mm_per_px: float | tuple[float
                   method: str = "dct", mask: np.ndarray | None = None, **knobs: object) -> np.ndarray:
     """One-shot height map in mm from slopes (builds a :class:`HeightMapper`; reuse one for video).
 
-    mm_per_px: a scalar or (x, y) pitch in mm per pixel. method: "dst", "dct" or "fc".
+    mm_per_px: a scalar or (x, y) pitch in mm per pixel. method: "dst", "dct" or "fc". Valid input,
+    bounds and errors as :meth:`HeightMapper.height_mm` (slopes beyond ``max_slope`` raise
+    :class:`~tactile_rig.core.errors.GradientOutOfRange`).
     """
     _check_gradients(gx, gy)
     sx, sy = (mm_per_px, mm_per_px) if np.isscalar(mm_per_px) else mm_per_px  # type: ignore[misc]

@@ -7,7 +7,12 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from tactile_rig.perception.gelsight.calibration import GelSightCalibration
+from tactile_rig.core.errors import HeightOutOfRange
+from tactile_rig.perception.gelsight.calibration import (
+    MAX_OUT_OF_RANGE_FRACTION,
+    MAX_SATURATED_FRACTION,
+    GelSightCalibration,
+)
 from tactile_rig.perception.gelsight.integration import HeightMapper, IntegrationParams
 
 
@@ -15,11 +20,31 @@ from tactile_rig.perception.gelsight.integration import HeightMapper, Integratio
 class ContactParams:
     """Contact mask knobs: slopes are kept where the colour distance to the background exceeds
     ``colour_threshold`` (0..255 units), grown by ``dilate_px``; ``None`` threshold keeps every slope.
-    Heights below ``min_height_mm`` are set to 0 after integration (``None``: keep all)."""
+    Heights below ``min_height_mm`` are set to 0 after integration (``None``: keep all).
+
+    Physical bounds (a refusal, not a clip, when broken): ``max_saturated_fraction`` and
+    ``max_out_of_range_fraction`` of the frame's pixels may be clipped / beyond the calibration's
+    colour range (:meth:`GelSightCalibration.check_range`); the height map's range (max - min) may not
+    exceed ``max_height_range_mm``. A gel protrudes about 1 mm, so 3 mm leaves room for the solvers'
+    offsets while an all-black or all-white frame (11-15 mm before these checks) is refused.
+    """
 
     colour_threshold: float | None = 10.0
     dilate_px: int = 2
     min_height_mm: float | None = None
+    max_saturated_fraction: float = MAX_SATURATED_FRACTION
+    max_out_of_range_fraction: float = MAX_OUT_OF_RANGE_FRACTION
+    max_height_range_mm: float | None = 3.0
+
+    def __post_init__(self) -> None:
+        for name in ("max_saturated_fraction", "max_out_of_range_fraction"):
+            v = getattr(self, name)
+            if not 0.0 <= v <= 1.0:
+                raise ValueError(f"{name} must be a fraction in [0, 1], got {v!r}")
+        if self.max_height_range_mm is not None and not self.max_height_range_mm > 0:
+            raise ValueError(f"max_height_range_mm must be > 0 mm or None, got {self.max_height_range_mm!r}")
+        if self.dilate_px < 0:
+            raise ValueError(f"dilate_px must be >= 0, got {self.dilate_px!r}")
 
 
 class Reconstructor:
@@ -35,25 +60,48 @@ class Reconstructor:
         d = int(self.contact.dilate_px)
         self._kernel = (cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * d + 1, 2 * d + 1)) if d > 0 else None)
 
-    def contact_mask(self, frame_bgr: np.ndarray) -> np.ndarray | None:
+    def _max_diff(self, frame_bgr: np.ndarray) -> np.ndarray:
+        b, g, r = cv2.split(cv2.absdiff(frame_bgr, self.calibration.background))
+        return cv2.max(cv2.max(b, g), r)
+
+    def contact_mask(self, frame_bgr: np.ndarray, max_diff_u8: np.ndarray | None = None) -> np.ndarray | None:
         """Boolean HxW mask of pixels whose colour differs from the background by more than the
         threshold in any channel (max-channel distance), grown by dilate_px (None: no masking)."""
         thr = self.contact.colour_threshold
         if thr is None:
             return None
-        a = cv2.absdiff(frame_bgr, self.calibration.background)
-        b, g, r = cv2.split(a)
-        _, m = cv2.threshold(cv2.max(cv2.max(b, g), r), float(thr), 1, cv2.THRESH_BINARY)
+        if max_diff_u8 is None:
+            max_diff_u8 = self._max_diff(frame_bgr)
+        _, m = cv2.threshold(max_diff_u8, float(thr), 1, cv2.THRESH_BINARY)
         if self._kernel is not None:
             m = cv2.dilate(m, self._kernel)
         return m.view(bool)
 
     def height_mm(self, frame_bgr: np.ndarray) -> np.ndarray:
-        """Height map in mm (float32, HxW) of a BGR uint8 frame."""
+        """Height map in mm (float32, HxW) of a BGR uint8 frame of the calibration's size.
+
+        Valid input: a frame of this sensor whose colours lie within the calibration's range. A
+        no-contact frame gives 0 mm everywhere. Raises :class:`~tactile_rig.core.errors.SaturatedFrame`
+        (too many clipped pixels: black, white, over-exposed), :class:`GradientOutOfRange` (colours
+        beyond the fitted range) or :class:`HeightOutOfRange` (a height range no gel can show), each
+        with the measured value and the bound from :class:`ContactParams`; ``ValueError`` for a wrong
+        type, dtype or size. The result's range is at most ``max_height_range_mm``.
+        """
         cal = self.calibration
-        gx, gy = cal.gradients(frame_bgr)
-        mask = self.contact_mask(frame_bgr)
+        c = self.contact
+        diff = cal.diff(frame_bgr)
+        max_diff = self._max_diff(frame_bgr)
+        cal.check_range(frame_bgr, max_diff, c.max_saturated_fraction, c.max_out_of_range_fraction)
+        gx, gy = cal._evaluate(diff)
+        mask = self.contact_mask(frame_bgr, max_diff)
         z = self.mapper.height_mm(gx, gy, mask=mask)
-        if self.contact.min_height_mm is not None:
-            z = np.where(z > self.contact.min_height_mm, z, np.float32(0))
+        if c.max_height_range_mm is not None:
+            lo, hi = cv2.minMaxLoc(z)[:2]
+            if hi - lo > c.max_height_range_mm:
+                raise HeightOutOfRange(f"the height map spans {hi - lo:.2f} mm ({lo:.2f}..{hi:.2f}); a gel shows "
+                                       f"at most {c.max_height_range_mm} mm (ContactParams.max_height_range_mm): "
+                                       "the frame is not a contact this calibration can read",
+                                       device="gelsight.reconstructor", value=hi - lo, limit=c.max_height_range_mm)
+        if c.min_height_mm is not None:
+            z = np.where(z > c.min_height_mm, z, np.float32(0))
         return z

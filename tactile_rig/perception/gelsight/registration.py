@@ -19,10 +19,25 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from tactile_rig.core.errors import DegenerateTransform, HeightOutOfRange, NoContact, PerceptionError
+
 INSUFFICIENT_TEXTURE = "insufficient_texture"
 NO_CONSENSUS = "no_consensus"
 LOW_CONFIDENCE = "low_confidence"
 MISMATCH = "dense_check_failed"
+NO_CONTACT = "no_contact"
+DEGENERATE = "degenerate_transform"
+REASONS: dict[str, str] = {
+    NO_CONTACT: "a map is flat: nothing touched the gel",
+    INSUFFICIENT_TEXTURE: "too little texture to pin rotation and translation (e.g. a lone smooth dome)",
+    NO_CONSENSUS: "keypoint matches agree on no rigid move",
+    LOW_CONFIDENCE: "the inliers' homography is not a rigid move (Li's c below min_confidence)",
+    MISMATCH: "the aligned heights do not correlate (NCC or overlap below the bar)",
+    DEGENERATE: "the maps are related by a squashing transform (det R far from 1), not a rigid move",
+}
+# Heights a registration accepts: a gel shows about 1 mm and a tactile map is a few mm deep; a map
+# beyond +-50 mm is not a gel surface (and would overflow the float32 statistics).
+MAX_ABS_HEIGHT_MM = 50.0
 
 
 @dataclass
@@ -40,6 +55,17 @@ class RegistrationResult:
     matrix_px: np.ndarray | None = None
     matches: int = 0
     ncc: float = float("nan")
+
+    def error(self) -> PerceptionError | None:
+        """The typed error of a refusal (None when ok): :class:`~tactile_rig.core.errors.NoContact`
+        for a flat map, :class:`DegenerateTransform` for a squashed one, else a
+        :class:`PerceptionError` naming the reason."""
+        if self.ok:
+            return None
+        text = REASONS.get(self.reason or "", self.reason or "refused")
+        msg = f"registration refused ({self.reason}): {text}; confidence {self.confidence:.3f}, inliers {self.inliers}"
+        cls = {NO_CONTACT: NoContact, DEGENERATE: DegenerateTransform}.get(self.reason or "", PerceptionError)
+        return cls(msg, device="gelsight.registration", value=self.confidence)
 
     def as_dict(self) -> dict:
         """JSON-friendly summary (lists, floats, None)."""
@@ -125,17 +151,27 @@ def _detector(name: str, params: "RegistrationParams") -> cv2.Feature2D:
 
 
 def _check_height(h: object, name: str) -> np.ndarray:
+    """A height map as float32: 2-D, >= 16x16, real; non-finite pixels (unknown) read 0 mm; heights
+    beyond +-MAX_ABS_HEIGHT_MM raise :class:`HeightOutOfRange`."""
     if not isinstance(h, np.ndarray):
         raise ValueError(f"{name}: expected a numpy array, got {type(h).__name__}")
     if h.ndim != 2 or min(h.shape) < 16:
         raise ValueError(f"{name}: expected a 2-D height map of at least 16x16 pixels, got shape {h.shape}")
-    if not (np.issubdtype(h.dtype, np.floating) or np.issubdtype(h.dtype, np.integer)):
-        raise ValueError(f"{name}: expected a real numeric dtype, got {h.dtype}")
-    z = h if h.dtype == np.float32 else h.astype(np.float32)
-    # Clean float32 input (the common case) is used as is: nan_to_num would copy every call.
-    if not np.isfinite(z).all():
-        z = np.nan_to_num(z, nan=0.0, posinf=0.0, neginf=0.0)
-    return z
+    if not (np.issubdtype(h.dtype, np.floating) or np.issubdtype(h.dtype, np.integer)) or h.dtype == np.float16:
+        raise ValueError(f"{name}: expected a real numeric dtype (float32/64 or integer), got {h.dtype}")
+    if h.dtype == np.float32:
+        z = h  # clean float32 input (the common case) is used as is: nan_to_num would copy every call
+        if not np.isfinite(z).all():
+            z = np.nan_to_num(z, nan=0.0, posinf=0.0, neginf=0.0)
+    else:
+        z = np.nan_to_num(h.astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+    lo, hi = cv2.minMaxLoc(z)[:2]
+    peak = max(-lo, hi)
+    if peak > MAX_ABS_HEIGHT_MM:
+        raise HeightOutOfRange(f"{name}: a height of {peak:.3g} mm; a gel height map stays within "
+                               f"+-{MAX_ABS_HEIGHT_MM:g} mm (is it in mm?)", device="gelsight.registration",
+                               value=float(peak), limit=MAX_ABS_HEIGHT_MM)
+    return z if z.dtype == np.float32 else z.astype(np.float32)
 
 
 def _ptp(z: np.ndarray) -> float:
@@ -578,6 +614,13 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
 
     mm_per_px: scalar or (x, y) pixel pitch. features_a: precomputed :func:`extract_features` of A
     (a map matched many times). Knobs override :class:`RegistrationParams` fields.
+
+    Valid input: 2-D real maps of at least 16x16 pixels with heights within +-50 mm (non-finite
+    pixels read 0 mm); any rotation (+-180 deg) and any overlap. Otherwise ``ValueError`` (shape,
+    dtype, pitch) or :class:`~tactile_rig.core.errors.HeightOutOfRange`. The answer is either a rigid
+    transform (``ok``; det R = 1, rotation in (-180, 180] deg) or a refusal with a ``reason`` from
+    :data:`REASONS` (``no_contact`` for a flat map, ``degenerate_transform`` for a squashed one, ...);
+    ``result.error()`` gives the matching typed exception.
     """
     if params is None:
         params = RegistrationParams(**knobs)  # type: ignore[arg-type]
@@ -597,7 +640,7 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
 
     # A (near) flat map has nothing to register against.
     if (features_a.ptp_mm if cached else _ptp(a)) < 1e-6 or _ptp(b) < 1e-6:  # type: ignore[union-attr]
-        return refuse(INSUFFICIENT_TEXTURE, "none")
+        return refuse(NO_CONTACT, "none")
     k = detect_scale(params, b.shape)
     fa = features_a if features_a is not None and features_a.scale == k else extract_features(a, params, scale=k)
     fb = extract_features(b, params, dense=False, scale=k)
@@ -623,6 +666,7 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
                 keypoint_reason = LOW_CONFIDENCE
         else:
             keypoint_reason = NO_CONSENSUS
+    ncc = float("nan")
     if params.dense_fallback and a.shape == b.shape:
         m, ncc = _dense_fourier_mellin(a, b)
         if m is not None and ncc >= params.min_ncc:
@@ -632,6 +676,48 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
                     and fit.sigma_rot_deg <= params.max_sigma_rot_deg and fit.sigma_px <= params.max_sigma_px):
                 return _result(True, fit.matrix_px, *shapes, scale, 1.0, 0, "dense_fourier_mellin", None,  # type: ignore[arg-type]
                                len(pa), fit.ncc)
-        return refuse(keypoint_reason if keypoint_reason != NO_CONSENSUS else INSUFFICIENT_TEXTURE,
-                      method + "+dense", conf, n_inl, len(pa), ncc)
-    return refuse(keypoint_reason, method, conf, n_inl, len(pa))
+        method += "+dense"
+        if keypoint_reason == NO_CONSENSUS:
+            keypoint_reason = INSUFFICIENT_TEXTURE
+    # Refused: name a squashing transform as such (only on this path, so it costs a success nothing).
+    if _squashed(fa, fb, pa, pb, params):
+        keypoint_reason = DEGENERATE
+    return refuse(keypoint_reason, method, conf, n_inl, len(pa), ncc)
+
+
+# B's gradient structure differs from A's by more than this factor in its eigenvalue ratio: a rigid
+# move keeps that ratio (up to the content that enters or leaves the overlap), a squash by s in one
+# direction scales it by up to s^2 (4 flags s < ~0.45 on the tiled real presses, whose rigid moves
+# keep it within 0.76-0.84).
+SQUASH_ANISOTROPY_FACTOR = 4.0
+
+
+def _anisotropy(smooth: np.ndarray) -> float:
+    """Smaller / larger eigenvalue of the gradient structure tensor summed over the map (1 =
+    isotropic, 0 = all gradients along one direction); rotation invariant."""
+    gx, gy = _grad(smooth)
+    sxx, syy, sxy = float((gx * gx).sum()), float((gy * gy).sum()), float((gx * gy).sum())
+    tr = sxx + syy
+    if tr <= 1e-30:
+        return 1.0
+    d = np.sqrt(max((sxx - syy) ** 2 + 4.0 * sxy * sxy, 0.0))
+    return max((tr - d) / (tr + d), 0.0)
+
+
+def _squashed(fa: Features, fb: Features, pa: np.ndarray, pb: np.ndarray, params: RegistrationParams) -> bool:
+    """True when B looks like A under a squashing (far from det 1) transform: either the matches
+    agree on an affine map whose determinant is outside 1 +- (1 - min_confidence), or the gradient
+    anisotropy of the two maps differs by more than SQUASH_ANISOTROPY_FACTOR."""
+    if len(pa) >= 3 * params.min_inliers:
+        m, inl = cv2.estimateAffine2D(pb.astype(np.float32), pa.astype(np.float32), method=cv2.RANSAC,
+                                      ransacReprojThreshold=params.inlier_px, maxIters=500, refineIters=10)
+        if m is not None and inl is not None:
+            n = int(inl.sum())
+            det = float(np.linalg.det(m[:, :2]))
+            if n >= max(2 * params.min_inliers, 0.3 * len(pa)) and abs(1.0 - det) > 1.0 - params.min_confidence:
+                return True
+    if fa.smooth is None or fb.smooth is None:
+        return False
+    ra, rb = _anisotropy(fa.smooth), _anisotropy(fb.smooth)
+    lo, hi = min(ra, rb), max(ra, rb)
+    return hi > 1e-6 and lo * SQUASH_ANISOTROPY_FACTOR < hi

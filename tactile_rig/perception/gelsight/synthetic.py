@@ -32,13 +32,6 @@ def mosaic(patches: list[np.ndarray], shape: tuple[int, int], count: int, seed: 
     return canvas
 
 
-def crop_contact(height_mm: np.ndarray, center_px: tuple[float, float], half_px: int) -> np.ndarray:
-    """Square patch of side 2*half_px+1 around a contact centre (zero-padded at the edges)."""
-    pad = np.pad(height_mm.astype(np.float32), half_px + 1)
-    cx, cy = int(round(center_px[0])) + half_px + 1, int(round(center_px[1])) + half_px + 1
-    return pad[cy - half_px:cy + half_px + 1, cx - half_px:cx + half_px + 1].copy()
-
-
 def jig_move(height_mm: np.ndarray, rotation_deg: float, shift_mm: tuple[float, float],
              mm_per_px: float) -> tuple[np.ndarray, np.ndarray]:
     """Touch B of the same surface after a jig move: the map rotated by ``rotation_deg`` about its

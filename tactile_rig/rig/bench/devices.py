@@ -213,6 +213,8 @@ class CameraConfig(DeviceConfig):
     height: int = 240
     fps: float = 25.0
     fourcc: str = "MJPG"
+    force_map: Path | None = None  # marker forces → newtons (tactile-rig calibrate force-map)
+    substance_model: Path | None = None  # stirring features → substance (tactile-rig calibrate substance)
 
     kind: ClassVar[str] = "camera"
     example_port: ClassVar[str] = "/dev/video0"
@@ -244,16 +246,18 @@ class CameraConfig(DeviceConfig):
     def connect(self, ctx: ConnectContext) -> Any:
         """A V4L2 camera; a recording ``run.mcap[#/topic]`` served as the camera; or for
         ``rigsim://camera?model=NAME`` a camera rendering the bench's world."""
-        fmt = {"fourcc": self.fourcc, "width": self.width, "height": self.height, "fps": self.fps}
+        fourcc, width, height, fps = self.fourcc, self.width, self.height, self.fps
         path, _, topic = self.port.partition("#")
         if path.endswith(".mcap"):
             src = RecordedFrameSource(path, topic=topic or None, clock=ctx.clock)
-            return FingertipCamera(src, clock=ctx.clock, name=self.name, **fmt).open()
+            return FingertipCamera(src, clock=ctx.clock, name=self.name, fourcc=fourcc, width=width, height=height,
+                                   fps=fps).open()
         if self.port.startswith("rigsim://"):
-            sim = SimulatedCamera(self.port, clock=ctx.clock, name=self.name, world=ctx.world,
-                                  seed=ctx.bench.seed, **fmt)
-            return FingertipCamera(sim, clock=ctx.clock, name=self.name, **fmt).open()
-        return FingertipCamera(self.port, name=self.name, **fmt).open()
+            sim = SimulatedCamera(self.port, clock=ctx.clock, name=self.name, world=ctx.world, seed=ctx.bench.seed,
+                                  fourcc=fourcc, width=width, height=height, fps=fps)
+            return FingertipCamera(sim, clock=ctx.clock, name=self.name, fourcc=fourcc, width=width, height=height,
+                                   fps=fps).open()
+        return FingertipCamera(self.port, name=self.name, fourcc=fourcc, width=width, height=height, fps=fps).open()
 
 
 DEVICE_CLASSES = DeviceConfig.KINDS

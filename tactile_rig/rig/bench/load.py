@@ -253,7 +253,8 @@ def _build_device(table: str, cls: type[DeviceConfig], values: dict[str, Any], b
         if key not in spec:
             problems.append((src.line(table, key), _unknown_key(table, key, sorted(spec)) + src.origin(table, key)))
             continue
-        hint = spec[key].type if isinstance(spec[key].type, str) else str(spec[key].type)
+        field_type = spec[key].type
+        hint = field_type if isinstance(field_type, str) else str(field_type)
         coerced, err = _check_value(hint, value)
         if err:
             problems.append((src.line(table, key), f"[{table}] {key}{src.origin(table, key)} {err}"))
@@ -265,10 +266,12 @@ def _build_device(table: str, cls: type[DeviceConfig], values: dict[str, Any], b
         return None
     if "port" not in kwargs:
         return None  # a mistyped port was reported above
-    cal = kwargs.pop("calibration", None)
+    # Every file a device names (its calibration, a camera's force map and substance model) is
+    # relative to the bench file.
+    files = {k: kwargs.pop(k) for k in [k for k in kwargs if k in _path_fields(cls)]}
     cfg = cls(**kwargs)
-    if cal is not None:
-        cfg.calibration = _resolve(base, cal)
+    for key, value in files.items():
+        setattr(cfg, key, _resolve(base, value))
 
     def problem(key: str, message: str) -> None:
         problems.append((src.line(table, key), f"[{table}] {key}{src.origin(table, key)} {message}"))
@@ -276,6 +279,14 @@ def _build_device(table: str, cls: type[DeviceConfig], values: dict[str, Any], b
     cfg.check(problem)
     _check_presence(cfg, src, problems, check_ports=check_ports, check_files=check_files, source=source)
     return cfg
+
+
+def _path_fields(cls: type[DeviceConfig]) -> set[str]:
+    return {f.name for f in fields(cls) if str(f.type).replace(" ", "") == "Path|None"}
+
+
+# The command that makes each file a camera may name besides its calibration.
+_FILE_COMMANDS = {"force_map": FORCE_MAP_COMMAND, "substance_model": "tactile-rig calibrate substance"}
 
 
 def _check_presence(cfg: DeviceConfig, src: _Sources, problems: list[tuple[int | None, str]], *,
@@ -297,6 +308,18 @@ def _check_presence(cfg: DeviceConfig, src: _Sources, problems: list[tuple[int |
         problems.append((src.line(t, "calibration"),
                          f"[{t}] calibration file '{cfg.calibration}' does not exist; make it with: "
                          f"{cmd} --bench {source} --device {t}"))
+    for key, cmd in _FILE_COMMANDS.items():
+        f = getattr(cfg, key, None)
+        if check_files and f is not None and not _model_exists(Path(f)):
+            problems.append((src.line(t, key), f"[{t}] {key} file '{f}' does not exist; make it with: "
+                             f"{cmd} --bench {source} --camera {t}"))
+
+
+def _model_exists(p: Path) -> bool:
+    """A learned model is named by its .json, its .npz, its stem or its folder."""
+    if p.is_dir():
+        return any(p.glob("*.json"))
+    return p.is_file() or p.with_suffix(".json").is_file()
 
 
 def _parse_env_value(raw: str) -> Any:

@@ -22,7 +22,7 @@ from tactile_rig.sim.fakes.sensors import touch
 from tactile_rig.sim.world.table import Table
 
 
-def _motion(ctx: EpisodeContext, devices: Devices) -> tuple[Any, Callable[[float], np.ndarray], list, dict]:
+def _motion(ctx: EpisodeContext, devices: Devices) -> tuple[Any, Callable[[float], np.ndarray], Callable[[], list[tuple[float, np.ndarray]]], dict[str, float]]:
     """(Motion, position(t) → xyz mm, history samples [(t, xyz)], known stop figures)."""
     c = ctx.controller
     if c.get("motion") == "jig":

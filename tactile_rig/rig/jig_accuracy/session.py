@@ -24,6 +24,7 @@ from tactile_rig.rig.jig_accuracy.report import write_report
 from tactile_rig.rig.jig_accuracy.results import PointResult
 from tactile_rig.rig.jig_accuracy.run import PointCallback, RunOutcome, run_jig_accuracy
 from tactile_rig.rig.jig_accuracy.store import RunStore
+from tactile_rig.rig.live import Tee
 from tactile_rig.rig.recording import Recorder, iter_messages
 
 
@@ -94,13 +95,14 @@ def execute_jig_accuracy(cfg: JigAccuracyConfig, out_dir: str | Path, *, bench: 
                          calibration: str | Path | None = None, camera: str | None = None,
                          resume: bool | None = None, overwrite: bool = False, record: bool = True,
                          report: bool = True, on_point: PointCallback | None = None,
-                         stop_after: int | None = None, guide: Any = None) -> RunOutcome:
+                         stop_after: int | None = None, guide: Any = None, live: Any = None) -> RunOutcome:
     """A complete jig accuracy run on the mocks (``bench=None``) or on a bench (a loaded Bench).
 
     Calibration: ``calibration`` if given, else the one this run already stored in ``OUT/calibration``,
     else the bench camera's ``calibration`` file; on mocks a missing one is made by the GelSight
     calibration session on the ball scene. Writes ``OUT/points.jsonl``, ``run.json``, ``summary.json``,
-    ``map.npz``, ``run.mcap`` (with mcap) and figures + ``report.md`` (with matplotlib).
+    ``map.npz``, ``run.mcap`` (with mcap) and figures + ``report.md`` (with matplotlib). ``live`` (a
+    :class:`~tactile_rig.rig.live.LiveServer`) gets every message the recording gets.
     """
     out = Path(out_dir)
     store = RunStore(out)
@@ -150,6 +152,9 @@ def execute_jig_accuracy(cfg: JigAccuracyConfig, out_dir: str | Path, *, bench: 
                 recorder.add_bench(rig_handle.bench)
                 recorder.add_calibration("gelsight", path=cal_path)
                 recorder.add_metadata("jig_accuracy", {"config": cfg.to_dict(), "fingerprint": cfg.fingerprint()})
+        if live is not None:
+            live.use_clock(rig_handle.clock)
+            recorder = Tee(recorder, live)
         world = rig_handle.world if bench is None or bench.is_mock else None
         rig = DeviceJigRig(rig_handle.jig, rig_handle.devices[cam_name], rig_handle.clock, world=world,
                            feed_mm_per_min=cfg.feed_mm_per_min, settle_s=cfg.settle_s, description=description,
@@ -162,7 +167,7 @@ def execute_jig_accuracy(cfg: JigAccuracyConfig, out_dir: str | Path, *, bench: 
                               "calibration": str(cal_path), "map": str(out / "map.npz")})
         if outcome.summary.get("complete"):
             outcome.files["summary"] = str(out / "summary.json")
-        if recorder is not None:
+        if recorder is not None and recorder.path is not None:
             outcome.files["recording"] = str(recorder.path)
         elif record:
             outcome.files["recording"] = "skipped: the mcap package is not installed (pip install 'tactile-rig[record]')"

@@ -7,6 +7,9 @@ What a FingerVision camera sees (and what :meth:`FingerVisionRenderer.render` dr
 - **An object** through the skin: a blurred ellipse or rectangle of the object's colour (the
   skin is a few mm thick and the object is out of focus), whose centroid, orientation and area are
   returned as ground truth for proximity vision.
+- **A printed card** (``card``, :class:`FvCard`) pressed against the skin and sliding behind it:
+  a light card with dark print (QR-like modules, text strokes and round dots the size of a marker),
+  out of focus. Its print is what a marker detector must ignore; it carries no ground truth.
 - **Markers**: dark dots printed in the silicone on a square grid, seen through a fish-eye lens
   (spacing and size shrink towards the rim), with manufacturing jitter in position and size.
   A contact's shear field displaces them (``markers_shift_px``) and normal load squashes the skin
@@ -31,7 +34,7 @@ from tactile_rig.core.errors import check_range
 from tactile_rig.sim.base import register_model
 from tactile_rig.sim.render.gelsight import SensorNoise
 
-__all__ = ["FvObject", "FingerVisionRenderer", "contact_shear_field", "FingerVisionRendererModel"]
+__all__ = ["FvObject", "FvCard", "FingerVisionRenderer", "contact_shear_field", "FingerVisionRendererModel"]
 
 ShiftSpec = np.ndarray | Callable[[np.ndarray], np.ndarray] | None
 
@@ -46,6 +49,60 @@ class FvObject:
     colour_bgr: tuple[int, int, int] = (40, 60, 200)
     shape: str = "ellipse"  # or "rect"
     blur_px: float = 3.0
+
+
+@dataclass(frozen=True)
+class FvCard:
+    """A printed card behind the skin: top-left corner ``offset_px`` (x, y; move it to slide the card),
+    size ``size_px`` (w, h), pattern ``seed``, print colour (default dark green, like the real QR card)."""
+
+    offset_px: tuple[float, float] = (60.0, 40.0)
+    size_px: tuple[int, int] = (200, 150)
+    seed: int = 0
+    ink_bgr: tuple[int, int, int] = (35, 60, 25)
+    paper_bgr: tuple[int, int, int] = (215, 225, 220)
+    blur_px: float = 1.2
+    dots: bool = True
+    """Also print round dots of a marker's size (the hardest print for a marker detector)."""
+
+
+_CARD_CACHE: dict[tuple[int, int, int, bool, float], tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _card_layers(card: FvCard) -> tuple[np.ndarray, np.ndarray]:
+    """(paper alpha, ink alpha) of the card, float32 in its own pixel grid, cached per pattern."""
+    w, h = int(card.size_px[0]), int(card.size_px[1])
+    key = (w, h, int(card.seed), bool(card.dots), float(card.blur_px))
+    if key in _CARD_CACHE:
+        return _CARD_CACHE[key]
+    if not (8 <= w <= 4096 and 8 <= h <= 4096):
+        raise ValueError(f"FvCard.size_px={card.size_px!r}: expected 8..4096 px each side")
+    rng = np.random.default_rng(card.seed)
+    paper = np.ones((h, w), np.float32)
+    ink = np.zeros((h, w), np.uint8)
+    module = 6
+    qn = max(3, min(w, h) // (2 * module))
+    qx, qy = w - qn * module - 6, h - qn * module - 6
+    for i in range(qn):  # QR-like modules, three finder squares
+        for j in range(qn):
+            if rng.random() < 0.5:
+                cv2.rectangle(ink, (qx + i * module, qy + j * module), (qx + (i + 1) * module - 1, qy + (j + 1) * module - 1), 255, -1)
+    for fx, fy in ((qx, qy), (qx + (qn - 7) * module, qy), (qx, qy + (qn - 7) * module)):
+        cv2.rectangle(ink, (fx, fy), (fx + 7 * module - 1, fy + 7 * module - 1), 255, -1)
+        cv2.rectangle(ink, (fx + module, fy + module), (fx + 6 * module - 1, fy + 6 * module - 1), 0, -1)
+        cv2.rectangle(ink, (fx + 2 * module, fy + 2 * module), (fx + 5 * module - 1, fy + 5 * module - 1), 255, -1)
+    for _ in range(14):  # text-like strokes along the top
+        x0, y0 = int(rng.integers(4, max(5, w - 30))), int(rng.integers(4, max(5, h // 3)))
+        cv2.line(ink, (x0, y0), (x0 + int(rng.integers(6, 24)), y0 + int(rng.integers(-6, 7))), 255, int(rng.integers(2, 4)))
+    if card.dots:
+        for _ in range(6):  # full stops and bullets: round, dark, a marker's size
+            cv2.circle(ink, (int(rng.integers(8, w - 8)), int(rng.integers(8, h - 8))), int(rng.integers(3, 6)), 255, -1)
+    ink_a = ink.astype(np.float32) / 255.0
+    if card.blur_px > 0:
+        ink_a = cv2.GaussianBlur(ink_a, (0, 0), card.blur_px)
+        paper = cv2.GaussianBlur(np.pad(paper, 4), (0, 0), card.blur_px)[4:-4, 4:-4]
+    _CARD_CACHE[key] = (paper, ink_a)
+    return paper, ink_a
 
 
 def contact_shear_field(points_px: np.ndarray, centre_px: tuple[float, float], *, shift_px: tuple[float, float] = (0.0, 0.0),
@@ -144,9 +201,10 @@ class FingerVisionRenderer:
         return self.rest_px + np.nan_to_num(shift, nan=0.0, posinf=0.0, neginf=0.0)
 
     def render(self, markers_shift_px: ShiftSpec = None, normal_load: float = 0.0, object: FvObject | None = None,  # noqa: A002
-               light_gain: float = 1.0) -> tuple[np.ndarray, dict[str, Any]]:
+               light_gain: float = 1.0, card: FvCard | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         """Render one frame; returns ``(frame_bgr uint8, truth)`` with truth keys ``markers_px``,
-        ``marker_radius_px``, ``object_centroid_px``, ``object_orientation_deg``, ``object_area_px``."""
+        ``marker_radius_px``, ``object_centroid_px``, ``object_orientation_deg``, ``object_area_px``.
+        ``card``: a printed card behind the skin (drawn over the object, under the markers)."""
         if not math.isfinite(normal_load):
             raise ValueError(f"normal_load={normal_load!r} must be finite (0 = no load, 1 = full load)")
         if not (math.isfinite(light_gain) and light_gain >= 0):
@@ -157,6 +215,8 @@ class FingerVisionRenderer:
         truth: dict[str, Any] = {"object_centroid_px": None, "object_orientation_deg": None, "object_area_px": 0.0}
         if object is not None:
             self._composite_object(img, object, truth)
+        if card is not None:
+            img = self._composite_card(img, card)
         pos = self.marker_positions_px(markers_shift_px)
         radius = self.radius_px * (1.0 + self.load_growth * load)
         dots = np.zeros((rows, cols), np.uint8)
@@ -173,6 +233,22 @@ class FingerVisionRenderer:
         truth["markers_px"] = pos
         truth["marker_radius_px"] = radius
         return img, truth
+
+    def _composite_card(self, img: np.ndarray, card: FvCard) -> np.ndarray:
+        """Slide the card's paper and ink layers to ``card.offset_px`` (sub-pixel) and blend them in."""
+        ox, oy = float(card.offset_px[0]), float(card.offset_px[1])
+        if not (math.isfinite(ox) and math.isfinite(oy)):
+            raise ValueError(f"FvCard.offset_px={card.offset_px!r} must be finite")
+        rows, cols = self.shape_px
+        paper, ink = _card_layers(card)
+        m = np.float32([[1, 0, ox], [0, 1, oy]])
+        pa = cv2.warpAffine(paper, m, (cols, rows), flags=cv2.INTER_LINEAR, borderValue=0)[..., None] * np.float32(0.9)
+        ia = cv2.warpAffine(ink, m, (cols, rows), flags=cv2.INTER_LINEAR, borderValue=0)[..., None] * np.float32(0.9)
+        out = img.astype(np.float32)
+        paper_c = self._shade[..., None] * np.asarray(card.paper_bgr, np.float32)
+        out = out * (1 - pa) + paper_c * pa
+        out = out * (1 - ia) + np.asarray(card.ink_bgr, np.float32) * ia
+        return np.clip(out, 0, 255).astype(np.uint8)
 
     def _composite_object(self, img: np.ndarray, obj: FvObject, truth: dict[str, Any]) -> None:
         """Blend the object into ``img`` (in place, inside its bounding box) and fill its ground truth."""

@@ -19,6 +19,7 @@ skin. The true minimum grip to lift the object without slip is
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -30,16 +31,23 @@ from tactile_rig.sim.world.timeline import Timeline
 G_MPS2 = 9.81
 
 
+@dataclass(slots=True)
 class _State:
-    __slots__ = ("slip_mm", "v_mmps", "angle_deg", "omega_dps", "squeeze_n", "press_n", "present",
-                 "friction_n", "torque_nmm", "lift_mm")
+    """The grasped object's state at one instant (mm, mm/s, deg, deg/s, N, N·mm)."""
 
-    def __init__(self, **kw: float) -> None:
-        for k in self.__slots__:
-            setattr(self, k, kw.get(k, 0.0))
+    slip_mm: float = 0.0
+    v_mmps: float = 0.0
+    angle_deg: float = 0.0
+    omega_dps: float = 0.0
+    squeeze_n: float = 0.0
+    press_n: float = 0.0
+    present: float = 0.0
+    friction_n: float = 0.0
+    torque_nmm: float = 0.0
+    lift_mm: float = 0.0
 
     def copy(self) -> "_State":
-        return _State(**{k: getattr(self, k) for k in self.__slots__})
+        return replace(self)
 
 
 class GraspedObject:

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable
 
 import cv2
 import numpy as np
@@ -201,7 +201,7 @@ def usb_connector_part(mm_per_px: float = 0.05, *, name: str = "usb_connector_pa
     return HeightField(h, mm_per_px, name=name, colour_bgr=(90, 90, 95))
 
 
-_PRIMITIVES = {"sphere": ball, "ball": ball, "cylinder": cylinder, "box": box, "cone": cone}
+_PRIMITIVES: dict[str, Callable[..., HeightField]] = {"sphere": ball, "ball": ball, "cylinder": cylinder, "box": box, "cone": cone}
 
 
 def make_primitive(primitive: str, mm_per_px: float = 0.05, **size_mm: float) -> HeightField:
@@ -289,7 +289,7 @@ class ObjectModel:
         return None
 
 
-_SHAPES = {"usb_connector": usb_connector_part, "plate": plate_with_features}
+_SHAPES: dict[str, Callable[..., HeightField]] = {"usb_connector": usb_connector_part, "plate": plate_with_features}
 
 
 @register_model("height_field_object")
@@ -320,5 +320,5 @@ def _primitive_object(world: Any, rng: np.random.Generator, *, primitive: str = 
     """Scene model: a primitive (sphere, cylinder, box, cone) with its size parameters in mm."""
     hf = make_primitive(primitive, mm_per_px, **size_mm)
     if colour_bgr is not None:
-        hf = HeightField(hf.height_mm, hf.mm_per_px, name=hf.name, colour_bgr=tuple(int(c) for c in colour_bgr))
+        hf = HeightField(hf.height_mm, hf.mm_per_px, name=hf.name, colour_bgr=(int(colour_bgr[0]), int(colour_bgr[1]), int(colour_bgr[2])))
     return ObjectModel(hf, float(press_depth_mm), float(x_mm), float(y_mm), float(theta_deg))

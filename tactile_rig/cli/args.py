@@ -1,0 +1,105 @@
+"""argparse types that bound every number and check every path at parse time.
+
+A value out of range is a usage error (one line, exit 2) naming the option, the value and the
+allowed range: ``--ransac-iters 1e9``, ``--mm-per-px 1e300``, ``--fps nan`` never reach the code.
+
+Output paths (``-o``/``--out``): the *parent* folder must exist; only the leaf (the file, or the
+output folder itself) is created. A typo in a path (``runs/r1`` for ``run/r1``) is then an error
+rather than a silently created tree of folders.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+from typing import Callable
+
+__all__ = ["int_in", "float_in", "output_file", "output_dir", "input_path"]
+
+
+def _number(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+
+
+def int_in(low: int, high: int, unit: str = "") -> Callable[[str], int]:
+    """An integer in ``[low, high]`` (``1e3`` is accepted when it is a whole number)."""
+    u = f" {unit}" if unit else ""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text, 10)
+        except ValueError:
+            f = _number(text)
+            if not math.isfinite(f) or f != int(f):
+                raise argparse.ArgumentTypeError(f"{text!r} is not a whole number; expected an integer in "
+                                                 f"[{low}, {high}]{u}") from None
+            value = int(f)
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"{text}{u} is outside the allowed range [{low}, {high}]{u}")
+        return value
+
+    parse.__name__ = f"integer in [{low}, {high}]"
+    return parse
+
+
+def float_in(low: float, high: float, unit: str = "", *, low_open: bool = False) -> Callable[[str], float]:
+    """A finite float in ``[low, high]`` (``(low, high]`` with ``low_open``); NaN and inf are refused."""
+    u = f" {unit}" if unit else ""
+    span = f"{'(' if low_open else '['}{low:g}, {high:g}]{u}"
+
+    def parse(text: str) -> float:
+        value = _number(text)
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"{text!r} is not finite; expected a number in {span}")
+        if value > high or value < low or (low_open and value == low):
+            raise argparse.ArgumentTypeError(f"{text}{u} is outside the allowed range {span}")
+        return value
+
+    parse.__name__ = f"number in {span}"
+    return parse
+
+
+def output_file(*suffixes: str) -> Callable[[str], str]:
+    """An output file: its folder must exist and it must not be a folder itself."""
+
+    def parse(text: str) -> str:
+        if not text:
+            raise argparse.ArgumentTypeError("an empty path; expected an output file")
+        p = Path(text)
+        if p.is_dir():
+            raise argparse.ArgumentTypeError(f"{text} is a folder; expected an output file")
+        parent = p.parent if str(p.parent) else Path(".")
+        if not parent.is_dir():
+            raise argparse.ArgumentTypeError(f"{text}: the folder {str(parent)!r} does not exist (create it first; "
+                                             "only the file is written)")
+        if suffixes and p.suffix and p.suffix.lower() not in suffixes:
+            raise argparse.ArgumentTypeError(f"{text}: suffix {p.suffix!r}; expected {' or '.join(suffixes)}")
+        return text
+
+    parse.__name__ = "output file"
+    return parse
+
+
+def output_dir(text: str) -> str:
+    """An output folder: it may be created, but its parent must exist; an existing file is refused."""
+    if not text:
+        raise argparse.ArgumentTypeError("an empty path; expected an output folder")
+    p = Path(text)
+    if p.exists() and not p.is_dir():
+        raise argparse.ArgumentTypeError(f"{text} is a file; expected an output folder")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not p.exists() and not parent.is_dir():
+        raise argparse.ArgumentTypeError(f"{text}: the folder {str(parent)!r} does not exist (create it first; "
+                                         "only the last folder is created)")
+    return text
+
+
+def input_path(text: str) -> str:
+    """A path argument that must at least be non-empty (the loaders check what it holds)."""
+    if not text or "\x00" in text:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a usable path")
+    return text

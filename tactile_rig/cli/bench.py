@@ -1,0 +1,120 @@
+"""``tactile-rig bench``: rehearse a bench without hardware, and check a bench's devices.
+
+    tactile-rig bench rehearse --out rehearsal            # serves until Ctrl-C; prints the bench file
+    tactile-rig bench check --bench rehearsal/bench.toml  # one row per device; exit 1 if any fails
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+from typing import Any
+
+from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
+from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.rig.bench_check import check_bench, format_check_table
+from tactile_rig.rig.rehearsal import RehearsalBench, RehearsalOptions
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("bench", help="rehearse a bench without hardware; check a bench's devices",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    bsub = p.add_subparsers(dest="bench_command", metavar="ACTION")
+
+    r = bsub.add_parser("rehearse", help="serve every device from its mock in its own process and write "
+                        "bench.toml naming them; runs until Ctrl-C",
+                        description="Start the gripper, scale and jig mocks each in its own process on its own "
+                        "pty, the GelSight camera rendering the jig's stage and each --camera's footage as MJPEG "
+                        "over HTTP on 127.0.0.1, write OUT/bench.toml naming them, and serve until Ctrl-C.")
+    r.add_argument("--out", default="rehearsal", metavar="DIR",
+                   help="folder for bench.toml, the device links (dev/) and the calibration (default: rehearsal)")
+    r.add_argument("--camera", action="append", default=[], metavar="NAME=SOURCE[@SENSOR]",
+                   help="a camera playing recorded footage at its recorded rate: a video file, a folder of "
+                        "images, FILE.mcap[#TOPIC], or 'rendered' (a FingerVision press video the rehearsal "
+                        "writes); SENSOR fingervision (default) or gelsight; repeat for several")
+    r.add_argument("--seed", type=int, default=0, help="seed of the mocks' noise (default 0)")
+    r.add_argument("--homing", action="store_true",
+                   help="GRBL homing enabled: the jig boots locked and $H takes ~20 s, as on a real jig")
+    r.add_argument("--gelsight-fps", type=float, default=25.0, help="frame rate of the GelSight camera (default 25)")
+    r.add_argument("--gelsight-jpeg-quality", type=int, default=100, metavar="Q",
+                   help="JPEG quality of the GelSight stream, 1..100 (default 100; a camera's MJPG is nearer 90)")
+    r.add_argument("--no-calibration", action="store_true",
+                   help="do not make the GelSight calibration on the mocks (the bench then names none)")
+    r.add_argument("--duration", type=float, metavar="S", help="stop after S seconds instead of at Ctrl-C")
+    add_json_flag(r)
+    r.set_defaults(func=_rehearse)
+
+    c = bsub.add_parser("check", help="open every device and verify its identity; exit 1 if any fails",
+                        description="Open every device of the bench on its own and verify it: the Dynamixel's "
+                        "model number, the scale sketch's banner and rate, the GRBL version, the camera's format "
+                        "and locked controls read back, and frames arriving.")
+    add_bench_arguments(c)
+    add_json_flag(c)
+    c.set_defaults(func=_check)
+    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
+
+
+def parse_camera_option(text: str) -> tuple[str, str, str]:
+    """``NAME=SOURCE[@SENSOR]`` → (name, source, sensor)."""
+    name, sep, rest = text.partition("=")
+    if not sep or not name or not rest:
+        raise ValueError(f"--camera {text!r} must look like NAME=SOURCE[@SENSOR], e.g. fingervision=demo.mp4")
+    source, at, sensor = rest.rpartition("@")
+    if not at or sensor not in ("gelsight", "fingervision"):
+        return name, rest, "fingervision"
+    return name, source, sensor
+
+
+def _rehearse(args: argparse.Namespace) -> int:
+    cams = [parse_camera_option(c) for c in args.camera]
+    if args.duration is not None and not args.duration > 0:
+        raise ValueError(f"--duration {args.duration} must be > 0 s")
+    opts = RehearsalOptions(cameras={n: s for n, s, _ in cams}, camera_sensors={n: k for n, _, k in cams},
+                            seed=args.seed, homing=args.homing, gelsight_fps=args.gelsight_fps,
+                            gelsight_jpeg_quality=args.gelsight_jpeg_quality,
+                            calibration=not args.no_calibration)
+    stop = threading.Event()
+
+    def _on_signal(signum: int, frame: object) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, _on_signal)
+    signal.signal(signal.SIGTERM, _on_signal)
+    with RehearsalBench(args.out, opts) as rb:
+        if args.json:
+            print_json(rb.describe())
+        else:
+            print(f"rehearsal bench up: {len(rb.processes)} device processes")
+            for k, p in rb.processes.items():
+                print(f"  {k:<20} pid {p.pid:<8} {p.info.get('port') or p.info.get('url')}")
+            print(f"bench file: {rb.bench_path}")
+            print(f"  export TACTILE_RIG_BENCH={rb.bench_path.resolve()}")
+            print("Ctrl-C stops it.")
+            sys.stdout.flush()
+        waited = 0.0
+        while not stop.wait(0.5):
+            waited += 0.5
+            broken = rb.problems()
+            if broken:
+                print("tactile-rig: rehearsal device process stopped: " + "; ".join(broken), file=sys.stderr)
+                return 3
+            if args.duration is not None and waited >= args.duration:
+                break
+    return 0
+
+
+def _check(args: argparse.Namespace) -> int:
+    bench = bench_from_args(args)
+    rows = check_bench(bench)
+    if args.json:
+        for r in rows:
+            print_json(r)
+    else:
+        print(format_check_table(rows))
+    failed = [r.device for r in rows if not r.ok]
+    if failed:
+        print(f"tactile-rig: bench check failed: {', '.join(failed)}", file=sys.stderr)
+        return 1
+    return 0

@@ -1,0 +1,114 @@
+"""``record``: every device's stream of a bench into one MCAP (and, with a live server, over WebSocket).
+
+Topics (the recording schemas of :mod:`tactile_rig.rig.recording`):
+
+* ``/scale/force`` (``tactile_rig.ScaleReading``): every sample the sketch sends, with grams, raw, seq;
+* ``/state/gripper`` (``tactile_rig.DeviceState``): the gripper's state every ``gripper_period_s``;
+* ``/state/jig`` and ``/jig/pose``: the GRBL status report and work pose every ``jig_period_s``;
+* ``/camera/<name>/compressed`` (``foxglove.CompressedImage``, JPEG): every new frame of every camera.
+
+One loop polls every device in turn (no thread per device): the scale driver queues its samples, the
+cameras capture on their own threads and keep the newest frame, so nothing waits on another device.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from tactile_rig.core.errors import DeviceTimeout
+from tactile_rig.rig.bench import Bench, connect_bench
+from tactile_rig.rig.live import Tee
+from tactile_rig.rig.recording import Recorder
+
+POLL_S = 0.005
+
+
+@dataclass
+class RecordOutcome:
+    """What a recording holds: messages per topic, the file, and the session time it spans (s)."""
+
+    path: Path | None
+    counts: dict[str, int] = field(default_factory=dict)
+    duration_s: float = 0.0
+    camera_fps: dict[str, float] = field(default_factory=dict)
+
+
+def record_bench(bench: Bench, duration_s: float, out: str | Path | None, *, live: Any = None,
+                 gripper_period_s: float = 0.05, jig_period_s: float = 0.1, jpeg: bool = True,
+                 on_tick: Callable[[RecordOutcome], None] | None = None) -> RecordOutcome:
+    """Record every device of ``bench`` for ``duration_s`` seconds into ``out`` (an .mcap path; None:
+    live only). ``live`` is a :class:`~tactile_rig.rig.live.LiveServer` (or None). ``on_tick`` is
+    called about once a second with the counts so far."""
+    if not duration_s > 0:
+        raise ValueError(f"duration_s={duration_s!r} must be > 0 s")
+    if out is None and live is None:
+        raise ValueError("nothing to record to: give an output file or a live server")
+    rig = connect_bench(bench)
+    recorder = None
+    try:
+        clock = rig.clock
+        if out is not None:
+            recorder = Recorder(out, clock=clock)
+            recorder.add_bench(bench)
+            for name, cfg in bench.devices.items():
+                if cfg.calibration is not None and Path(cfg.calibration).is_file():
+                    recorder.add_calibration(name, path=cfg.calibration)
+        sink = Tee(recorder, live)
+        if live is not None:
+            live.use_clock(clock)
+        outcome = RecordOutcome(Path(out) if out is not None else None)
+        counts = outcome.counts
+
+        def put(topic: str) -> None:
+            counts[topic] = counts.get(topic, 0) + 1
+
+        if rig.jig is not None:
+            rig.jig.status()  # a first report: GRBL's position is known before the first pose is written
+        t0 = clock.now_s()
+        next_grip = next_jig = next_tick = t0
+        last_seq = {name: -1 for name in rig.cameras}
+        first_frame: dict[str, tuple[float, int]] = {}
+        while (now := clock.now_s()) - t0 < duration_s:
+            if rig.scale is not None:
+                for r in rig.scale.poll():
+                    sink.write_scale(r.newtons, grams=r.grams, raw=r.raw, seq=r.seq, saturated=r.saturated)
+                    put("/scale/force")
+            if rig.gripper is not None and now >= next_grip:
+                sink.write_state("gripper", rig.gripper.state())
+                put("/state/gripper")
+                next_grip = now + gripper_period_s
+            if rig.jig is not None and now >= next_jig:
+                st = rig.jig.status()
+                pose = rig.jig.pose_from_status(st)
+                sink.write_state("jig", {"state": st.state, "mpos": st.mpos, "wpos": st.wpos,
+                                         "feed_mm_per_min": st.feed_mm_per_min, "raw": st.raw})
+                sink.write_jig_pose(pose.as_dict())
+                put("/state/jig")
+                put("/jig/pose")
+                next_jig = now + jig_period_s
+            for name, cam in rig.cameras.items():
+                try:
+                    fr = cam.read_latest(max_age_s=1.0)
+                except DeviceTimeout:
+                    continue
+                if fr.seq == last_seq[name]:
+                    continue
+                last_seq[name] = fr.seq
+                first_frame.setdefault(name, (fr.t_host_s, fr.seq))
+                sink.write_frame(name, fr.image, t_s=fr.t_host_s, compress="jpeg" if jpeg else "png")
+                put(f"/camera/{name}/compressed")
+                t_first, seq_first = first_frame[name]
+                if fr.t_host_s > t_first:
+                    outcome.camera_fps[name] = round((fr.seq - seq_first) / (fr.t_host_s - t_first), 2)
+            if on_tick is not None and now >= next_tick:
+                on_tick(outcome)
+                next_tick = now + 1.0
+            clock.sleep(POLL_S)
+        outcome.duration_s = clock.now_s() - t0
+        return outcome
+    finally:
+        rig.close()
+        if recorder is not None:
+            recorder.close()

@@ -1,0 +1,103 @@
+"""Device processes of the rehearsal bench: start one, read the JSON line it prints, stop it."""
+
+from __future__ import annotations
+
+import json
+import os
+import select
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+from tactile_rig.core.errors import NotConnected
+
+START_TIMEOUT_S = 60.0  # a cold start imports numpy, OpenCV and the scene under a loaded machine
+
+
+@dataclass
+class DeviceProcess:
+    """One device served by its own process; ``info`` is the JSON line it printed (ports, format)."""
+
+    name: str
+    argv: list[str]
+    proc: subprocess.Popen | None = None
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def start(self) -> "DeviceProcess":
+        """Launch the process (does not wait for it: see :meth:`wait_ready`)."""
+        env = dict(os.environ)
+        # The child must import the same tactile_rig as this process (a worktree run with PYTHONPATH).
+        here = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
+        env["PYTHONPATH"] = os.pathsep.join([here, *filter(None, [env.get("PYTHONPATH")])])
+        self.proc = subprocess.Popen([sys.executable, *self.argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     stdin=subprocess.DEVNULL, env=env)
+        return self
+
+    def wait_ready(self, timeout_s: float = START_TIMEOUT_S) -> dict[str, Any]:
+        """Read the JSON line; NotConnected naming the device and its stderr if none comes."""
+        assert self.proc is not None and self.proc.stdout is not None
+        deadline = time.monotonic() + timeout_s
+        line = b""
+        while not line.endswith(b"\n"):
+            left = deadline - time.monotonic()
+            if left <= 0 or self.proc.poll() is not None:
+                break
+            ready, _, _ = select.select([self.proc.stdout], [], [], min(left, 0.5))
+            if ready:
+                chunk = os.read(self.proc.stdout.fileno(), 4096)
+                if not chunk:
+                    break
+                line += chunk
+        try:
+            self.info = json.loads(line.decode().splitlines()[0]) if line.strip() else {}
+        except ValueError:
+            self.info = {}
+        if not self.info:
+            err = self._stderr_tail()
+            self.stop()
+            raise NotConnected(f"the {self.name} process did not start within {timeout_s:.0f} s "
+                               f"(exit {self.proc.returncode}): {err or 'no output'}", device=self.name)
+        return self.info
+
+    def _stderr_tail(self) -> str:
+        if self.proc is None or self.proc.stderr is None or self.proc.poll() is None:
+            return ""
+        try:
+            return self.proc.stderr.read().decode(errors="replace").strip()[-500:]
+        except (OSError, ValueError):
+            return ""
+
+    @property
+    def running(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    @property
+    def pid(self) -> int | None:
+        return None if self.proc is None else self.proc.pid
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """SIGTERM, then SIGKILL after ``timeout_s`` (idempotent)."""
+        p = self.proc
+        if p is None:
+            return
+        if p.poll() is None:
+            p.terminate()
+            try:
+                p.wait(timeout_s)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(timeout_s)
+        for stream in (p.stdout, p.stderr):
+            if stream is not None:
+                stream.close()
+
+
+def mock_serve_argv(kind: str, options: Sequence[str]) -> list[str]:
+    """``tactile-rig mock serve KIND OPTIONS`` as a module run (the same interpreter and package)."""
+    return ["-m", "tactile_rig.cli", "mock", "serve", kind, *options]
+
+
+def child_argv(what: str, options: Sequence[str]) -> list[str]:
+    return ["-m", "tactile_rig.rig.rehearsal.child", what, *options]

@@ -1,0 +1,97 @@
+"""The live view without a bench: the server's channels and schemas, a WebSocket client on loopback
+that subscribes and checks what arrives, and ``--live`` on ``scene run`` and ``run jig-accuracy``."""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+
+import numpy as np
+import pytest
+
+from tactile_rig.cli import main
+from tactile_rig.core.clock import VirtualClock
+from tactile_rig.rig.live import LiveServer, Tee
+from tactile_rig.rig.recording import SCHEMAS, Recorder, read_recording
+from tests._foxglove_client import LiveClient
+
+pytest.importorskip("foxglove")
+pytest.importorskip("websockets")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_the_live_view_sends_what_the_recording_stores(tmp_path) -> None:
+    clock = VirtualClock()
+    with LiveServer(port=0, clock=clock) as live:
+        client = LiveClient(live.url).start()
+        live.advertise("/scale/force", "tactile_rig.ScaleReading")
+        live.advertise("/camera/left/compressed", "foxglove.CompressedImage")
+        assert live.wait_for_subscriber(10.0, {"/scale/force", "/camera/left/compressed"})
+        rec = Recorder(tmp_path / "s.mcap", clock=clock)
+        sink = Tee(rec, live)
+        img = np.zeros((24, 32, 3), np.uint8)
+        for i in range(50):
+            sink.write_scale(0.1 * i, seq=i)
+            if i % 5 == 0:
+                img[:, i % 32] = 255
+                sink.write_frame("left", img, compress="jpeg")
+            clock.sleep(0.0125)
+        sink.close()
+        client.stop()
+    recorded = read_recording(tmp_path / "s.mcap")
+    got = client.on("/scale/force")
+    assert [m.data["seq"] for m in got] == list(range(50))  # subscribed first: every message, in order
+    assert [m.data for m in got] == [m.data for m in recorded.on("/scale/force")]
+    assert len(client.on("/camera/left/compressed")) == 10
+    assert client.advertised == {"/scale/force": "tactile_rig.ScaleReading",
+                                 "/camera/left/compressed": "foxglove.CompressedImage"}
+    assert set(client.on("/camera/left/compressed")[0].data) == set(SCHEMAS["foxglove.CompressedImage"]["properties"]) | {"t_s"}
+
+
+def test_the_live_view_refuses_other_hosts_than_loopback() -> None:
+    with pytest.raises(ValueError, match="loopback"):
+        LiveServer(host="0.0.0.0", port=0)
+
+
+def _run_with_client(argv: list[str], port: int) -> tuple[list[int], LiveClient]:
+    client = LiveClient(f"ws://127.0.0.1:{port}")
+    rc: list[int] = []
+    th = threading.Thread(target=lambda: rc.append(main(argv)))
+    th.start()
+    client.start()
+    th.join(120)
+    client.stop()
+    return rc, client
+
+
+def test_scene_run_live_serves_each_episode_trace_in_order(capsys) -> None:
+    port = _free_port()
+    rc, client = _run_with_client(["scene", "run", "handover_dynamixel", "--episodes", "2", "--json", "--live",
+                                   "--live-port", str(port), "--live-wait", "20"], port)
+    assert rc == [0]
+    episodes = client.on("/perception/handover_dynamixel/episode")
+    assert [m.data["episode"] for m in episodes] == [0, 1]
+    trace = client.on("/perception/handover_dynamixel/trace")
+    t = [m.data["t_s"] for m in trace]
+    assert len(trace) > 10 and t == sorted(t)
+    # The second episode's samples follow the first's: its trace starts after episode 0's end.
+    assert max(t) > episodes[0].data["sim_s"]
+
+
+def test_run_jig_accuracy_live_on_the_mocks(tmp_path, capsys) -> None:
+    port = _free_port()
+    rc, client = _run_with_client(["run", "jig-accuracy", "--mock", "--sweep", "rotation", "--rotations", "-10",
+                                   "10", "10", "--out", str(tmp_path / "r"), "--no-report", "--json", "--live",
+                                   "--live-port", str(port), "--live-wait", "20"], port)
+    assert rc == [0]
+    summary = json.loads(capsys.readouterr().out.splitlines()[-1])
+    points = client.on("/perception/jig_accuracy_point")
+    assert 0 < len(points) <= summary["n_points"] == 3
+    assert [m.data["index"] for m in points] == sorted(m.data["index"] for m in points)
+    assert client.on("/jig/pose") and client.on("/camera/camera/compressed")
