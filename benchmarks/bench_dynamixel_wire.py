@@ -23,6 +23,8 @@ import logging
 import sys
 import time
 from pathlib import Path
+
+from _output import add_save_args, parse_args, save_json  # noqa: E402  (benchmarks/ is the script's folder)
 from typing import Any
 
 import dynamixel_sdk as sdk
@@ -249,8 +251,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="P1 residual: reads by the bare SDK, whose failures wait on the wall clock (default 1000)")
     ap.add_argument("--garbage", type=float, default=0.3, help="P1 residual: garbage burst per read call")
     ap.add_argument("--quick", action="store_true", help="a short smoke run")
-    ap.add_argument("--save", action="store_true", help="write benchmarks/results/dynamixel_wire.json")
-    args = ap.parse_args(argv)
+    add_save_args(ap, "dynamixel_wire.json")
+    args = parse_args(ap, argv)
     logging.basicConfig(level=logging.ERROR)  # the bus warns on every unplug
     if args.quick:
         args.ops, args.reads, args.sdk_reads = 40, 500, 50
@@ -281,11 +283,8 @@ def main(argv: list[str] | None = None) -> int:
     bus_rows = [d for d in table if d["who"] == "bus"]
     summary = {k: sum(d[k] for d in bus_rows) for k in ("ops", "untyped", "hangs", "wrong")}
     print(f"bus total: {summary}")
-    if args.save:
-        out = Path(__file__).resolve().parent / "results" / "dynamixel_wire.json"
-        out.write_text(json.dumps({"command": "python benchmarks/bench_dynamixel_wire.py " + " ".join(argv or sys.argv[1:]),
-                                   "table": table, "p1_residual": residual, "bus_total": summary}, indent=1) + "\n")
-        print(f"wrote {out}")
+    save_json(args, {"command": "python benchmarks/bench_dynamixel_wire.py " + " ".join(argv or sys.argv[1:]),
+                     "table": table, "p1_residual": residual, "bus_total": summary})
     return 0 if summary["untyped"] == 0 and summary["hangs"] == 0 and summary["wrong"] == 0 else 1
 
 

@@ -52,7 +52,7 @@ def test_save_with_quick_is_refused_before_anything_runs(capsys):
 @pytest.mark.parametrize("script", sorted(p.name for p in BENCH.glob("bench_*.py")))
 def test_every_benchmark_writes_through_the_helper(script):
     text = (BENCH / script).read_text(encoding="utf-8")
-    assert "add_save_args(ap," in text and "parse_args(ap)" in text and "save_json(args" in text
+    assert "add_save_args(ap," in text and "parse_args(ap" in text and "save_json(args" in text
     # no direct writes of results: every JSON leaves through save_json
     assert not re.search(r"\.write_text\(\s*json\.dumps|json\.dump\(", text), script
 
