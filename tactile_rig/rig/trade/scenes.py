@@ -12,7 +12,8 @@ with rows of its own scene, and each scene's own setting is its default):
 
 For each setting, on the same episode seeds:
 
-* speed: the real-time factor, simulated seconds per wall second over the setting's episodes;
+* speed: the real-time factor, simulated seconds per wall second over the setting's episodes (the
+  settings' episodes run interleaved, seed by seed, so the machine's load hits them alike);
 * error: how far the arm's path departs from the reference setting's path on the same seed, RMS over
   the episode in mm (x, y and z where recorded), median over the episodes; the reference row is 0 by
   construction.
@@ -88,12 +89,16 @@ def rendered_scenes() -> list[str]:
     return [s["name"] for s in list_scenes() if _scene_sensor(s["name"]).get("kind") == "rendered"]
 
 
-def _timed_runs(scene: str, seeds: list[int], overrides: dict[str, dict[str, Any]]) -> list[tuple[Any, float]]:
-    out = []
+def _timed_runs(scene: str, seeds: list[int], settings: dict[tuple, dict[str, dict[str, Any]]]
+                ) -> dict[tuple, list[tuple[Any, float]]]:
+    """Every setting's episodes, interleaved: seed by seed, each setting in turn, so a load spike on
+    the shared machine lands on all settings alike rather than on the one that happened to run then."""
+    out: dict[tuple, list[tuple[Any, float]]] = {k: [] for k in settings}
     for sd in seeds:
-        t0 = time.perf_counter()
-        rep = run_episode(scene, sd, overrides=overrides)
-        out.append((rep, time.perf_counter() - t0))
+        for key, overrides in settings.items():
+            t0 = time.perf_counter()
+            rep = run_episode(scene, sd, overrides=overrides)
+            out[key].append((rep, time.perf_counter() - t0))
     return out
 
 
@@ -139,15 +144,15 @@ def measure(*, quick: bool, seed: int) -> TradeTable:
         own_key = (str(own.get("kind", "model")), float(own.get("rate_hz", 30.0)))
         for kind in KINDS:  # warm up both paths once (imports, OpenCV's first calls)
             run_episode(scene, seeds[0], overrides={"sensor": {"kind": kind}})
-        runs = {(kind, rate): _timed_runs(scene, seeds, {"sensor": {"kind": kind, "rate_hz": rate}})
-                for kind in KINDS for rate in RATES_HZ}
+        runs = _timed_runs(scene, seeds, {(kind, rate): {"sensor": {"kind": kind, "rate_hz": rate}}
+                                          for kind in KINDS for rate in RATES_HZ})
         rows += _rows(scene, judged, runs, own_key, own_key,
                       lambda k, sc=scene: {"scene": sc, "sensor": k[0], "rate_hz": k[1], "arm_dt_ms": DEFAULT_DT_MS},
                       n, "the reference (the scene's own sensor)")
     for scene, judged in DT_SCENES.items():
         own = _scene_sensor(scene)
         run_episode(scene, seeds[0])  # warm-up
-        runs = {(dt,): _timed_runs(scene, seeds, {"arm": {"dt_s": dt / 1000.0}}) for dt in DT_MS}
+        runs = _timed_runs(scene, seeds, {(dt,): {"arm": {"dt_s": dt / 1000.0}} for dt in DT_MS})
         rows += _rows(scene, judged, runs, (DT_REFERENCE_MS,), (DEFAULT_DT_MS,),
                       lambda k, sc=scene, o=own: {"scene": sc, "sensor": str(o.get("kind", "model")),
                                                   "rate_hz": float(o.get("rate_hz", 30.0)), "arm_dt_ms": k[0]},
