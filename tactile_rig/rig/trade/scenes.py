@@ -36,7 +36,8 @@ from tactile_rig.rig.trade.table import TradeRow, TradeTable
 from tactile_rig.sim.scenes import resolve_scene_path
 
 TOPIC = "scenes"
-SUMMARY = "model sensor vs rendered sensor (renderer + real processor): path fidelity vs real-time factor"
+SUMMARY = ("how much to model: model vs rendered sensor, and the simulated arm's integration step: "
+           "path fidelity vs real-time factor, per scene")
 
 # Scenes that wire both sensor kinds, with the figure their property judges.
 SCENES: dict[str, str] = {"following_proximity_rendered": "max_lag_mm"}
