@@ -18,17 +18,14 @@ Usage: ``python benchmarks/bench_dynamixel_wire.py [--ops 300] [--reads 20000] [
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 import time
-from pathlib import Path
-
-from _output import add_save_args, parse_args, save_json  # noqa: E402  (benchmarks/ is the script's folder)
 from typing import Any
 
 import dynamixel_sdk as sdk
 import numpy as np
+from _output import add_save_args, parse_args, save_json  # benchmarks/ is the script's folder
 
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.core.errors import RigError

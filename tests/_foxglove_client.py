@@ -49,6 +49,13 @@ class LiveClient:
     def on(self, topic: str) -> list[Received]:
         return [m for m in self.messages if m.topic == topic]
 
+    def wait_for(self, topic: str, count: int, timeout_s: float = 10.0) -> bool:
+        """Wait until ``count`` messages of ``topic`` have arrived (a loaded machine delivers late)."""
+        deadline = time.monotonic() + timeout_s
+        while len(self.on(topic)) < count and time.monotonic() < deadline and self._thread.is_alive():
+            time.sleep(0.01)
+        return len(self.on(topic)) >= count
+
     def _run(self) -> None:
         deadline = time.monotonic() + 10.0
         ws = None

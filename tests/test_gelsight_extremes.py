@@ -262,7 +262,7 @@ def test_cli_threshold_flags_reach_the_registration(tmp_path, capsys, textured) 
     assert main(base) == 0
     capsys.readouterr()
     # A correlation bar no real pair can pass turns the same pair into a refusal.
-    assert main(base + ["--min-ncc", "1.01", "--no-dense-fallback"]) == 1
+    assert main(base + ["--min-ncc", "1.0", "--no-dense-fallback"]) == 1
     assert _last_json(capsys)["reason"] == "dense_check_failed"
     assert main(base + ["--min-inliers", "100000", "--no-dense-fallback"]) == 1
 

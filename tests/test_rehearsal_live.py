@@ -42,6 +42,8 @@ def test_the_live_view_sends_what_the_recording_stores(tmp_path) -> None:
                 img[:, i % 32] = 255
                 sink.write_frame("left", img, compress="jpeg")
             clock.sleep(0.0125)
+        client.wait_for("/scale/force", 50)  # delivery, not timing: the server closes with the sink
+        client.wait_for("/camera/left/compressed", 10)
         sink.close()
         client.stop()
     recorded = read_recording(tmp_path / "s.mcap")

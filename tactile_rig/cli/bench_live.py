@@ -19,6 +19,7 @@ import numpy as np
 
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.common import print_json
+from tactile_rig.rig.camera_calibrations import camera_calibrations, describe_files
 from tactile_rig.rig.live import DEFAULT_LIVE_PORT, LiveServer
 from tactile_rig.rig.live_perception import (
     FingerVisionStep,
@@ -45,9 +46,11 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
 SESSION_TOPIC = "/session"  # advertised at once so a viewer can subscribe before the session's own topics exist
 
 
-def live_from_args(args: argparse.Namespace, clock: Any = None, topics: tuple[str, ...] = ()) -> LiveServer | None:
+def live_from_args(args: argparse.Namespace, clock: Any = None,
+                   topics: tuple[str, ...] | dict[str, str] = ()) -> LiveServer | None:
     """The live server ``--live`` asks for (its URL printed on stderr), or None. With ``--live-wait``
-    it waits for a viewer to subscribe to ``topics`` (advertised first), or to anything."""
+    it waits for a viewer to subscribe to ``topics`` (advertised first: a dict gives each topic's schema,
+    a tuple means ``tactile_rig.Perception``), or to anything."""
     if not getattr(args, "live", False):
         return None
     if args.live_wait < 0:
@@ -58,8 +61,9 @@ def live_from_args(args: argparse.Namespace, clock: Any = None, topics: tuple[st
         live.advertise(SESSION_TOPIC)
         live.wait_for_subscriber(args.live_wait)
     elif args.live_wait > 0:
-        for t in topics:
-            live.advertise(t, "tactile_rig.Perception")
+        schemas = topics if isinstance(topics, dict) else dict.fromkeys(topics, "tactile_rig.Perception")
+        for t, schema in schemas.items():
+            live.advertise(t, schema)
         live.wait_for_subscriber(args.live_wait, set(topics))
     return live
 
@@ -110,11 +114,20 @@ def track(args: argparse.Namespace, params: Any) -> int:
     def line(r: dict[str, Any]) -> str:
         if r["calibrating"]:
             return f"calibrating ({r['marker_count']} markers)"
-        f = r["force"]
-        return (f"{r['marker_count']:3d} markers  force ({f[0]:+.3f}, {f[1]:+.3f}, {f[2]:+.3f}) {r['force_unit']}  "
+        f, unit = (r["force_n"], "N") if "force_n" in r else (r["force_px"], "px")
+        return (f"{r['marker_count']:3d} markers  force ({f[0]:+.3f}, {f[1]:+.3f}, {f[2]:+.3f}) {unit}  "
                 f"{'contact' if r['contact'] else 'free'}  {'SLIP' if r['slip'] else 'still'}")
 
-    return _run(args, FingerVisionStep(params), "fingervision", line)
+    bench = bench_from_args(args)
+    stored = not getattr(args, "no_calibration", False)
+    cal = camera_calibrations(bench, args.camera, calibration=getattr(args, "calibration", None) if stored else None,
+                              force_map=getattr(args, "force_map", None) if stored else None, defaults=False,
+                              load=("calibration", "force_map") if stored else ())
+    cfg = bench.cameras.get(cal.camera)
+    step = FingerVisionStep(params, cal, mm_per_px=float(cfg.mm_per_px_x) if cfg is not None else None)
+    if not getattr(args, "json", False):
+        print(f"calibration: {describe_files(cal)}", flush=True)
+    return _run(args, step, "fingervision", line)
 
 
 def height(args: argparse.Namespace) -> int:

@@ -160,7 +160,7 @@ def _track(args: argparse.Namespace) -> int:
         cal.calibration.apply(fv)  # the stored baseline: no frames spent rebuilding it
     fm = cal.force_map
     if not args.json:
-        print(f"calibration: {describe_files(cal)}", file=sys.stderr)
+        print(f"calibration: {describe_files(cal)}")
     learnt = args.object_rect is None
     n = 0
     for i, (name, frame) in enumerate(iter_frames(args.frames)):

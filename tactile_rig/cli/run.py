@@ -87,7 +87,9 @@ def _jig_accuracy(args: argparse.Namespace) -> int:
         elif progress is not None:
             progress.update(1)
 
-    live = live_from_args(args)
+    # Advertised before the run so a viewer waiting with --live-wait misses none of the first moves.
+    live = live_from_args(args, topics={"/jig/pose": "tactile_rig.JigPose",
+                                        "/perception/jig_accuracy_point": "tactile_rig.Perception"})
     try:
         outcome = execute_jig_accuracy(cfg, out_dir, bench=bench, calibration=args.calibration, camera=args.camera,
                                        resume=True if args.resume else None, overwrite=args.overwrite,

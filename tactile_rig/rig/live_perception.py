@@ -24,6 +24,7 @@ from tactile_rig.perception.fingervision import FingerVision, FingerVisionParams
 from tactile_rig.perception.gelsight import GelSightCalibration, Reconstructor
 from tactile_rig.rig.bench import Bench
 from tactile_rig.rig.bench_camera import camera_name, open_camera
+from tactile_rig.rig.camera_calibrations import CameraCalibrations, FingerVisionCalibration
 
 RATE_WINDOW = 30  # frames the displayed rate is measured over
 
@@ -54,12 +55,20 @@ class RateMeter:
 class FingerVisionStep:
     """Marker tracking, force and torque, object and slip (:class:`FingerVision`) on each frame.
 
-    The first ``params.n_calib_frames`` frames build the marker baseline (the skin must be untouched)."""
+    With ``calibrations`` (the bench camera's, :func:`camera_calibrations`) the tracker starts from the
+    stored marker baseline and a force map turns the marker force (px) into newtons (``force_n``,
+    ``force_map_n``; the torque in N·mm with ``mm_per_px``). Without a stored baseline the first
+    ``params.n_calib_frames`` frames build it (the skin must be untouched)."""
 
     name = "fingervision"
 
-    def __init__(self, params: FingerVisionParams | None = None) -> None:
-        self.fv = FingerVision(params or FingerVisionParams())
+    def __init__(self, params: FingerVisionParams | None = None, calibrations: CameraCalibrations | None = None,
+                 *, mm_per_px: float | None = None) -> None:
+        cal = calibrations.calibration if calibrations is not None else None
+        self.fv = cal.processor(params) if isinstance(cal, FingerVisionCalibration) else FingerVision(
+            params or FingerVisionParams())
+        self.force_map = calibrations.force_map if calibrations is not None else None
+        self.mm_per_px = mm_per_px
 
     def __call__(self, image: np.ndarray, t_s: float) -> dict[str, Any]:
         r = self.fv.process(image, t_s)
@@ -67,14 +76,20 @@ class FingerVisionStep:
         disp = None
         if base is not None and not r.calibrating:
             disp = (np.asarray(r.marker_positions_px) - np.asarray(base.positions_px)).round(3).tolist()
-        return {"calibrating": r.calibrating, "marker_count": r.n_markers,
+        out: dict[str, Any] = {"calibrating": r.calibrating, "marker_count": r.n_markers,
                 "markers_px": np.asarray(r.marker_positions_px).round(3).tolist(),
                 "marker_displacements_px": disp, "marker_valid": np.asarray(r.marker_valid).tolist(),
-                "force": np.asarray(r.force_px).round(5).tolist(),
-                "force_unit": "N" if self.fv.params.force.newton_per_px is not None else "px",
-                "torque": np.asarray(r.torque_px2).round(4).tolist(), "contact": r.contact, "slip": r.slip,
+                "force_px": np.asarray(r.force_px).round(5).tolist(),
+                "torque_px2": np.asarray(r.torque_px2).round(4).tolist(), "contact": r.contact, "slip": r.slip,
                 "slip_magnitude_px": r.slip_magnitude_px, "object_area_px": r.object_area_px,
                 "object_centroid_px": r.object_centroid_px, "timings_ms": r.timings_ms}
+        if self.force_map is not None and not r.calibrating:
+            f_n, tq_npx, magnitude_n = self.force_map.to_newtons(r.force_px, r.torque_px2)
+            out["force_n"] = np.round(f_n, 5).tolist()
+            out["force_map_n"] = round(float(magnitude_n), 5)
+            if self.mm_per_px is not None:
+                out["torque_nmm"] = np.round(tq_npx * self.mm_per_px, 5).tolist()
+        return out
 
 
 class GelSightHeightStep:

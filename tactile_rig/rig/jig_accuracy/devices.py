@@ -8,13 +8,14 @@ from typing import Any, Callable
 import numpy as np
 
 from tactile_rig.core.clock import VirtualClock
-from tactile_rig.core.errors import RigError
+from tactile_rig.core.errors import DeviceTimeout, RigError
 from tactile_rig.core.geometry import Pose
 from tactile_rig.drivers.camera import CameraConfig, FingertipCamera
 from tactile_rig.mocks.camera import SimulatedCamera
 from tactile_rig.rig.bench import Bench, connect_bench, load_bench, mock_bench_path
 
 MOCK_SCENE = "jig_accuracy"
+STALE_FRAMES_MAX = 30  # frames from before the settle that a touch skips before giving up (1 s at 30 fps)
 MOCK_PRESS_SCENE = "gelsight_ball_presses"
 
 
@@ -39,6 +40,7 @@ class DeviceJigRig:
         self.description = dict(description or {"kind": "mock" if world is not None else "bench"})
         self.recorder = recorder
         self.camera_name = camera_name
+        self._settled_at_s: float | None = None  # when the last move had settled (the clock's time)
 
     def now_s(self) -> float:
         return float(self.clock.now_s())
@@ -49,6 +51,7 @@ class DeviceJigRig:
         self.jig.move_to(pose.x_mm, pose.y_mm, pose.theta_deg, feed_mm_per_min=self.feed_mm_per_min)
         self.jig.wait_idle(timeout_s=self.move_timeout_s)
         self.clock.sleep(self.settle_s)
+        self._settled_at_s = self.now_s()
         if self.recorder is not None:
             extra = {}
             if self.world is not None:
@@ -56,7 +59,18 @@ class DeviceJigRig:
             self.recorder.write_jig_pose({**pose.as_dict(), "z_mm": 0.0}, **extra)
 
     def touch(self) -> np.ndarray:
+        """A frame taken after the last move settled (frames a camera queued before are skipped)."""
         frame = self.camera.read(timeout_s=self.frame_timeout_s)
+        # V4L2 buffers and network streams hand over frames exposed earlier: one that arrived before
+        # the stage settled shows the old pose and would be localized as the new one.
+        skipped = 0
+        while (self._settled_at_s is not None and getattr(frame, "t_host_s", None) is not None
+               and frame.t_host_s < self._settled_at_s):
+            skipped += 1
+            if skipped > STALE_FRAMES_MAX:
+                raise DeviceTimeout(f"{skipped} frames in a row arrived from before the stage settled at "
+                                    f"t={self._settled_at_s:.3f} s (expected a fresh frame)", device=self.camera_name)
+            frame = self.camera.read(timeout_s=self.frame_timeout_s)
         image = getattr(frame, "image", frame)
         if self.recorder is not None:
             self.recorder.write_frame(self.camera_name, image, compress="png")
