@@ -144,3 +144,17 @@ def test_groups_have_their_own_front_and_default(tmp_path):
                                                   rows[4]], group_by="scene")
     with pytest.raises(ValueError, match="has no such knob"):
         TradeTable("g", "s", "e", "", [TradeRow({"k": 1}, 1, 1, is_default=True)], group_by="scene")
+
+
+@given(st.lists(st.tuples(st.sampled_from("ab"), st.floats(0.1, 1e4), st.floats(0.0, 100.0)), min_size=1,
+                max_size=25))
+def test_grouped_front_is_the_undominated_set_within_each_group(points):
+    groups = sorted({g for g, _, _ in points})
+    first = {g: next(i for i, p in enumerate(points) if p[0] == g) for g in groups}
+    rows = [TradeRow({"g": g, "k": i}, s, e, is_default=(first[g] == i)) for i, (g, s, e) in enumerate(points)]
+    t = TradeTable("t", "s", "e", "", rows, group_by="g", speed_tolerance=0.0)
+    front = set(t.front())
+    for i, (gi, si, ei) in enumerate(points):
+        dominated = any(gj == gi and (sj >= si and ej <= ei) and (sj > si or ej < ei)
+                        for j, (gj, sj, ej) in enumerate(points) if j != i)
+        assert (i in front) == (not dominated)
