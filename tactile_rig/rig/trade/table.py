@@ -335,5 +335,5 @@ def _num(x: Any) -> str:
 
 
 def _setting_text(setting: Mapping[str, Any]) -> str:
-    return " ".join(f"{k}={v}" for k, v in setting.items()) or "(defaults)"
+    return " ".join(f"{k}={v}" if v != "" else str(k) for k, v in setting.items()) or "(defaults)"
 
