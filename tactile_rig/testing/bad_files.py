@@ -194,7 +194,7 @@ def _map_members(nrng: np.random.Generator, **over: object) -> dict[str, bytes]:
                 arrays.pop(k[4:], None)
             else:
                 arrays[k[4:]] = v  # type: ignore[assignment]
-    return {f"{k}.npy": _npy_bytes(v, allow_pickle=v.dtype == object) for k, v in arrays.items()}  # type: ignore[union-attr]
+    return {f"{k}.npy": _npy_bytes(v, allow_pickle=v.dtype == object) for k, v in arrays.items()}
 
 
 def _map_cases(rng: random.Random, nrng: np.random.Generator) -> list[tuple[str, bytes | None]]:
