@@ -41,7 +41,7 @@ def _pyplot() -> Any:
     return plt
 
 
-def _finite_pair(true: Sequence[float], est: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+def _finite_pair(true: Sequence[float] | np.ndarray, est: Sequence[float] | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     t = np.asarray(true, float).ravel()
     e = np.asarray(est, float).ravel()
     if t.shape != e.shape:
