@@ -64,12 +64,17 @@ def settings() -> list[dict[str, Any]]:
     ]
 
 
+_BRISK: dict[str, Any] = {}
+
+
 def _baseline(a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
     """Off-the-shelf: BRISK on min-max normalised maps, cross-checked matches, partial-affine RANSAC."""
     def u8(z: np.ndarray) -> np.ndarray:
         return cv2.normalize(z, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
 
-    det = cv2.BRISK_create() if hasattr(cv2, "BRISK_create") else cv2.xfeatures2d.BRISK_create()
+    det = _BRISK.get("det")
+    if det is None:  # building BRISK's pattern costs tens of ms: once, not per pair
+        det = _BRISK["det"] = cv2.BRISK_create() if hasattr(cv2, "BRISK_create") else cv2.xfeatures2d.BRISK_create()
     ka, da = det.detectAndCompute(u8(a), None)
     kb, db = det.detectAndCompute(u8(b), None)
     if da is None or db is None or len(ka) < 3 or len(kb) < 3:
