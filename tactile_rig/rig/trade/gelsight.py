@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 import time
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any, Callable
 
@@ -171,7 +172,7 @@ def measure(*, quick: bool, seed: int = 0) -> TradeTable:
     n_frames = 12 if quick else 40
     big_cals: dict = {}
     recs = [_reconstructor(big_models[s.fit_key], s, big.background, mm2, big_cals) for s in rows_set]
-    fns: list[Callable[[], Any]] = [(lambda r=r: r.height_mm(frame)) for r in recs]
+    fns: list[Callable[[], Any]] = [partial(r.height_mm, frame) for r in recs]
     mlp = big_models[("mlp", None)]
     assert isinstance(mlp, MlpModel)
     fns.append(lambda: gs_sdk_style_height(mlp, big.background, mm2, frame))

@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import replace
+from functools import partial
 from typing import Any, Callable
 
 import cv2
@@ -142,7 +143,7 @@ def measure(*, quick: bool, seed: int = 0) -> TradeTable:
                 sc.add(register(d.a.height_mm, t.height_mm, d.mm_per_px, params), truth, t.height_mm.shape, d.mm_per_px)
         scores.append(sc)
         a, b = data[0].a.height_mm, data[0].touches[len(data[0].touches) // 2].height_mm
-        timers.append(lambda a=a, b=b, p=params: register(a, b, 0.0634, p))
+        timers.append(partial(register, a, b, data[0].mm_per_px, params))
     base = Score()
     for d in sets:
         s = _score_baseline(d)
