@@ -71,11 +71,14 @@ _BRISK: dict[str, Any] = {}
 def _baseline(a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
     """Off-the-shelf: BRISK on min-max normalised maps, cross-checked matches, partial-affine RANSAC."""
     def u8(z: np.ndarray) -> np.ndarray:
-        return cv2.normalize(z, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+        z = np.nan_to_num(z.astype(np.float32))
+        z = z - z.min()
+        return (255.0 * z / max(float(z.max()), 1e-12)).astype(np.uint8)
 
     det = _BRISK.get("det")
     if det is None:  # building BRISK's pattern costs tens of ms: once, not per pair
-        det = _BRISK["det"] = cv2.BRISK_create() if hasattr(cv2, "BRISK_create") else cv2.xfeatures2d.BRISK_create()
+        make = getattr(cv2, "BRISK_create", None) or cv2.xfeatures2d.BRISK_create  # 4.x / 5.x
+        det = _BRISK["det"] = make()
     ka, da = det.detectAndCompute(u8(a), None)
     kb, db = det.detectAndCompute(u8(b), None)
     if da is None or db is None or len(ka) < 3 or len(kb) < 3:
@@ -83,8 +86,8 @@ def _baseline(a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
     ms = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(db, da)
     if len(ms) < 3:
         return None
-    src = np.float32([kb[m.queryIdx].pt for m in ms])
-    dst = np.float32([ka[m.trainIdx].pt for m in ms])
+    src = np.array([kb[m.queryIdx].pt for m in ms], np.float32)
+    dst = np.array([ka[m.trainIdx].pt for m in ms], np.float32)
     m, _ = cv2.estimateAffinePartial2D(src, dst, method=cv2.RANSAC)
     return m
 
