@@ -121,6 +121,7 @@ def interleaved_best_s(fns: list[Callable[[], Any]], calls: list[int], rounds: i
         fn()  # warm caches and lazy set-up outside the timing
     for _ in range(rounds):
         for i, (fn, n) in enumerate(zip(fns, calls)):
+            fn()  # untimed: the previous function (a slow per-pixel one) leaves the caches cold
             t = time.perf_counter()
             for _ in range(n):
                 fn()
