@@ -116,6 +116,17 @@ def _reconstructor(model: object, s: Setting, background: np.ndarray, mm_per_px:
 def interleaved_best_s(fns: list[Callable[[], Any]], calls: list[int], rounds: int = 5) -> list[float]:
     """Seconds per call of each function: the best batch over ``rounds`` rounds, the functions
     interleaved within each round so a burst of load on the shared machine hits them all alike."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # optional: without it BLAS may use (and spin) more threads
+        return _interleaved(fns, calls, rounds)
+    # One thread for BLAS too: an OpenBLAS pool left spinning after the per-pixel baseline's matrix
+    # products stole the core from the next two settings (they read 2x slow).
+    with threadpool_limits(1):
+        return _interleaved(fns, calls, rounds)
+
+
+def _interleaved(fns: list[Callable[[], Any]], calls: list[int], rounds: int) -> list[float]:
     best = [float("inf")] * len(fns)
     for fn in fns:
         fn()  # warm caches and lazy set-up outside the timing
