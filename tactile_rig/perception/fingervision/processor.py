@@ -96,7 +96,7 @@ class FingerVisionParams:
                 bad = sorted(set(value) - known)
                 if bad:
                     raise ValueError(f"FingerVision config: unknown key(s) {bad} in [{key}]; expected some of {sorted(known)}")
-                kwargs[key] = dataclasses.replace(default, **dict(value))
+                kwargs[key] = dataclasses.replace(default, **dict(value))  # type: ignore[type-var]  # a dataclass instance
             else:
                 kwargs[key] = value
         return cls(**kwargs)

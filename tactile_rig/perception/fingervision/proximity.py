@@ -150,7 +150,7 @@ def estimate_shift(
     h, w = b.shape
     for _ in range(max(1, iterations)):
         # warp prev forward by d: warped(x) = prev(x - d); residual against cur
-        M = np.float32([[1, 0, d[0]], [0, 1, d[1]]])
+        M = np.array([[1, 0, d[0]], [0, 1, d[1]]], dtype=np.float32)
         warped = cv2.warpAffine(a, M, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         it = (b - warped)[sel].astype(np.float64)
         step = -Ainv @ np.array([sx @ it, sy @ it])
@@ -324,9 +324,9 @@ class ProximityVision:
         # slip on the coarse grid
         f = self._checked(frame_bgr)
         # luminance, not the HSV value: a saturated red channel would flatten an orange object's texture
-        gray = f.reshape(f.shape[:2]) if f.ndim == 2 or f.shape[2] == 1 else cv2.cvtColor(f, cv2.COLOR_BGR2GRAY)
+        gray: np.ndarray = f.reshape(f.shape[:2]) if f.ndim == 2 or f.shape[2] == 1 else cv2.cvtColor(f, cv2.COLOR_BGR2GRAY)
         ks = p.slip_downsample
-        sh, sw = gray.shape[0] // ks, gray.shape[1] // ks
+        sh, sw = int(f.shape[0]) // ks, int(f.shape[1]) // ks
         small = cv2.resize(gray, (sw, sh), interpolation=cv2.INTER_AREA) if ks > 1 else gray.copy()
         region = cv2.resize(mask, (sw, sh), interpolation=cv2.INTER_NEAREST)
         if mom.area_px == 0:

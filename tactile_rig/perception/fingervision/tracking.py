@@ -114,39 +114,39 @@ class KalmanBank:
         """Advance the selected markers by ``dt_s`` seconds (constant velocity)."""
         if not np.any(which):
             return
-        which = _sel(which)
+        sel = _sel(which)
         q = self.q
-        self.pos[which] += self.vel[which] * dt_s
+        self.pos[sel] += self.vel[sel] * dt_s
         # all new values are computed before any is stored: with a slice the inputs are views
-        p00, p01, p11 = self.p00[which], self.p01[which], self.p11[which]
+        p00, p01, p11 = self.p00[sel], self.p01[sel], self.p11[sel]
         n00 = p00 + 2.0 * dt_s * p01 + dt_s * dt_s * p11 + q
         n01 = p01 + dt_s * p11
         n11 = p11 + q
-        self.p00[which], self.p01[which], self.p11[which] = n00, n01, n11
-        self.ps[which] += q
+        self.p00[sel], self.p01[sel], self.p11[sel] = n00, n01, n11
+        self.ps[sel] += q
 
     def update(self, z: np.ndarray, which: np.ndarray) -> None:
         """Fuse measurements ``z`` (N, 3) = (x, y, size) for the selected markers (Joseph form)."""
         if not np.any(which):
             return
-        which = _sel(which)
+        sel = _sel(which)
         r = self.r
-        p00, p01, p11 = self.p00[which], self.p01[which], self.p11[which]
+        p00, p01, p11 = self.p00[sel], self.p01[sel], self.p11[sel]
         k0 = p00 / (p00 + r)
         k1 = p01 / (p00 + r)
-        innov = z[which, :2] - self.pos[which]
-        self.pos[which] += k0[:, None] * innov
-        self.vel[which] += k1[:, None] * innov
+        innov = z[sel, :2] - self.pos[sel]
+        self.pos[sel] += k0[:, None] * innov
+        self.vel[sel] += k1[:, None] * innov
         a = 1.0 - k0
         # P+ = A P A^T + r K K^T with A = I - K H, H = [1, 0]: stays symmetric positive definite
         n00 = a * a * p00 + r * k0 * k0
         n01 = a * (p01 - k1 * p00) + r * k0 * k1
         n11 = k1 * k1 * p00 - 2.0 * k1 * p01 + p11 + r * k1 * k1
-        self.p00[which], self.p01[which], self.p11[which] = n00, n01, n11
-        ps = self.ps[which]
+        self.p00[sel], self.p01[sel], self.p11[sel] = n00, n01, n11
+        ps = self.ps[sel]
         ks = ps / (ps + r)
-        self.size[which] += ks * (z[which, 2] - self.size[which])
-        self.ps[which] = (1.0 - ks) ** 2 * ps + r * ks * ks
+        self.size[sel] += ks * (z[sel, 2] - self.size[sel])
+        self.ps[sel] = (1.0 - ks) ** 2 * ps + r * ks * ks
 
     def hold(self, which: np.ndarray, previous: tuple[np.ndarray, ...]) -> None:
         """A missed marker stays where it was before the prediction, with zero velocity (no drift)."""
