@@ -155,6 +155,18 @@ class KalmanBank:
         self.vel[which] = 0.0
         self.size[which] = size[which]
 
+    def append(self, positions_px: np.ndarray, sizes_px: np.ndarray) -> None:
+        """Add markers at rest (zero velocity, initial covariance) after the existing ones."""
+        pos = np.asarray(positions_px, dtype=np.float64).reshape(-1, 2)
+        n = len(pos)
+        self.pos = np.vstack([self.pos, pos])
+        self.vel = np.vstack([self.vel, np.zeros((n, 2))])
+        self.size = np.concatenate([self.size, np.asarray(sizes_px, dtype=np.float64).reshape(n)])
+        self.p00 = np.concatenate([self.p00, np.full(n, self.r)])
+        self.p01 = np.concatenate([self.p01, np.zeros(n)])
+        self.p11 = np.concatenate([self.p11, np.full(n, self.r)])
+        self.ps = np.concatenate([self.ps, np.full(n, self.r)])
+
     def covariance(self, i: int) -> np.ndarray:
         """The full 5x5 covariance of marker ``i`` in state order (x, vx, y, vy, s)."""
         blk = np.array([[self.p00[i], self.p01[i]], [self.p01[i], self.p11[i]]])
@@ -211,6 +223,27 @@ class MarkerTracker:
             else None
         )
         self._last_t_s: float | None = None
+
+    def add_markers(self, positions_px: np.ndarray, sizes_px: np.ndarray) -> np.ndarray:
+        """Add markers (rest positions and diameters, px) with new ids after the existing ones; returns
+        the new ids. The existing ids, positions and filter states do not change."""
+        pos = np.asarray(positions_px, dtype=np.float64).reshape(-1, 2)
+        size = np.asarray(sizes_px, dtype=np.float64).reshape(len(pos))
+        n0, n = len(self.ids), len(pos)
+        b = self.baseline
+        self.baseline = MarkerBaseline(np.vstack([b.positions_px.reshape(-1, 2), pos]),
+                                       np.concatenate([b.sizes_px, size]),
+                                       np.concatenate([np.asarray(b.valid, bool), np.ones(n, bool)]))
+        self.ids = np.arange(n0 + n)
+        self.positions_px = np.vstack([self.positions_px, pos])
+        self.sizes_px = np.concatenate([self.sizes_px, size])
+        self.misses = np.concatenate([self.misses, np.zeros(n, np.int64)])
+        self.lost = np.concatenate([self.lost, np.zeros(n, bool)])
+        self._confirm = np.concatenate([self._confirm, np.zeros(n, np.int64)])
+        self._confirm_pos = np.vstack([self._confirm_pos, np.zeros((n, 2))])
+        if self.kalman is not None:
+            self.kalman.append(pos, size)
+        return self.ids[n0:].copy()
 
     def update(self, contrast: np.ndarray, t_s: float | None = None) -> TrackState:
         """Measure every marker in ``contrast`` (see :func:`markers.contrast_map`); returns the new state.
