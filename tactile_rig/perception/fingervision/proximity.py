@@ -96,7 +96,9 @@ def _median_u8(channel: np.ndarray) -> float:
 
 
 def object_moments(mask: np.ndarray, scale: float = 1.0, round_tolerance: float = 0.03) -> ObjectMoments:
-    """Area, centroid and orientation of a binary mask whose pixels are ``scale`` full-res pixels wide."""
+    """Area, centroid and orientation of a binary mask whose pixels are ``scale`` full-res pixels wide.
+
+    Valid input: any 2-D mask (an empty one is "no object": area 0, centroid and orientation None)."""
     m = cv2.moments(np.ascontiguousarray(mask, dtype=np.uint8), binaryImage=True)
     m00 = m["m00"]
     if not m00 > 0:
@@ -120,7 +122,8 @@ def estimate_shift(
     """Translation (dx, dy) in pixels that moves ``prev`` onto ``cur`` over ``region`` (iterative LK).
 
     Each image is divided by its mean over the region first (robust to a light gain). Returns None
-    when the region holds too few textured pixels to tell.
+    when the region holds too few textured pixels to tell, or when the solution leaves the image
+    (never a non-finite or out-of-frame shift). Valid input: three arrays of one shape.
     """
     if prev.shape != cur.shape or region.shape != cur.shape:
         raise ValueError(f"estimate_shift: shapes differ: prev {prev.shape}, cur {cur.shape}, region {region.shape}")
@@ -314,7 +317,9 @@ class ProximityVision:
         """Object moments and slip in one frame.
 
         ``exclude_px``: (N, 2) points (markers, which do not move with the object) whose
-        neighbourhood of ``exclude_radius_px`` is left out of the slip estimate.
+        neighbourhood of ``exclude_radius_px`` is left out of the slip estimate (non-finite ones are
+        ignored). Valid input: frames of at least 2 x downsample px a side (:class:`InvalidFrame`
+        otherwise); no object learnt gives "no object" and no slip.
         """
         p = self.params
         mask = self.object_mask(frame_bgr)

@@ -75,6 +75,9 @@ class KalmanBank:
     covariance are equal and independent of the size block, so the 5x5 covariance of each marker is
     stored as one symmetric 2x2 axis block ``(p00, p01, p11)`` plus a size variance ``ps``: the same
     filter in closed form, elementwise over markers (no batched matrix algebra per frame).
+
+    Valid input: noises > 0 (``ValueError`` otherwise), time steps >= 0 s; the covariance stays
+    symmetric positive definite and finite (10^5-step and extreme-step property tests).
     """
 
     def __init__(
