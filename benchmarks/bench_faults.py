@@ -23,10 +23,10 @@ import sys
 import time
 from pathlib import Path
 
-from _output import add_save_args, parse_args, save_json  # benchmarks/ is the script's folder
-
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+
+from _output import add_save_args, parse_args, save_json  # noqa: E402  (benchmarks/ is the script's folder)
 
 from tactile_rig.testing.faultsoak import (  # noqa: E402
     DEVICES,
@@ -53,14 +53,17 @@ def _names(text: str | None, allowed: tuple[str, ...], what: str) -> tuple[str, 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="100 operations in process, 40 over the relay")
-    add_save_args(ap, "faults.json")
     ap.add_argument("--devices", help=f"comma-separated subset of {','.join(DEVICES)}")
     ap.add_argument("--faults", help=f"comma-separated subset of {','.join(KINDS)}")
     ap.add_argument("--transports", help=f"comma-separated subset of {','.join(TRANSPORTS)}")
     ap.add_argument("-n", type=int, default=None, help="operations per row in process (default 500)")
     ap.add_argument("--n-relay", type=int, default=None, help="operations per row over the relay (default 150)")
     ap.add_argument("--seed", type=int, default=0)
+    add_save_args(ap, "faults.json")
     args = parse_args(ap, argv)
+    if args.save and (args.devices or args.faults or args.transports):
+        ap.error("--save with a subset (--devices/--faults/--transports) would replace the full table in "
+                 "benchmarks/results/faults.json; use --out PATH")
     n = args.n or (100 if args.quick else 500)
     n_relay = args.n_relay or (40 if args.quick else 150)
     devices = _names(args.devices, DEVICES, "devices")
@@ -87,13 +90,13 @@ def main(argv: list[str] | None = None) -> int:
             moving.append(m)
             print(f"  {fault:<10} {m.reports:>5} {m.typed:>5} {m.wrong:>4}  ({100 * m.wrong_rate:.2f} %)  {m.examples[:2]}")
     save_json(args, {
-        "benchmark": "faults",
-        "command": "python benchmarks/bench_faults.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-        "operations_in_process": n, "operations_relay": n_relay, "seed": args.seed,
-        "fault_queries": FAULT_QUERIES, "wall_s": round(took, 1), "python": platform.python_version(),
-        "totals": tot, "rows": [r.to_dict() for r in rows],
-        "jig_moving_reports": [m.to_dict() for m in moving],
-    })
+            "benchmark": "faults",
+            "command": "python benchmarks/bench_faults.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+            "operations_in_process": n, "operations_relay": n_relay, "seed": args.seed,
+            "fault_queries": FAULT_QUERIES, "wall_s": round(took, 1), "python": platform.python_version(),
+            "totals": tot, "rows": [r.to_dict() for r in rows],
+            "jig_moving_reports": [m.to_dict() for m in moving],
+        })
     return 1 if tot["untyped"] or tot["hangs"] or tot["wrong"] else 0
 
 

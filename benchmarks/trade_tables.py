@@ -38,7 +38,7 @@ from _output import RESULTS_DIR, add_save_args, parse_args  # noqa: E402
 
 from tactile_rig.rig import trade  # noqa: E402
 from tactile_rig.rig.trade.conditions import conditions_text  # noqa: E402
-from tactile_rig.rig.trade.table import TradeTable  # noqa: E402
+from tactile_rig.rig.trade.table import TradeTable, setting_text  # noqa: E402
 
 DOC = ROOT / "docs" / "speed_and_accuracy.md"
 IMG = ROOT / "docs" / "img"
@@ -62,7 +62,7 @@ def _best(t: TradeTable, key: str) -> str:
         return "-"
     i = front[0] if key == "speed" else front[-1]
     r = t.rows[i]
-    return f"`{' '.join(f'{k}={v}' for k, v in r.setting.items())}` ({r.speed:.4g} {t.speed_name}, " \
+    return f"`{setting_text(r.setting)}` ({r.speed:.4g} {t.speed_name}, " \
            f"{r.error:.4g} {t.error_name})"
 
 
@@ -124,7 +124,7 @@ def page(tables: dict[str, TradeTable | None], summaries: dict[str, str], img_re
         if t is None:
             head.append(f"| [{topic}](#{topic}) | - | not measured yet | - | - |")
             continue
-        defaults = "<br>".join(f"`{' '.join(f'{k}={v}' for k, v in t.rows[i].setting.items())}`"
+        defaults = "<br>".join(f"`{setting_text(t.rows[i].setting)}`"
                                for i in t.default_indices)
         on = "yes" if t.default_on_front() else ("no: " + (t.default_note or "**no reason given**"))
         if t.group_by:  # one front per group: the section lists them

@@ -335,5 +335,9 @@ def _num(x: Any) -> str:
 
 
 def _setting_text(setting: Mapping[str, Any]) -> str:
-    return " ".join(f"{k}={v}" for k, v in setting.items()) or "(defaults)"
+    return " ".join(f"{k}={v}" if v != "" else str(k) for k, v in setting.items()) or "(defaults)"
 
+
+def setting_text(setting: Mapping[str, Any]) -> str:
+    """A setting as one line, ``knob=value knob2=value2`` (what the tables and plots print)."""
+    return _setting_text(setting)
