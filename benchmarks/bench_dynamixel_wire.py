@@ -2,17 +2,20 @@
 
 Two parts, each beside its baseline in the same run:
 
-* **fault table**: Protocol 2.0 and 1.0 × drop, flip, dup, garbage, split, late, lost, stall, unplug
+* **fault table**: Protocol 2.0 and 1.0 × drop, flip, dup, garbage, noise, split, late, lost, stall, unplug
   (with replug): operations (ping, reads, writes), typed errors, recoveries (a success after a
   failure), untyped exceptions, hangs (an operation over 1 s of virtual time) and silently wrong
   values (a read that differs from the mock's register, a write that returned but did not land).
   Protocol 1.0 reads use ``verify=True`` here; the baseline rows are the bare dynamixel-sdk
   (``PacketHandler.readTxRx`` / ``ping``) on the same faults, as issue #11 found it.
-* **P1 residual**: the rate of wrong values among Protocol 1.0 reads of Goal Position with garbage
-  injected, without and with read-verify, and the bare SDK's rate.
+* **P1 residual**: the rate of wrong values among Protocol 1.0 reads of Goal Position with 1-8
+  random bytes inserted at a random place inside 30 % of the statuses (line noise): the bare SDK,
+  the bus's raw bytes, the bus's range-checked item, and the item with read-verify.
+* **speed**: Present Position reads per second over a pty, the bus beside the bare SDK.
 
 Usage: ``python benchmarks/bench_dynamixel_wire.py [--ops 300] [--reads 20000] [--sdk-reads 1000]
-[--quick] [--save]``; ``--save`` writes ``benchmarks/results/dynamixel_wire.json``.
+[--speed-reads 3000] [--parts table,residual,speed] [--quick] [--save | --out PATH]``; ``--save``
+writes the parts run into ``benchmarks/results/dynamixel_wire.json`` (keeping the other parts').
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ from typing import Any
 
 import dynamixel_sdk as sdk
 import numpy as np
-from _output import add_save_args, parse_args, save_json  # benchmarks/ is the script's folder
+from _output import add_save_args, parse_args, save_json, saved_results  # benchmarks/ is the script's folder
 
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.core.errors import RigError
@@ -43,7 +46,8 @@ FAULTS: dict[str, dict[str, Any]] = {
     "drop": {"url": "drop=0.01"},
     "flip": {"url": "flip=0.01"},
     "dup": {"url": "dup=0.01"},
-    "garbage": {"url": "garbage=0.2"},
+    "garbage": {"url": "garbage=0.2"},  # a burst before 20 % of the chunks of device output
+    "noise": {"device": "noise"},  # 1-8 random bytes inside 20 % of the statuses (line noise)
     "split": {"device": "split"},  # a status arrives in two parts, 16 ms apart (a latency-timer boundary)
     "late": {"device": "late"},  # 10 % of statuses 20-120 ms late (queued behind: FIFO)
     "lost": {"device": "lost"},  # 5 % of statuses never sent
@@ -52,10 +56,14 @@ FAULTS: dict[str, dict[str, Any]] = {
 }
 
 
-def _device_faults(dev: Any, kind: str, rng: np.random.Generator) -> None:
+def _device_faults(dev: Any, kind: str, rng: np.random.Generator, p: float = 0.2) -> None:
     orig = dev.emit
 
     def emit(data: bytes, t_s: float, *, delay_s: float = 0.0, reply: bool = True) -> float:
+        if kind == "noise" and rng.random() < p:
+            k = int(rng.integers(0, len(data) + 1))
+            burst = rng.integers(0, 256, size=int(rng.integers(1, 9)), dtype=np.uint8).tobytes()
+            data = data[:k] + burst + data[k:]
         if kind == "late" and rng.random() < 0.10:
             return orig(data, t_s, delay_s=delay_s + float(rng.uniform(0.02, 0.12)), reply=reply)
         if kind == "lost" and rng.random() < 0.05:
@@ -193,50 +201,93 @@ def run_sdk(protocol: int, fault: str, n_ops: int, seed: int = 1) -> Row:
     return row
 
 
-def p1_residual(n_reads: int, garbage: float, *, verify: bool | None, seed: int = 7) -> dict[str, Any]:
-    """Wrong values among P1 reads of Goal Position with garbage injected (verify None: bare SDK)."""
+#: how the residual is read: the bare SDK, the bus's raw bytes (no range check: an item using every
+#: value of its bytes), a named item (Goal Position: values above 4095 are refused as damaged) and
+#: the named item with read-verify
+RESIDUAL_MODES = ("sdk", "raw", "read", "verify")
+
+
+def p1_residual(n_reads: int, noise: float, *, mode: str, seed: int = 7) -> dict[str, Any]:
+    """Wrong values among P1 reads of Goal Position with line noise inside statuses."""
     clock = VirtualClock()
     dev = make_bus(protocol=1, ids=[1], timing=True, return_delay_us=0)
-    name = f"bench-dxl-residual-{verify}-{time.monotonic_ns()}"
-    url = f"rigfault://{register_instance(name, dev, clock)}#garbage={garbage}&seed={seed}"
+    name = f"bench-dxl-residual-{mode}-{time.monotonic_ns()}"
+    url = register_instance(name, dev, clock)
+    _device_faults(dev, "noise", np.random.default_rng(seed + 1), p=noise)
     rng = np.random.default_rng(seed)
     servo = dev.servo(1)
+    item = servo.table["Goal Position"]
     wrong = ok = failed = 0
     t0 = time.perf_counter()
-    if verify is None:
+    if mode == "sdk":
         ph = UrlPortHandler(url, exclusive=False)
         ph.openPort()
         ph.setBaudRate(dev.baud)
         pk = sdk.PacketHandler(1.0)
-        addr = servo.table["Goal Position"].address
     else:
         bus = DynamixelBus(url, protocol=1, baudrate=dev.baud)
     for k in range(n_reads):
         if k % 50 == 0:  # a new true value now and then (written to the mock directly: no wire)
             servo._write_raw_item("Goal Position", int(rng.integers(0, 4096)))
         truth = servo.item("Goal Position")
-        if verify is None:
-            data, res, err = pk.read2ByteTxRx(ph, 1, addr)
-            if res != sdk.COMM_SUCCESS:
-                failed += 1
-                continue
-            got = data
-        else:
-            try:
-                got = bus.read(1, "Goal Position", verify=verify)
-            except RigError:
-                failed += 1
-                continue
+        try:
+            if mode == "sdk":
+                got, res, _ = pk.read2ByteTxRx(ph, 1, item.address)
+                if res != sdk.COMM_SUCCESS:
+                    failed += 1
+                    continue
+            elif mode == "raw":
+                got = int.from_bytes(bus.read_bytes(1, item.address, item.size), "little")
+            else:
+                got = bus.read(1, "Goal Position", verify=mode == "verify")
+        except RigError:
+            failed += 1
+            continue
         ok += 1
         wrong += int(got != truth)
         clock.sleep(0.001)
-    out = {"reads": n_reads, "garbage_per_read_call": garbage, "verify": verify, "returned": ok,
+    out = {"reads": n_reads, "noise_per_status": noise, "mode": mode, "returned": ok,
            "typed_failures": failed, "wrong": wrong, "wrong_per_returned": wrong / ok if ok else None,
            "wall_s": round(time.perf_counter() - t0, 2)}
-    if verify is not None:
+    if mode != "sdk":
         out["stats"] = bus.stats.to_dict()
         bus.close()
     unregister_instance(name)
+    return out
+
+
+def speed(n_reads: int) -> list[dict[str, Any]]:
+    """Present Position reads per second over a pty (mock in a thread, timing on, 1 Mbps, Return
+    Delay Time 0): the bus (validation, flush, resync bookkeeping) beside the bare SDK."""
+    from tactile_rig.testing.serve import serve_on_pty
+
+    out = []
+    for who in ("bare SDK", "bus"):
+        dev = make_bus(protocol=2, ids=[1], timing=True, return_delay_us=0)
+        with serve_on_pty(dev) as server:
+            if who == "bus":
+                bus = DynamixelBus(server.port)
+                read = lambda: bus.read(1, "Present Position")  # noqa: E731
+            else:
+                ph = sdk.PortHandler(server.port)
+                ph.openPort()
+                ph.setBaudRate(1_000_000)
+                pk = sdk.PacketHandler(2.0)
+                read = lambda: pk.read4ByteTxRx(ph, 1, 132)  # noqa: E731
+            for _ in range(50):
+                read()
+            times = []
+            for _ in range(n_reads):
+                t0 = time.perf_counter()
+                read()
+                times.append(time.perf_counter() - t0)
+            if who == "bus":
+                bus.close()
+            else:
+                ph.closePort()
+        t = np.array(times)
+        out.append({"who": who, "reads": n_reads, "reads_per_s": round(n_reads / t.sum(), 1),
+                    "median_ms": round(float(np.median(t)) * 1e3, 3), "p90_ms": round(float(np.percentile(t, 90)) * 1e3, 3)})
     return out
 
 
@@ -246,13 +297,44 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--reads", type=int, default=20000, help="P1 residual: reads by the bus (default 20000)")
     ap.add_argument("--sdk-reads", type=int, default=1000,
                     help="P1 residual: reads by the bare SDK, whose failures wait on the wall clock (default 1000)")
-    ap.add_argument("--garbage", type=float, default=0.3, help="P1 residual: garbage burst per read call")
+    ap.add_argument("--noise", type=float, default=0.3,
+                    help="P1 residual: chance of a 1-8 byte random burst inside each status (default 0.3)")
+    ap.add_argument("--speed-reads", type=int, default=3000, help="speed: reads over a pty each (default 3000)")
+    ap.add_argument("--parts", default="table,residual,speed",
+                    help="comma-separated parts to run (table, residual, speed); --save updates only those")
     ap.add_argument("--quick", action="store_true", help="a short smoke run")
     add_save_args(ap, "dynamixel_wire.json")
     args = parse_args(ap, argv)
     logging.basicConfig(level=logging.ERROR)  # the bus warns on every unplug
     if args.quick:
-        args.ops, args.reads, args.sdk_reads = 40, 500, 50
+        args.ops, args.reads, args.sdk_reads, args.speed_reads = 40, 500, 50, 200
+    parts = set(args.parts.split(","))
+    results: dict[str, Any] = {}
+    if "speed" in parts:
+        results["speed"] = speed(args.speed_reads)
+        for r in results["speed"]:
+            print(f"speed, {r['who']:8}: {r['reads_per_s']} reads/s, median {r['median_ms']} ms, p90 {r['p90_ms']} ms "
+                  f"({r['reads']} Present Position reads over a pty)", flush=True)
+    summary = {"ops": 0, "untyped": 0, "hangs": 0, "wrong": 0}
+    if "table" in parts:
+        results["table"], summary = fault_table(args.ops)
+        results["bus_total"] = summary
+    if "residual" in parts:
+        results["p1_residual"] = residual(args)
+    # a partial rerun (--parts) keeps the committed figures of the other parts
+    saved = (saved_results("dynamixel_wire.json") or {}) if args.save else {}
+    saved.update(results)
+    commands = saved.get("commands") or ({k: saved["command"] for k in ("table", "residual")}
+                                         if "command" in saved else {})
+    for part in parts:
+        commands[part] = "python benchmarks/bench_dynamixel_wire.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    saved["commands"] = commands
+    saved.pop("command", None)
+    save_json(args, saved)
+    return 0 if summary["untyped"] == 0 and summary["hangs"] == 0 and summary["wrong"] == 0 else 1
+
+
+def fault_table(n_ops: int) -> tuple[list[dict[str, Any]], dict[str, int]]:
     table = []
     print(f"{'who':5} {'P':>2} {'fault':8} {'ops':>5} {'ok':>5} {'typed':>5} {'recov':>5} {'untyped':>7} "
           f"{'hangs':>5} {'wrong':>5}")
@@ -260,29 +342,30 @@ def main(argv: list[str] | None = None) -> int:
         for fault in FAULTS:
             for who, fn in (("bus", run_bus), ("sdk", run_sdk)):
                 if who == "sdk" and fault in ("stall", "lost"):
-                    n = max(10, args.ops // 10)  # each failure spins 34 ms of wall time in the SDK
+                    n = max(10, n_ops // 10)  # each failure spins 34 ms of wall time in the SDK
                 else:
-                    n = args.ops
+                    n = n_ops
                 r = fn(protocol, fault, n)
                 d = {"who": who, "protocol": protocol, "fault": fault, **r.as_dict()}
                 table.append(d)
                 print(f"{who:5} {protocol:>2} {fault:8} {r.ops:>5} {r.ok:>5} {r.typed:>5} {r.recoveries:>5} "
                       f"{r.untyped:>7} {r.hangs:>5} {r.wrong:>5}" + (f"  {r.untyped_kinds}" if r.untyped else ""),
                       flush=True)
-    residual = [p1_residual(args.reads, args.garbage, verify=False),
-                p1_residual(args.reads, args.garbage, verify=True),
-                p1_residual(args.sdk_reads, args.garbage, verify=None)]
-    for r in residual:
-        who = {False: "bus", True: "bus verify", None: "bare SDK"}[r["verify"]]
-        rate = r["wrong_per_returned"]
-        print(f"P1 residual, {who:10}: {r['wrong']} wrong of {r['returned']} returned ({r['reads']} reads, "
-              f"{r['typed_failures']} typed failures), rate {rate if rate is None else f'{rate:.2e}'}", flush=True)
     bus_rows = [d for d in table if d["who"] == "bus"]
     summary = {k: sum(d[k] for d in bus_rows) for k in ("ops", "untyped", "hangs", "wrong")}
     print(f"bus total: {summary}")
-    save_json(args, {"command": "python benchmarks/bench_dynamixel_wire.py " + " ".join(argv or sys.argv[1:]),
-                     "table": table, "p1_residual": residual, "bus_total": summary})
-    return 0 if summary["untyped"] == 0 and summary["hangs"] == 0 and summary["wrong"] == 0 else 1
+    return table, summary
+
+
+def residual(args: argparse.Namespace) -> list[dict[str, Any]]:
+    out = [p1_residual(args.sdk_reads if mode == "sdk" else args.reads, args.noise, mode=mode)
+           for mode in RESIDUAL_MODES]
+    for r in out:
+        who = {"sdk": "bare SDK", "raw": "bus bytes", "read": "bus read", "verify": "bus verify"}[r["mode"]]
+        rate = r["wrong_per_returned"]
+        print(f"P1 residual, {who:10}: {r['wrong']} wrong of {r['returned']} returned ({r['reads']} reads, "
+              f"{r['typed_failures']} typed failures), rate {rate if rate is None else f'{rate:.2e}'}", flush=True)
+    return out
 
 
 if __name__ == "__main__":

@@ -32,6 +32,8 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from _output import add_save_args, parse_args, save_json  # noqa: E402  (benchmarks/ is the script's folder)
+
 from tactile_rig.cli import main as cli_main  # noqa: E402
 from tactile_rig.perception.gelsight import load_presses  # noqa: E402
 from tactile_rig.rig.trade.gelsight import gs_sdk_style_height  # noqa: E402
@@ -43,8 +45,8 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=200, help="PNG frames in the folder (default 200)")
     ap.add_argument("--rounds", type=int, default=3, help="alternating rounds; the best of each side counts")
-    ap.add_argument("--save", action="store_true", help="write benchmarks/results/gelsight_height.json")
-    args = ap.parse_args()
+    add_save_args(ap, "gelsight_height.json")
+    args = parse_args(ap)
     cv2.setNumThreads(1)
     load0 = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
@@ -98,11 +100,7 @@ def main() -> int:
     print(f"  ratio: {res['ratio']:.1f}x wall clock; {res['cpu_ratio']:.1f}x in CPU time "
           f"({res['ours_cpu_ms_per_frame']:.2f} vs {res['baseline_cpu_ms_per_frame']:.2f} ms/frame: on a shared "
           "machine the CPU time is the steadier figure)")
-    if args.save:
-        dest = ROOT / "benchmarks" / "results" / "gelsight_height.json"
-        dest.parent.mkdir(parents=True, exist_ok=True)
-        dest.write_text(json.dumps(res, indent=1) + "\n")
-        print(f"wrote {dest}")
+    save_json(args, res)
     return 0
 
 

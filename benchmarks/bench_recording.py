@@ -71,7 +71,7 @@ def _run(mode: str, frames: list[np.ndarray], path: Path) -> dict[str, float]:
     if mode != "baseline_bytes":
         t0 = time.perf_counter()
         rec_back = read_recording(path)
-        n = sum(1 for m in rec_back.messages if m.topic.startswith("/camera/"))
+        n = sum(1 for m in rec_back.messages if m.schema.startswith("foxglove.") and "Image" in m.schema)
         assert n == len(frames), (n, len(frames))
         row["read_fps"] = len(frames) / (time.perf_counter() - t0)
     return row

@@ -55,3 +55,36 @@ def test_every_benchmark_writes_through_the_helper(script):
     assert "add_save_args(ap," in text and "parse_args(ap" in text and "save_json(args" in text
     # no direct writes of results: every JSON leaves through save_json
     assert not re.search(r"\.write_text\(\s*json\.dumps|json\.dump\(", text), script
+
+
+# -- the "Speed and accuracy" page generator ---------------------------------------------------
+def _load_generator():
+    spec = importlib.util.spec_from_file_location("trade_tables", BENCH / "trade_tables.py")
+    mod = importlib.util.module_from_spec(spec)
+    import sys
+
+    sys.path.insert(0, str(BENCH))  # it imports _output as a script would
+    try:
+        spec.loader.exec_module(mod)  # type: ignore[union-attr]
+    finally:
+        sys.path.remove(str(BENCH))
+    return mod
+
+
+def test_page_marks_defaults_off_the_front_without_a_reason_and_names_commands():
+    from tactile_rig.rig.trade import TradeRow, TradeTable
+
+    gen = _load_generator()
+    off = TradeTable("alpha", "fps", "err_mm", "unit data",
+                     [TradeRow({"k": 1}, 10.0, 1.0, is_default=True), TradeRow({"k": 2}, 20.0, 0.5)])
+    fine = TradeTable("beta", "fps", "err_mm", "unit data",
+                      [TradeRow({"k": 1}, 10.0, 1.0, is_default=True), TradeRow({"k": 2}, 5.0, 0.5)])
+    text = gen.page({"alpha": off, "beta": fine, "gamma": None}, {"alpha": "a study"},
+                    {"alpha": "img/trade_alpha.png", "beta": None})
+    assert "| [alpha](#alpha) | `k=1` | no: **no reason given** |" in text
+    assert "| [beta](#beta) | `k=1` | yes |" in text
+    assert "| [gamma](#gamma) | - | not measured yet |" in text
+    assert "The default is not on the front and the topic gives no reason" in text
+    assert "*Figure: `tactile-rig trade alpha --plot docs/img`" in text
+    assert "`python benchmarks/trade_tables.py --save --topics alpha`" in text
+    assert text.count("<!-- trade:") == 3 and text.count("<!-- /trade:") == 3

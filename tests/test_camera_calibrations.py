@@ -136,7 +136,8 @@ def test_calibrated_sensor_reads_newtons_for_the_controllers_and_the_recording(t
     assert np.linalg.norm(pressed.force_n) == pytest.approx(5.0, abs=1.0)
     assert np.linalg.norm(rest.force_n) < 0.7
     msgs = read_recording(tmp_path / "r.mcap").on("/perception/left")
-    assert len(msgs) == 1 + len(PRESS) and msgs[-1].data["force_map_n"] == pytest.approx(np.linalg.norm(pressed.force_n))
+    assert len(msgs) == 1 + len(PRESS)
+    assert msgs[-1].data["force_map_n"] == pytest.approx(np.linalg.norm(pressed.force_n))
 
 
 def test_track_uses_the_stored_baseline_and_reports_newtons(tmp_path, files, capsys):
@@ -177,3 +178,46 @@ def test_substance_predict_names_the_recorded_substances(tmp_path, files, capsys
     assert main(["substance", "predict", "--from-recording", str(rec), "--bench", str(bench), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["model"] == str(files["sub"])
     assert main(["substance", "predict", "--from-recording", str(rec), "--model", str(tmp_path / "no")]) == 2
+
+
+def test_a_baseline_of_another_frame_size_is_refused(tmp_path, files):
+    from tactile_rig.cli import main
+
+    cv2.imwrite(str(tmp_path / "small.png"), np.zeros((120, 160, 3), np.uint8))
+    assert main(["fingervision", "track", str(tmp_path / "small.png"), "--calibration", str(files["fv"])]) == 2
+    cal = load_fingervision_calibration(files["fv"])
+    with pytest.raises(CalibrationError, match="baseline is for 320x240 frames, this camera gives 160x120"):
+        cal.check_frame(np.zeros((120, 160, 3), np.uint8))
+
+
+def test_substance_predict_from_frames_tracks_them_with_the_stored_baseline(tmp_path, files, capsys):
+    from tactile_rig.cli import main
+
+    cam = _RenderedCamera()
+    frames = tmp_path / "stir"
+    frames.mkdir()
+    for i in range(24):  # 2.4 s at 10 frames/s: one 2 s window
+        cam.load = 0.1 + 0.05 * np.sin(i)
+        cv2.imwrite(str(frames / f"{i:03d}.png"), cam.frame())
+    # without a stored baseline the first 10 frames build one: 1.4 s tracked, short of a 2 s window
+    assert main(["substance", "predict", str(frames), "--fps", "10", "--model", str(files["sub"]), "--json"]) == 2
+    assert "shorter than one 2 s window" in capsys.readouterr().err
+    bench = _bench(tmp_path, files)
+    assert main(["substance", "predict", str(frames), "--fps", "10", "--bench", str(bench), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    (trial,) = out["trials"]
+    assert trial["windows"] == 1 and trial["substance"] in out["classes"]
+    assert main(["substance", "predict", str(frames), "--model", str(files["sub"])]) == 2  # no --fps
+
+
+def test_a_bench_recording_attaches_the_cameras_models(tmp_path, files):
+    from tactile_rig.rig.bench_record import record_bench
+    from tactile_rig.rig.recording import read_recording
+
+    bench = load_bench(text=f'[camera_left]\nport = "rigsim://camera"\nsensor = "fingervision"\n'
+                            f'force_map = "{files["fm"]}"\nsubstance_model = "{files["sub"]}"\n')
+    record_bench(bench, 0.2, tmp_path / "r.mcap")
+    att = set(read_recording(tmp_path / "r.mcap").attachments)
+    assert {"calibration/camera_left.force_map/force_map.json", "calibration/camera_left.force_map/force_map.npz",
+            "calibration/camera_left.substance_model/substance.json",
+            "calibration/camera_left.substance_model/substance.npz"} <= att

@@ -349,6 +349,18 @@ def test_a_second_open_of_the_port_is_port_in_use() -> None:
             assert bus.ping(1) == 311  # the first user is undisturbed
         with DynamixelBus(server.port) as again:  # released on close
             assert again.ping(1) == 311
+            # and another process is refused as well, with the typed error naming the port
+            import subprocess
+            import sys
+
+            code = ("from tactile_rig.drivers.dynamixel import DynamixelBus\n"
+                    "from tactile_rig.core.errors import PortInUse\n"
+                    "try:\n    DynamixelBus(%r)\nexcept PortInUse as e:\n    print('PortInUse', e.port)\n" % server.port)
+            root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+            out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                                 env={**os.environ, "PYTHONPATH": root})
+            assert out.stdout.strip() == f"PortInUse {server.port}", out.stderr
+            assert again.ping(1) == 311
 
 
 def test_typed_errors_only_from_a_cut_off_and_flipped_link() -> None:
@@ -356,3 +368,184 @@ def test_typed_errors_only_from_a_cut_off_and_flipped_link() -> None:
         with pytest.raises(LinkCorrupt):
             bus.read(1, "Model Number")
         assert not bus.port.is_using
+
+
+def test_verify_that_never_agrees_is_link_corrupt() -> None:
+    with _bus(1, ids=[1]) as (bus, dev):
+        orig, n = dev.emit, [0]
+
+        def emit(data: bytes, t_s: float, *, delay_s: float = 0.0, reply: bool = True) -> float:
+            n[0] += 1  # every status a different (valid) value: a register that keeps changing
+            return orig(wire.encode_status(1, 1, 0, n[0].to_bytes(2, "little")), t_s, delay_s=delay_s, reply=reply)
+
+        dev.emit = emit
+        with pytest.raises(LinkCorrupt, match="never agreed"):
+            bus.read(1, "Goal Position", verify=True)
+        assert bus.stats.verify_mismatches == bus.retries + 1
+
+
+def test_an_id_write_with_a_lost_status_is_an_error_not_a_repeat() -> None:
+    with _bus(2, ids=[1]) as (bus, dev):
+        sent: list[bytes] = []
+        orig = dev.feed
+        dev.feed = lambda data, t_s: (sent.append(bytes(data)), orig(data, t_s))[1]
+        LateReplies(dev, [None])
+        with pytest.raises(DeviceTimeout):
+            bus.write(1, "ID", 7)  # the servo answers to 7 now; reading ID 1 back would mislead
+        assert dev.servo(7) is not None
+        assert sum(1 for d in sent if d[7:8] == b"\x03") == 1 and bus.stats.writes_repeated_after_readback == 0
+
+
+def test_reconnect_backoff_grows_to_its_cap_and_resets() -> None:
+    clock = VirtualClock()
+    r = Reconnect(clock, initial_s=0.1, factor=3.0, max_s=0.5)
+    assert not r.away and not r.due()
+    r.lost("EIO")
+    assert r.away and not r.due()
+    waits = []
+    for _ in range(4):
+        clock.advance(r.next_attempt_s - clock.now_s())
+        assert r.due()
+        r.failed()
+        waits.append(round(r.wait_s, 6))
+    assert waits == [0.3, 0.5, 0.5, 0.5]
+    assert "EIO" in str(r.not_connected("dev", "/dev/ttyUSB0")) and "/dev/ttyUSB0" in str(r.not_connected("d", "/dev/ttyUSB0"))
+    clock.advance(0.5)
+    r.succeeded()
+    assert not r.away and r.reconnects == 1
+    r.lost()
+    assert r.next_attempt_s == pytest.approx(clock.now_s() + 0.1)  # back to the first wait
+    with pytest.raises(ValueError, match="factor"):
+        Reconnect(clock, factor=0.5)
+
+
+@pytest.mark.parametrize("protocol", [2, 1])
+def test_after_a_long_silence_the_bus_answers_as_soon_as_the_line_is_back(protocol: int) -> None:
+    """Dozens of failed requests (each one's status may still come) exhaust no resync: the bus
+    never refuses to try, and the first request after the silence is answered."""
+    # latency timer 0: timeouts of ~3 ms, so all 80 failures fall within LATE_HORIZON_S
+    with _bus(protocol, ids=[1], latency_timer_ms=0) as (bus, dev):
+        silent = LateReplies(dev, [None] * 80)
+        failures = 0
+        while True:
+            try:
+                model = bus.ping(1)
+                break
+            except DeviceTimeout:
+                failures += 1
+        assert silent.count > 80 and model == MODEL[protocol]  # answered once statuses came again
+        assert failures >= 12 and bus.stats.resyncs > 64  # more than the lengths a resync can use
+        assert bus.clock.now_s() < 1.0
+        assert bus.read(1, "Model Number") == MODEL[protocol]
+
+
+@pytest.mark.parametrize("protocol", [2, 1])
+def test_group_reads_discard_a_late_status_and_return_the_true_values(protocol: int) -> None:
+    with _bus(protocol) as (bus, dev):
+        bus.write(1, "Goal Position", 1111)
+        bus.write(2, "Goal Position", 2222)
+        LateReplies(dev, [0.0, 0.060])  # ID 2's status of the first attempt comes 60 ms late
+        got = bus.bulk_read([(1, "Goal Position"), (2, "Goal Position")])
+        assert got == {1: 1111, 2: 2222} and bus.stats.retries == 1 and bus.stats.stale_packets >= 1
+        if protocol == 2:
+            LateReplies(dev, [0.060])
+            assert bus.sync_read([1, 2], "Goal Position") == {1: 1111, 2: 2222}
+
+
+@pytest.mark.parametrize("protocol", [2, 1])
+def test_the_gripper_state_after_a_late_one_byte_status_is_the_true_state(protocol: int) -> None:
+    """Issue #11's sequence: a 1-byte read times out, its status comes 60 ms late, and the next
+    block read (the gripper's state) took it: a 24-byte read returning 1 byte, an opening of -0.05 m."""
+    dev = make_bus(protocol=protocol, ids=[1], timing=True, return_delay_us=0)
+    with serve_in_process(dev) as url:
+        with DynamixelBus(url, protocol=protocol, baudrate=dev.baud, retries=0) as bus:
+            g = DynamixelGripper(bus)
+            LateReplies(dev, [0.060])
+            with pytest.raises(DeviceTimeout):
+                bus.read(1, "Torque Enable")
+            st = g.state()
+            servo = dev.servo(1)
+            ticks = servo.item("Present Position")
+            assert st.opening_frac == pytest.approx(g.calibration.frac_from_ticks(ticks))
+            assert st.temperature_c == servo.item("Present Temperature")
+            assert bus.stats.stale_packets == 1
+
+
+def test_a_late_fast_sync_read_status_is_never_the_next_ones_answer() -> None:
+    with _bus(2, retries=0) as (bus, dev):
+        bus.sync_write("Goal Position", {1: 1111, 2: 2222})
+        LateReplies(dev, [0.060])
+        with pytest.raises(DeviceTimeout):
+            bus.sync_read([1, 2], "Goal Position", fast=True)
+        bus.sync_write("Goal Position", {1: 1500, 2: 2500})
+        assert bus.sync_read([1, 2], "Goal Position", fast=True) == {1: 1500, 2: 2500}
+        assert bus.stats.stale_packets == 1 and bus.stats.resyncs == 2
+        assert bus.bulk_read([(1, "Model Number"), (2, "Goal Position")], fast=True) == {1: 311, 2: 2500}
+
+
+@pytest.mark.pty
+@pytest.mark.parametrize("protocol", [2, 1])
+def test_over_a_pty_relay_late_and_split_statuses_never_give_a_wrong_value(protocol: int) -> None:
+    """Real time, the real SDK sending, a relay holding statuses 60 ms and splitting others."""
+    from tactile_rig.mocks.faults import FaultInjector
+    from tactile_rig.mocks.relay import PtyRelay
+    from tactile_rig.testing.serve import serve_on_pty
+
+    dev = make_bus(protocol=protocol, ids=[1], timing=True, return_delay_us=0)
+    faults = FaultInjector.from_query("late=0.2&late_s=0.06&split=0.3&seed=1")
+    servo = dev.servo(1)
+    with serve_on_pty(dev) as server, PtyRelay(server.port, faults, baudrate=dev.baud) as relay:
+        with DynamixelBus(relay.port, protocol=protocol, baudrate=dev.baud) as bus:
+            returned = 0
+            for k in range(30):
+                try:
+                    if k % 3 == 0:
+                        bus.write(1, "Goal Position", 1000 + 37 * k)
+                        assert servo.item("Goal Position") == 1000 + 37 * k
+                    elif k % 3 == 1:
+                        assert bus.read(1, "Goal Position", verify=protocol == 1) == servo.item("Goal Position")
+                    else:
+                        assert bus.ping(1) == MODEL[protocol]
+                    returned += 1
+                except RigError:
+                    pass
+            assert returned >= 10 and faults.counts().get("late", 0) >= 1  # not vacuous
+
+
+def test_the_latency_timer_knob_sets_how_late_a_status_may_be() -> None:
+    """A status 20 ms late is in time for an adapter at the FTDI default (16 ms: twice it is
+    allowed) and late for one set to 1 ms, where it is then discarded, never taken."""
+    with _bus(2, ids=[1], retries=0) as (bus, dev):
+        assert bus.latency_timer_ms == 16
+        LateReplies(dev, [0.020])
+        assert bus.read(1, "Model Number") == 311 and bus.stats.timeouts == 0
+    with _bus(2, ids=[1], retries=0, latency_timer_ms=1) as (bus, dev):
+        bus.write(1, "Goal Position", 3000)
+        LateReplies(dev, [0.020])
+        with pytest.raises(DeviceTimeout, match="1 ms allowed"):
+            bus.read(1, "Model Number")
+        bus.clock.sleep(0.05)
+        assert bus.read(1, "Goal Position") == 3000 and bus.stats.stale_bytes + bus.stats.stale_packets >= 1
+    with pytest.raises(ValueError, match="latency_timer_ms"):
+        DynamixelBus("rigsim://dynamixel", latency_timer_ms=-1)
+
+
+def test_a_value_the_servo_never_stores_is_read_again() -> None:
+    """P1: a status damaged in two bytes so its checksum still holds, carrying a Goal Position of
+    0xF0xx (the firmware refuses anything above 4095): read again, the true value returned."""
+    with _bus(1, ids=[1]) as (bus, dev):
+        bus.write(1, "Goal Position", 1000)
+        orig, forged = dev.emit, []
+
+        def emit(data: bytes, t_s: float, *, delay_s: float = 0.0, reply: bool = True) -> float:
+            if not forged:
+                p = bytearray(data)
+                p[5], p[6] = (p[5] + 0xF0) & 0xFF, (p[6] - 0xF0) & 0xFF  # same 8-bit sum
+                forged.append(bytes(p))
+                data = bytes(p)
+            return orig(data, t_s, delay_s=delay_s, reply=reply)
+
+        dev.emit = emit
+        assert bus.read(1, "Goal Position") == 1000
+        assert bus.stats.implausible_values == 1
+        assert int.from_bytes(wire.parse_status(1, forged[0])[0].params, "little") > 4095

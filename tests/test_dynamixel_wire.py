@@ -168,3 +168,60 @@ def test_splitting_never_changes_what_is_found(data: bytes, cuts: list[int], pro
     sc = wire.StatusScanner(protocol)
     pieces = [ev for c in _splits(data, cuts) for ev in sc.feed(c)]
     assert pieces == whole
+
+
+def test_instruction_encoding_and_stuffing() -> None:
+    assert wire.encode_instruction_p2(1, wire.PING, b"") == H("FF FF FD 00 01 03 00 01 19 4E")
+    assert wire.encode_instruction_p2(1, wire.WRITE, H("74 00 00 02 00 00")) == \
+        H("FF FF FD 00 01 09 00 03 74 00 00 02 00 00 CA 89")
+    assert wire.stuff(H("03 14 00 FF FF FD FF")) == H("03 14 00 FF FF FD FD FF")
+    assert wire.unstuff(wire.stuff(H("FF FF FD FD FF FF FD"))) == H("FF FF FD FD FF FF FD")
+    status = wire.encode_status(2, 1, 0, H("FF FF FD FF"))
+    assert H("FF FF FD FD FF") in status and wire.parse_status(2, status)[0].params == H("FF FF FD FF")
+
+
+def test_a_write_whose_data_holds_a_header_is_sent_stuffed() -> None:
+    from tactile_rig.drivers.dynamixel import DynamixelBus
+    from tactile_rig.mocks.dynamixel import make_bus
+    from tactile_rig.testing import serve_in_process
+
+    dev = make_bus(protocol=2, ids=[1], timing=True, return_delay_us=0)
+    sent: list[bytes] = []
+    orig = dev.feed
+    dev.feed = lambda data, t_s: (sent.append(bytes(data)), orig(data, t_s))[1]
+    with serve_in_process(dev) as url, DynamixelBus(url) as bus:
+        bus.write(1, "Homing Offset", -131073)  # little-endian FF FF FD FF
+        assert dev.servo(1).item("Homing Offset") == -131073
+        assert bus.read(1, "Homing Offset") == -131073  # the status is stuffed too
+    assert any(H("FF FF FD FD FF") in s for s in sent)
+
+
+def _fast_status(segments: list[tuple[int, int, bytes]]) -> bytes:
+    """A Fast Sync Read status as the Protocol 2.0 page builds it: [ERR ID DATA CRC] per servo, each
+    CRC over the packet so far, the last one the packet's."""
+    length = 1 + sum(len(d) + 4 for _, _, d in segments)
+    pkt = bytearray(H("FF FF FD 00 FE") + bytes([length & 0xFF, length >> 8, 0x55]))
+    for err, i, data in segments:
+        pkt += bytes([err, i]) + data
+        crc = wire.crc16(pkt)
+        pkt += bytes([crc & 0xFF, crc >> 8])
+    return bytes(pkt)
+
+
+def test_fast_read_status_is_split_per_servo_and_checked() -> None:
+    raw = _fast_status([(0, 1, H("A6 00 00 00")), (0, 3, H("1F 08 00 00"))])
+    [pkt] = wire.parse_status(2, raw)
+    req = wire.Request(2, wire.BROADCAST_ID, wire.FAST_SYNC_READ, H("84 00 04 00 01 03"),
+                       expect_params=wire.fast_status_params([4, 4]))
+    assert wire.mismatch(req, pkt) is None
+    assert wire.split_fast_status(pkt, [(1, 4), (3, 4)]) == {1: (0, H("A6 00 00 00")), 3: (0, H("1F 08 00 00"))}
+    with pytest.raises(ValueError, match="segment 0 is from ID 1, expected ID 3"):
+        wire.split_fast_status(pkt, [(3, 4), (1, 4)])
+    bad = bytearray(raw)
+    bad[13] ^= 0xFF  # ID 1's own CRC: the packet CRC is recomputed, the inner one is not
+    bad[-2:] = wire.crc16(bytes(bad[:-2])).to_bytes(2, "little")
+    with pytest.raises(ValueError, match="segment 0 .* fails its CRC"):
+        wire.split_fast_status(wire.parse_status(2, bytes(bad))[0], [(1, 4), (3, 4)])
+    # a fast status for other sizes is stale for this request
+    other = wire.parse_status(2, _fast_status([(0, 1, H("A6 00")), (0, 3, H("1F 08"))]))[0]
+    assert "expected 13" in wire.mismatch(req, other)

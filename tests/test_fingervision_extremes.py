@@ -71,10 +71,11 @@ def test_cli_on_flat_frames_exits_2_with_one_line(tmp_path, capsys, level: int) 
 
     for i in range(4):
         cv2.imwrite(str(tmp_path / f"f{i}.png"), np.full((H, W, 3), level, np.uint8))
-    assert main(["fingervision", "track", str(tmp_path), "--calib-frames", "3"]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
+    assert main(["fingervision", "track", str(tmp_path), "--calib-frames", "3", "--no-calibration"]) == 2
+    err = [ln for ln in capsys.readouterr().err.strip().splitlines() if "error" in ln]
     assert len(err) == 1 and "no marker lattice" in err[0]
-    assert main(["fingervision", "track", str(tmp_path)]) == 2  # fewer frames than n_calib_frames
+    # fewer frames than n_calib_frames
+    assert main(["fingervision", "track", str(tmp_path), "--no-calibration", "--json"]) == 2
 
 
 def test_cli_bad_options_exit_2(tmp_path, capsys) -> None:
@@ -84,13 +85,13 @@ def test_cli_bad_options_exit_2(tmp_path, capsys) -> None:
     for bad in (["--fps", "0"], ["--fps", "inf"], ["--limit", "0"], ["--calib-frames", "0"],
                 ["--object-rect", "0", "0", "0", "5"]):
         try:  # bounds checked by argparse exit 2 as argparse does; the rest return 2 from the handler
-            code = main(["fingervision", "track", str(tmp_path), *bad])
+            code = main(["fingervision", "track", str(tmp_path), "--no-calibration", *bad])
         except SystemExit as exc:
             code = exc.code
         assert code == 2, bad
     capsys.readouterr()
     cv2.imwrite(str(tmp_path / "b.png"), render(REST, size_wh=(160, 120)))
-    assert main(["fingervision", "track", str(tmp_path)]) == 2  # frames of two sizes
+    assert main(["fingervision", "track", str(tmp_path), "--no-calibration"]) == 2  # frames of two sizes
     assert "differs from the first frame" in capsys.readouterr().err
 
 
@@ -213,3 +214,17 @@ def test_tracker_timestamps_are_checked_and_gaps_bounded() -> None:
         tr.update(c, float("nan"))
     st_ = tr.update(np.full_like(c, np.nan))
     assert not st_.found.any() and np.isfinite(st_.positions_px).all()
+
+
+def test_calibration_session_on_black_frames_is_a_typed_error(tmp_path) -> None:
+    """The rig's calibration session (``tactile-rig calibrate fingervision``) on a camera seeing black."""
+    from tactile_rig.rig.calibration_sessions import fingervision_session
+
+    class Black:
+        def read(self, timeout_s: float = 1.0) -> np.ndarray:
+            return np.zeros((H, W, 3), np.uint8)
+
+    with pytest.raises(MarkersNotFound):
+        fingervision_session(Black(), tmp_path / "fv", frames=3)
+    written = {p.suffix for p in tmp_path.iterdir()}
+    assert not written & {".json", ".npz"}, "no calibration is written (the session's recording may stay)"

@@ -126,10 +126,25 @@ def test_cli_glob_video_and_errors(tmp_path, capsys) -> None:
         vw.write(render(REST, seed=k))
     vw.release()
     assert main(["fingervision", "track", str(video), "--calib-frames", "2", "--fps", "15"]) == 0
-    out = capsys.readouterr().out.splitlines()
+    out = [ln for ln in capsys.readouterr().out.splitlines() if not ln.startswith("calibration:")]
     assert len(out) == 4 and "markers" in out[-1]
     assert main(["fingervision", "track", str(tmp_path / "nothing_here")]) == 2
     bad = tmp_path / "bad.toml"
     bad.write_text("[tracker]\nwindow = 3\n")
     assert main(["fingervision", "track", str(tmp_path / "frames"), "--config", str(bad)]) == 2
     assert "window" in capsys.readouterr().err
+
+
+def test_cli_init_flag_selects_the_old_baseline_scheme(tmp_path, capsys) -> None:
+    for k in range(4):
+        cv2.imwrite(str(tmp_path / f"f{k}.png"), render(REST, seed=k))
+    assert main(["fingervision", "track", str(tmp_path), "--calib-frames", "2", "--no-calibration", "--json"]) == 0
+    lattice_ = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert all(d["marker_count"] == len(REST) and all(m["id"] >= 0 for m in d["markers"]) for d in lattice_)
+    assert main(["fingervision", "track", str(tmp_path), "--calib-frames", "2", "--init", "frames", "--no-calibration",
+                 "--json"]) == 0
+    frames_ = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert [all(m["id"] < 0 for m in d["markers"]) for d in frames_] == [True, True, False, False]
+    with pytest.raises(SystemExit) as exc:  # argparse's usage error
+        main(["fingervision", "track", str(tmp_path), "--init", "grid"])
+    assert exc.value.code == 2

@@ -58,7 +58,7 @@ def test_mock_run_localizes_every_point_against_the_worlds_truth(tmp_path, calib
     rec = read_recording(tmp_path / "run.mcap")
     assert not rec.truncated
     assert len(rec.on("/perception/jig_accuracy_point")) == 6
-    frames = rec.on("/camera/camera/compressed")
+    frames = rec.on("/camera/image/compressed")
     assert len(frames) >= 6 + len(cfg.map_touches_mm)
     assert frames[0].image().shape == (240, 320, 3)
     assert "calibration.gelsight" in rec.metadata and "bench" in rec.metadata

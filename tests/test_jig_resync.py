@@ -10,7 +10,7 @@ from __future__ import annotations
 import pytest
 
 from tactile_rig.core.clock import VirtualClock
-from tactile_rig.core.errors import DeviceTimeout, GrblError, LinkCorrupt, ReplyLost
+from tactile_rig.core.errors import GrblError, LinkCorrupt, ReplyLost
 from tactile_rig.drivers.jig import Jig, parse_status
 from tactile_rig.mocks.grbl import GrblMock
 from tactile_rig.sim import World
@@ -21,10 +21,12 @@ class LossyGrbl(GrblMock):
     """GRBL whose answers number ``lose`` (0-based, counting every ok/error it prints) never reach
     the host; ``corrupt_reports`` status reports get a digit dropped on the way."""
 
-    def __init__(self, *, lose: set[int] = frozenset(), corrupt_reports: set[int] = frozenset(), **kw) -> None:
+    def __init__(self, *, lose: set[int] = frozenset(), corrupt_reports: set[int] = frozenset(),
+                 flip_reports: set[int] = frozenset(), **kw) -> None:
         super().__init__(**kw)
         self.lose = set(lose)
         self.corrupt = set(corrupt_reports)
+        self.flip = set(flip_reports)
         self.answers = 0
         self.reports = 0
 
@@ -38,6 +40,9 @@ class LossyGrbl(GrblMock):
     def _status_report(self, t_s: float) -> str:
         text = super()._status_report(t_s)
         n, self.reports = self.reports, self.reports + 1
+        if n in self.flip:  # one bit of the first digit of the position: still a number in GRBL's format
+            i = text.index("Pos:") + 4
+            text = text[:i] + chr(ord(text[i]) ^ 0x08) + text[i + 1:]
         return text.replace(".", "", 1) if n in self.corrupt else text
 
 
@@ -134,6 +139,11 @@ def test_a_silent_grbl_is_still_a_timeout_not_a_lost_answer() -> None:
     "<Idle|MPos:1.000,-1.000,0.000|Bf:15,-3|FS:0,0>",
     "<Idle|MPos:1.000,+1.000,0.000|FS:0,0>",
     "<Idle|MPos:1.000,1e3,0.000|FS:0,0>",
+    "<Run|MPos:00.339,2.358,0.000|FS:446,0>",  # a duplicated zero: GRBL prints no leading zeros
+    "<Run|MPos:0.339,2.358,0.000|FS:0446,0>",
+    "<Idle|MPos:0.339,2.358,0.000|Bf:015,128|FS:0,0>",
+    "<Run|MPos:-0.223,1.876,0.000|FS:600,0|Ov:100,1000,100>",  # a duplicated digit in an override
+    "<Run|MPos:-0.223,1.876,0.000|FS:600,0|Ov:100,75,100>",
 ])
 def test_corrupted_reports_never_become_values(bad: str) -> None:
     with pytest.raises(LinkCorrupt):
@@ -143,3 +153,31 @@ def test_corrupted_reports_never_become_values(bad: str) -> None:
 def test_inch_reports_are_converted_to_mm() -> None:
     st = parse_status("<Run|MPos:1.0000,-0.5000,2.0000|FS:39.4,0>")
     assert st.inches and st.mpos == pytest.approx((25.4, -12.7, 50.8)) and st.feed_mm_per_min == pytest.approx(1000.76)
+
+
+def test_a_flipped_digit_in_an_idle_report_is_outvoted_by_the_next_reports() -> None:
+    clock, mock, stage = _jig({})
+    with serve_in_process(mock, clock) as url:
+        jig = Jig(url)
+        jig.move_to(1.0, 0.0, 0.0, wait=True)  # wait_idle confirms the position with a second report
+        mock.flip = {mock.reports + 1}  # the second report from now has X 1.000 -> 9.000
+        got = [jig.status().mpos for _ in range(4)]
+        assert all(p == pytest.approx((1.0, 0.0, 0.0)) for p in got), got
+        assert jig.corrupt_reports == 1
+
+
+def test_a_report_off_the_commanded_path_or_too_fast_is_link_corrupt() -> None:
+    clock, mock, stage = _jig({})
+    with serve_in_process(mock, clock) as url:
+        jig = Jig(url)
+        jig.move_to(0.0, 0.0, 0.0, wait=True)
+        jig.move_to(2.0, 0.0, None, 600.0)  # along X only, at 600 mm/min
+        bad = ["<Run|MPos:1.000,0.400,0.000|FS:600,0>",   # Y flipped off the path
+               "<Run|MPos:1.000,0.000,0.000|FS:6000,0>",  # ten times the feed asked for
+               "<Run|MPos:9.000,0.000,0.000|FS:600,0>"]   # past the target
+        for text in bad:
+            st = parse_status(text, clock.now_s(), jig._wco)
+            with pytest.raises(LinkCorrupt):
+                jig._check_moving(st)
+        jig._check_moving(parse_status("<Run|MPos:1.000,0.000,0.000|FS:600,0>", clock.now_s(), jig._wco))
+        jig.wait_idle(10.0)

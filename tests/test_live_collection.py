@@ -7,6 +7,8 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import mcap  # noqa: F401  (extras installed by .[all,test]: absent = fail, not skip)
 import sklearn  # noqa: F401
@@ -17,7 +19,7 @@ from tactile_rig.rig.bench import Bench, connect_bench, load_bench, mock_bench_p
 from tactile_rig.rig.calibration_sessions import Guide
 from tactile_rig.rig.camera_calibrations import CalibratedFingerVision, camera_calibrations
 from tactile_rig.rig.jig_accuracy import sim_camera_connector
-from tactile_rig.rig.learning import force_trials_from_recording, load_force_map, substance_session
+from tactile_rig.rig.learning import force_trials_from_recording, substance_session
 from tactile_rig.rig.live_collection import PressPlan, collect_force_map, collect_stirring, press_profile
 from tactile_rig.rig.recording import read_recording
 from tactile_rig.sim.render.fingervision import FingerVisionRenderer, contact_shear_field
@@ -77,6 +79,13 @@ def test_live_force_map_records_a_session_that_fits(live_map, capsys):
     assert [m.data["peak_force_n"] for m in rec.on("/command/session")] == [4.0, 8.0, 12.0]
     frames = [m for m in rec.messages if m.topic.endswith("compressed")]
     assert len(frames) > 100 and frames[0].image().shape == (240, 320, 3)
+    from mcap.reader import make_reader  # the independent reader opens it as Foxglove would
+
+    with open(live_map / "force_map.mcap", "rb") as fh:
+        reader = make_reader(fh)
+        counts = {ch.topic: n for ch_id, n in reader.get_summary().statistics.channel_message_counts.items()
+                  for ch in [reader.get_summary().channels[ch_id]]}
+    assert counts["/scale/force"] > 100 and counts["/camera/image/compressed"] == len(frames)
     trials = force_trials_from_recording(live_map / "force_map.mcap", camera="camera")
     # every trial's top reading is its commanded peak: the probe found the effort per newton
     for tr, peak in zip(trials, (4.0, 8.0, 12.0)):
@@ -182,3 +191,36 @@ def test_live_stirring_records_labelled_trials_and_fits(tmp_path):
     assert report["accuracy_holdout"] >= 0.75  # water and honey differ by three orders of viscosity
     with pytest.raises(ValueError, match="at least two different substances"):
         collect_stirring(rig, tmp_path / "y.mcap", camera="fv", substances=["water", "water"])
+
+
+def test_live_collection_starts_from_the_stored_baseline_and_attaches_it(tmp_path):
+    from tactile_rig.rig.calibration_sessions import fingervision_session
+
+    rig = _press_rig()
+    try:
+        fingervision_session(rig.devices["camera"], tmp_path / "fv", frames=5)
+        cal = camera_calibrations(None, calibration=tmp_path / "fv.json", defaults=False)
+        plan = PressPlan(peaks_n=(3.0, 6.0), ramp_s=0.4, hold_s=0.2, gap_s=0.2, rest_frames=4)
+        collect_force_map(rig, tmp_path / "s.mcap", camera="camera", plan=plan, calibrations=cal, record_frames=False)
+    finally:
+        rig.close()
+    rec = read_recording(tmp_path / "s.mcap")
+    rest = [m for m in rec.on("/perception/camera") if m.data["phase"] == "rest"]
+    assert len(rest) == 4 and all(np.linalg.norm(m.data["force_px"]) < 0.3 for m in rest)  # tracked from frame 1
+    assert {"calibration/fingervision/fv.json", "calibration/fingervision/fv.npz"} <= set(rec.attachments)
+    assert not [m for m in rec.messages if "image" in m.topic]  # record_frames=False
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.floats(0.0, 0.15), st.floats(2.0, 20.0))
+def test_scale_lag_is_found_from_the_pairing_itself(lag, peak):
+    """A scale that reports a press ``lag`` s late (its moving average, the line's arrival) is paired
+    with the frames ``lag`` later: the estimate lands within one 5 ms step."""
+    from tactile_rig.rig.learning import scale_lag_s
+
+    t_cam = np.arange(0.0, 6.0, 1 / 25)
+    press = lambda t: peak * np.array([press_profile(float(x % 3.0), 1.0, 0.5) for x in np.atleast_1d(t)])  # noqa: E731
+    force_px = np.column_stack([0.02 * press(t_cam), 0.3 * press(t_cam), np.full(t_cam.size, 1.0)])
+    t_scale = np.arange(0.0, 6.2, 1 / 80)
+    f_scale = press(t_scale - lag)
+    assert scale_lag_s(t_cam, force_px, t_scale, f_scale) == pytest.approx(lag, abs=0.0051)

@@ -31,8 +31,8 @@ def test_the_live_view_sends_what_the_recording_stores(tmp_path) -> None:
     with LiveServer(port=0, clock=clock) as live:
         client = LiveClient(live.url).start()
         live.advertise("/scale/force", "tactile_rig.ScaleReading")
-        live.advertise("/camera/left/compressed", "foxglove.CompressedImage")
-        assert live.wait_for_subscriber(10.0, {"/scale/force", "/camera/left/compressed"})
+        live.advertise("/left/image/compressed", "foxglove.CompressedImage")
+        assert live.wait_for_subscriber(10.0, {"/scale/force", "/left/image/compressed"})
         rec = Recorder(tmp_path / "s.mcap", clock=clock)
         sink = Tee(rec, live)
         img = np.zeros((24, 32, 3), np.uint8)
@@ -42,18 +42,17 @@ def test_the_live_view_sends_what_the_recording_stores(tmp_path) -> None:
                 img[:, i % 32] = 255
                 sink.write_frame("left", img, compress="jpeg")
             clock.sleep(0.0125)
-        client.wait_for("/scale/force", 50)  # delivery, not timing: the server closes with the sink
-        client.wait_for("/camera/left/compressed", 10)
+        assert client.wait_for("/scale/force", 50) and client.wait_for("/left/image/compressed", 10)
         sink.close()
         client.stop()
     recorded = read_recording(tmp_path / "s.mcap")
     got = client.on("/scale/force")
     assert [m.data["seq"] for m in got] == list(range(50))  # subscribed first: every message, in order
     assert [m.data for m in got] == [m.data for m in recorded.on("/scale/force")]
-    assert len(client.on("/camera/left/compressed")) == 10
+    assert len(client.on("/left/image/compressed")) == 10
     assert client.advertised == {"/scale/force": "tactile_rig.ScaleReading",
-                                 "/camera/left/compressed": "foxglove.CompressedImage"}
-    assert set(client.on("/camera/left/compressed")[0].data) == set(SCHEMAS["foxglove.CompressedImage"]["properties"]) | {"t_s"}
+                                 "/left/image/compressed": "foxglove.CompressedImage"}
+    assert set(client.on("/left/image/compressed")[0].data) == set(SCHEMAS["foxglove.CompressedImage"]["properties"]) | {"t_s"}
 
 
 def test_the_live_view_refuses_other_hosts_than_loopback() -> None:
@@ -93,7 +92,10 @@ def test_run_jig_accuracy_live_on_the_mocks(tmp_path, capsys) -> None:
                                    "--live-port", str(port), "--live-wait", "20"], port)
     assert rc == [0]
     summary = json.loads(capsys.readouterr().out.splitlines()[-1])
+    # The run's topics are advertised before it starts and it waits for the viewer: every message.
     points = client.on("/perception/jig_accuracy_point")
-    assert 0 < len(points) <= summary["n_points"] == 3
-    assert [m.data["index"] for m in points] == sorted(m.data["index"] for m in points)
-    assert client.on("/jig/pose") and client.on("/camera/camera/compressed")
+    assert [m.data["index"] for m in points] == [0, 1, 2] and summary["n_points"] == 3
+    assert len(client.on("/perception/tactile_map_touch")) == 3
+    poses = client.on("/jig/pose")
+    assert len(poses) == len(client.on("/command/jig")) == 6  # 3 map touches + 3 points
+    assert [round(m.data["theta_deg"]) for m in poses[3:]] == [-10, 0, 10]

@@ -3,6 +3,8 @@ footage at its recorded rate, the bench file, and the command line's checks of i
 
 from __future__ import annotations
 
+import json
+
 import cv2
 import numpy as np
 import pytest
@@ -16,7 +18,7 @@ from tactile_rig.drivers.camera_http import HttpCameraSource
 from tactile_rig.mocks.camera import SimulatedCamera
 from tactile_rig.rig.bench import load_bench
 from tactile_rig.rig.bench_check import check_bench
-from tactile_rig.rig.recording import Recorder
+from tactile_rig.rig.recording import Recorder, read_recording
 from tactile_rig.rig.rehearsal import CameraServer, RehearsalOptions, load_footage
 from tactile_rig.rig.rehearsal.bench_file import RehearsalDevice, bench_toml
 
@@ -105,9 +107,9 @@ def test_mcap_footage_keeps_the_recorded_times(tmp_path) -> None:
     f = load_footage(str(tmp_path / "r.mcap"))
     assert len(f.frames) == 5 and f.fps == pytest.approx(5.0)
     assert f.render(0.45).mean() == 100 and f.render(0.85).mean() == 200
-    assert load_footage(f"{tmp_path / 'r.mcap'}#/camera/left/compressed").fps == pytest.approx(5.0)
-    with pytest.raises(ValueError, match="image topics: /camera/left/compressed"):
-        load_footage(f"{tmp_path / 'r.mcap'}#/camera/right/compressed")
+    assert load_footage(f"{tmp_path / 'r.mcap'}#/left/image/compressed").fps == pytest.approx(5.0)
+    with pytest.raises(ValueError, match="image topics: /left/image/compressed"):
+        load_footage(f"{tmp_path / 'r.mcap'}#/right/image/compressed")
 
 
 def test_footage_that_is_not_there_or_not_video(tmp_path) -> None:
@@ -132,7 +134,7 @@ def test_the_bench_file_loads_as_a_bench(tmp_path) -> None:
 
 @pytest.mark.parametrize("text, expected", [
     ("fv=demo.mp4", ("fv", "demo.mp4", "fingervision")),
-    ("left=run.mcap#/camera/left/compressed@gelsight", ("left", "run.mcap#/camera/left/compressed", "gelsight")),
+    ("left=run.mcap#/left/image/compressed@gelsight", ("left", "run.mcap#/left/image/compressed", "gelsight")),
     ("fv=me@lab.avi", ("fv", "me@lab.avi", "fingervision")),
 ])
 def test_camera_options(text, expected) -> None:
@@ -146,3 +148,17 @@ def test_bad_rehearsal_options_are_refused(capsys) -> None:
         RehearsalOptions(cameras={"gelsight": "x.mp4"})
     assert main(["bench", "rehearse", "--camera", "nonsense"]) == 2
     assert "NAME=SOURCE" in capsys.readouterr().err
+
+
+def test_record_on_the_mock_bench_in_virtual_time(tmp_path, capsys) -> None:
+    pytest.importorskip("mcap")
+    out = tmp_path / "m.mcap"
+    assert main(["record", "--mock", "--duration", "2", "--out", str(out), "--json"]) == 0
+    topics = json.loads(capsys.readouterr().out.splitlines()[-1])["topics"]
+    assert topics["/scale/force"] == 160  # every sample of the sketch at 80/s
+    assert 40 <= topics["/camera/image/compressed"] <= 50  # 25 fps; a late poll may miss a frame
+    assert 15 <= topics["/jig/pose"] == topics["/state/jig"] <= 20
+    assert topics["/state/gripper"] >= 15
+    recorded = read_recording(out)
+    assert recorded.topics() == topics and not recorded.truncated
+    assert [m.data["seq"] for m in recorded.on("/scale/force")] == sorted(m.data["seq"] for m in recorded.on("/scale/force"))

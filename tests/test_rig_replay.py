@@ -32,7 +32,7 @@ def recording(tmp_path: Path) -> Path:
 
 
 def test_source_yields_recorded_frames_with_times(recording: Path) -> None:
-    src = RecordedFrameSource(recording, topic="/camera/right/image")
+    src = RecordedFrameSource(recording, topic="/right/image")
     assert len(src) == 10
     got = list(src.frames())
     assert [t for t, _ in got] == pytest.approx([3.0 + 0.04 * i for i in range(10)])
@@ -49,7 +49,7 @@ def test_fingertip_camera_replays_a_recording_on_virtual_time(recording: Path) -
     from tactile_rig.drivers.camera import CameraConfig, FingertipCamera
 
     clock = VirtualClock(start_s=100.0)
-    src = RecordedFrameSource(recording, topic="/camera/right/image", clock=clock)
+    src = RecordedFrameSource(recording, topic="/right/image", clock=clock)
     cfg = CameraConfig(fourcc="MJPG", width=8, height=6, fps=25.0, controls={"exposure_time_absolute": 100},
                        warmup_frames=0)
     cam = FingertipCamera(src, cfg, clock=clock)
@@ -64,12 +64,12 @@ def test_fingertip_camera_replays_a_recording_on_virtual_time(recording: Path) -
 
 
 def test_format_reports_the_recorded_size(recording: Path) -> None:
-    src = RecordedFrameSource(recording, topic="/camera/left/image")
+    src = RecordedFrameSource(recording, topic="/left/image")
     assert src.set_format("MJPG", 640, 480, 25.0)[1:3] == (8, 6)
 
 
 def test_looping_source_restarts(recording: Path) -> None:
-    src = RecordedFrameSource(recording, topic="/camera/right/image", loop=True)
+    src = RecordedFrameSource(recording, topic="/right/image", loop=True)
     src.open()
     seqs = [src.read(0.0).device_seq for _ in range(12)]
     assert seqs == list(range(10)) + [0, 1]
@@ -77,15 +77,15 @@ def test_looping_source_restarts(recording: Path) -> None:
 
 def test_summary_counts_each_topic(recording: Path) -> None:
     s = summarize(recording)
-    assert s["topics"]["/camera/left/image"]["count"] == 5
-    assert s["topics"]["/camera/left/compressed"]["count"] == 5
-    assert s["topics"]["/camera/right/image"]["first_t_s"] == pytest.approx(3.0)
+    assert s["topics"]["/left/image"]["count"] == 5
+    assert s["topics"]["/left/image/compressed"]["count"] == 5
+    assert s["topics"]["/right/image"]["first_t_s"] == pytest.approx(3.0)
 
 
 def test_a_bench_camera_port_can_be_a_recording(recording: Path) -> None:
     from tactile_rig.rig.bench import connect_bench, load_bench
 
-    text = (f'[camera]\nport = "{recording}#/camera/right/image"\nwidth = 8\nheight = 6\nfps = 25.0\n')
+    text = (f'[camera]\nport = "{recording}#/right/image"\nwidth = 8\nheight = 6\nfps = 25.0\n')
     rig = connect_bench(load_bench(text=text, env={}), clock=VirtualClock())
     try:
         cam = rig.cameras["camera"]

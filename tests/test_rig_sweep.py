@@ -227,10 +227,15 @@ def test_cli_prints_one_table_and_plots(tmp_path: Path, capsys: pytest.CaptureFi
     assert not (tmp_path / "o2").exists()
 
 
-def test_dask_local_cluster_runs_the_sweep_quietly(tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
+def test_dask_local_cluster_runs_the_sweep_quietly(tmp_path: Path, capfd: pytest.CaptureFixture,
+                                                   caplog: pytest.LogCaptureFixture) -> None:
     pytest.importorskip("distributed")
+    import logging
+
     from tactile_rig.rig.sweep import dask_executor
 
+    caplog.set_level(logging.INFO)  # as the CLI's --log-level INFO would: Dask's INFO chatter must not show
+    before = logging.getLogger("distributed").level
     ex = dask_executor(workers=1, processes=False, threads_per_worker=2)
     try:
         s = run_sweep(TARGET, grid({"x": [0.0, 1.0, 2.0]}, {"noise": 0.0}), tmp_path, episodes=2, executor=ex)
@@ -240,3 +245,5 @@ def test_dask_local_cluster_runs_the_sweep_quietly(tmp_path: Path, capfd: pytest
     assert sorted(p.result["y"] for p in s.points) == [0.0, 0.0, 1.0, 1.0, 4.0, 4.0]
     cap = capfd.readouterr()
     assert cap.out == "" and "distributed" not in cap.err  # no cluster chatter
+    assert [r.getMessage() for r in caplog.records if r.name.startswith("distributed")] == []
+    assert logging.getLogger("distributed").level == before  # restored on shutdown

@@ -120,3 +120,41 @@ def test_markdown_has_one_row_per_setting_sorted_by_speed_with_marks():
 def test_setting_must_be_a_mapping():
     with pytest.raises(ValueError, match="mapping"):
         TradeTable("t", "s", "e", "", [TradeRow(["k", 1], 1, 1, is_default=True)])  # type: ignore[arg-type]
+
+
+def test_groups_have_their_own_front_and_default(tmp_path):
+    rows = [TradeRow({"scene": "a", "k": 1}, 100.0, 1.0, is_default=True),
+            TradeRow({"scene": "a", "k": 2}, 10.0, 0.1),
+            TradeRow({"scene": "a", "k": 3}, 5.0, 0.5),  # dominated within a
+            TradeRow({"scene": "b", "k": 1}, 1.0, 5.0),  # slow and bad, but alone in b apart from k=2
+            TradeRow({"scene": "b", "k": 2}, 0.5, 9.0, is_default=True)]
+    t = TradeTable("g", "rtf", "err", "", rows, group_by="scene", speed_tolerance=0.0)
+    # row 3 would be dominated by row 1 in one pool; within group b it leads the front
+    assert t.front() == [0, 1, 3]
+    assert t.default_indices == [0, 4] and not t.default_on_front()
+    text = t.format_text()
+    assert "Pareto front of scene=a, fastest first: k=1 [default] (100, 1) → k=2 (10, 0.1)" in text
+    assert "Pareto front of scene=b, fastest first: k=1 (1, 5)" in text
+    assert "scene=b k=2 NOT on its front" in text
+    back = TradeTable.from_dict(json.loads(json.dumps(t.to_dict())))
+    assert back.front() == t.front() and back.group_by == "scene"
+    assert t.plot(tmp_path / "g.png").is_file()
+    with pytest.raises(ValueError, match="group scene='b' marks 2 rows"):
+        TradeTable("g", "s", "e", "", rows[:4] + [TradeRow({"scene": "b", "k": 9}, 1, 1, is_default=True),
+                                                  rows[4]], group_by="scene")
+    with pytest.raises(ValueError, match="has no such knob"):
+        TradeTable("g", "s", "e", "", [TradeRow({"k": 1}, 1, 1, is_default=True)], group_by="scene")
+
+
+@given(st.lists(st.tuples(st.sampled_from("ab"), st.floats(0.1, 1e4), st.floats(0.0, 100.0)), min_size=1,
+                max_size=25))
+def test_grouped_front_is_the_undominated_set_within_each_group(points):
+    groups = sorted({g for g, _, _ in points})
+    first = {g: next(i for i, p in enumerate(points) if p[0] == g) for g in groups}
+    rows = [TradeRow({"g": g, "k": i}, s, e, is_default=(first[g] == i)) for i, (g, s, e) in enumerate(points)]
+    t = TradeTable("t", "s", "e", "", rows, group_by="g", speed_tolerance=0.0)
+    front = set(t.front())
+    for i, (gi, si, ei) in enumerate(points):
+        dominated = any(gj == gi and (sj >= si and ej <= ei) and (sj > si or ej < ei)
+                        for j, (gj, sj, ej) in enumerate(points) if j != i)
+        assert (i in front) == (not dominated)

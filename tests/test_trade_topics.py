@@ -49,13 +49,34 @@ def test_path_departure():
 
 def test_scenes_reference_is_the_rendered_sensor_and_the_model_departs(monkeypatch, capsys):
     monkeypatch.setattr(scenes, "RATES_HZ", (30.0,))
+    monkeypatch.setattr(scenes, "DT_SCENES", {"collision_stop": "overtravel_mm"})
+    monkeypatch.setattr(scenes, "DT_MS", (0.2, 1.0, 10.0))
     monkeypatch.setattr(scenes, "EPISODES", {True: 1, False: 1})
     assert main(["trade", "scenes", "--quick", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    rows = {r["setting"]["sensor"]: r for r in out["rows"]}
-    assert rows["rendered"]["is_default"] and rows["rendered"]["error"] == 0.0
+    assert out["group_by"] == "scene"
+    prox = {r["setting"]["sensor"]: r for r in out["rows"] if r["setting"]["scene"] == "following_proximity_rendered"}
+    assert prox["rendered"]["is_default"] and prox["rendered"]["error"] == 0.0
     # the model sensor reports the true centroid, the real processor does not: the paths differ
-    assert 0.0 < rows["model"]["error"] < 1.0
-    assert rows["model"]["extra"]["same_verdict"] == 1.0
+    assert 0.0 < prox["model"]["error"] < 1.0
+    assert prox["model"]["extra"]["same_verdict"] == 1.0
+    arm = {r["setting"]["arm_dt_ms"]: r for r in out["rows"] if r["setting"]["scene"] == "collision_stop"}
+    assert arm[0.2]["error"] == 0.0 and arm[1.0]["is_default"] and not arm[0.2]["is_default"]
+    # a coarser arm step departs further from the finest one
+    assert 0.0 < arm[1.0]["error"] < arm[10.0]["error"]
     assert all(r["speed"] > 0 for r in out["rows"])
     assert scenes.rendered_scenes() == ["following_proximity_rendered"]
+
+
+def test_an_episode_without_poses_compares_as_nan_not_a_crash():
+    from types import SimpleNamespace
+
+    from tactile_rig.core.types import Trace
+
+    tr = Trace()
+    tr.append(0.0, confidence=0.5)  # an insertion that never localized: no pose read
+    rep = SimpleNamespace(result=SimpleNamespace(trace=tr))
+    t, xyz = scenes._path(rep)
+    assert t.size == 0 and xyz.shape == (0, 3)
+    ok = (np.linspace(0, 1, 3), np.zeros((3, 3)))
+    assert all(math.isnan(v) for v in scenes.path_departure_mm(ok, (t, xyz)))

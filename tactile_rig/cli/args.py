@@ -103,3 +103,51 @@ def input_path(text: str) -> str:
     if not text or "\x00" in text:
         raise argparse.ArgumentTypeError(f"{text!r} is not a usable path")
     return text
+
+
+MAX_MAGNITUDE = 1e12  # no setting of this rig is a trillion of its unit: beyond it, a typo
+
+
+def finite_float(text: str) -> float:
+    """Any finite number of magnitude at most 1e12 (NaN, inf and 1e300 are refused); the command
+    checks its own range."""
+    value = _number(text)
+    if not math.isfinite(value) or abs(value) > MAX_MAGNITUDE:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a finite number of magnitude at most {MAX_MAGNITUDE:g}")
+    return value
+
+
+finite_float.__name__ = "finite number"
+
+
+def any_int(text: str) -> int:
+    """Any whole number of magnitude at most 2**53 (``1e3`` is accepted); the command checks its range."""
+    return int_in(-(2**53), 2**53)(text)
+
+
+any_int.__name__ = "integer"
+
+SEED = int_in(0, 2**32 - 1)  # NumPy seeds are non-negative
+SEED.__name__ = "seed"
+
+
+def output_dir_or(default: str) -> Callable[[str], str]:
+    """:func:`output_dir`, except that the command's own ``default`` (e.g. ``calib/force_map``) may
+    create its missing parents: only a path the user typed must have an existing parent."""
+
+    def parse(text: str) -> str:
+        return text if text == default else output_dir(text)
+
+    parse.__name__ = "output folder"
+    return parse
+
+
+def output_file_or(default: str | None, *suffixes: str) -> Callable[[str], str]:
+    """:func:`output_file` for a path the user typed; the command's own ``default`` passes."""
+    check = output_file(*suffixes)
+
+    def parse(text: str) -> str:
+        return text if default is not None and text == default else check(text)
+
+    parse.__name__ = "output file"
+    return parse

@@ -12,6 +12,7 @@ import sys
 import threading
 from typing import Any
 
+from tactile_rig.cli.args import SEED, any_int, finite_float, output_dir
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.rig.bench_check import check_bench, format_check_table
@@ -28,21 +29,27 @@ def register(sub: Any) -> None:
                         description="Start the gripper, scale and jig mocks each in its own process on its own "
                         "pty, the GelSight camera rendering the jig's stage and each --camera's footage as MJPEG "
                         "over HTTP on 127.0.0.1, write OUT/bench.toml naming them, and serve until Ctrl-C.")
-    r.add_argument("--out", default="rehearsal", metavar="DIR",
+    r.add_argument("--out", default="rehearsal", metavar="DIR", type=output_dir,
                    help="folder for bench.toml, the device links (dev/) and the calibration (default: rehearsal)")
     r.add_argument("--camera", action="append", default=[], metavar="NAME=SOURCE[@SENSOR]",
                    help="a camera playing recorded footage at its recorded rate: a video file, a folder of "
                         "images, FILE.mcap[#TOPIC], or 'rendered' (a FingerVision press video the rehearsal "
                         "writes); SENSOR fingervision (default) or gelsight; repeat for several")
-    r.add_argument("--seed", type=int, default=0, help="seed of the mocks' noise (default 0)")
+    r.add_argument("--seed", type=SEED, default=0, help="seed of the mocks' noise (default 0)")
     r.add_argument("--homing", action="store_true",
                    help="GRBL homing enabled: the jig boots locked and $H takes ~20 s, as on a real jig")
-    r.add_argument("--gelsight-fps", type=float, default=25.0, help="frame rate of the GelSight camera (default 25)")
-    r.add_argument("--gelsight-jpeg-quality", type=int, default=100, metavar="Q",
-                   help="JPEG quality of the GelSight stream, 1..100 (default 100; a camera's MJPG is nearer 90)")
+    r.add_argument("--gelsight-fps", type=finite_float, default=25.0, help="frame rate of the GelSight camera (default 25)")
+    r.add_argument("--gelsight-jpeg-quality", type=any_int, default=95, metavar="Q",
+                   help="JPEG quality of the GelSight stream, 1..100 (default 95, as a camera's MJPG)")
+    r.add_argument("--stage-scene", default="jig_accuracy", metavar="SCENE",
+                   help="what lies on the jig's stage under the GelSight camera: jig_accuracy (the object of "
+                        "the accuracy run, default) or gelsight_ball_presses (the calibration ball)")
+    r.add_argument("--press", action="store_true",
+                   help="the gripper presses a FingerVision fingertip (camera_fingervision) on the scale: gripper, "
+                        "scale and that camera share one process and world (for calibrate force-map)")
     r.add_argument("--no-calibration", action="store_true",
                    help="do not make the GelSight calibration on the mocks (the bench then names none)")
-    r.add_argument("--duration", type=float, metavar="S", help="stop after S seconds instead of at Ctrl-C")
+    r.add_argument("--duration", type=finite_float, metavar="S", help="stop after S seconds instead of at Ctrl-C")
     add_json_flag(r)
     r.set_defaults(func=_rehearse)
 
@@ -73,7 +80,8 @@ def _rehearse(args: argparse.Namespace) -> int:
         raise ValueError(f"--duration {args.duration} must be > 0 s")
     opts = RehearsalOptions(cameras={n: s for n, s, _ in cams}, camera_sensors={n: k for n, _, k in cams},
                             seed=args.seed, homing=args.homing, gelsight_fps=args.gelsight_fps,
-                            gelsight_jpeg_quality=args.gelsight_jpeg_quality,
+                            gelsight_jpeg_quality=args.gelsight_jpeg_quality, stage_scene=args.stage_scene,
+                            press=args.press,
                             calibration=not args.no_calibration)
     stop = threading.Event()
 
@@ -88,7 +96,9 @@ def _rehearse(args: argparse.Namespace) -> int:
         else:
             print(f"rehearsal bench up: {len(rb.processes)} device processes")
             for k, p in rb.processes.items():
-                print(f"  {k:<20} pid {p.pid:<8} {p.info.get('port') or p.info.get('url')}")
+                where = p.info.get("port") or p.info.get("url") or ", ".join(
+                    f"{d} {p.info[d]['port']}" for d in ("gripper", "scale") if d in p.info)
+                print(f"  {k:<20} pid {p.pid:<8} {where}")
             print(f"bench file: {rb.bench_path}")
             print(f"  export TACTILE_RIG_BENCH={rb.bench_path.resolve()}")
             print("Ctrl-C stops it.")

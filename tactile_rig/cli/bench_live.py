@@ -11,19 +11,24 @@ processing time; a summary follows.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
+from tactile_rig.cli.args import any_int, finite_float
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.common import print_json
+from tactile_rig.rig.bench_camera import camera_name
 from tactile_rig.rig.camera_calibrations import camera_calibrations, describe_files
 from tactile_rig.rig.live import DEFAULT_LIVE_PORT, LiveServer
+from tactile_rig.rig.recording import camera_topic
 from tactile_rig.rig.live_perception import (
     FingerVisionStep,
     GelSightHeightStep,
+    GelSightLocalizeStep,
     gelsight_calibration_for,
     height_image,
     run_live,
@@ -37,34 +42,40 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--live", action="store_true",
                         help=f"serve the session live over the Foxglove WebSocket protocol on 127.0.0.1 "
                              f"(ws://127.0.0.1:{DEFAULT_LIVE_PORT} in Foxglove; needs tactile-rig[live])")
-    parser.add_argument("--live-port", type=int, default=DEFAULT_LIVE_PORT, metavar="PORT",
+    parser.add_argument("--live-port", type=any_int, default=DEFAULT_LIVE_PORT, metavar="PORT",
                         help=f"port of the live view (default {DEFAULT_LIVE_PORT}; 0: any free port, printed)")
-    parser.add_argument("--live-wait", type=float, default=0.0, metavar="S",
+    parser.add_argument("--live-wait", type=finite_float, default=0.0, metavar="S",
                         help="with --live: wait up to S s for a viewer to subscribe before starting (default 0)")
 
+
+# What a jig accuracy run publishes (the camera's topic depends on its name).
+JIG_ACCURACY_TOPICS = {"/perception/jig_accuracy_point": "tactile_rig.Perception",
+                       "/perception/tactile_map_touch": "tactile_rig.Perception",
+                       "/jig/pose": "tactile_rig.JigPose", "/command/jig": "tactile_rig.Command"}
 
 SESSION_TOPIC = "/session"  # advertised at once so a viewer can subscribe before the session's own topics exist
 
 
 def live_from_args(args: argparse.Namespace, clock: Any = None,
-                   topics: tuple[str, ...] | dict[str, str] = ()) -> LiveServer | None:
-    """The live server ``--live`` asks for (its URL printed on stderr), or None. With ``--live-wait``
-    it waits for a viewer to subscribe to ``topics`` (advertised first: a dict gives each topic's schema,
-    a tuple means ``tactile_rig.Perception``), or to anything."""
+                   topics: Mapping[str, str] | tuple[str, ...] | None = None) -> LiveServer | None:
+    """The live server ``--live`` asks for (its URL printed on stderr), or None.
+
+    ``topics`` (topic → schema; a tuple means ``tactile_rig.Perception``) are advertised at once, so a
+    viewer can subscribe before the session publishes on them; with ``--live-wait S`` the session
+    waits up to S s for a viewer subscribed to all of them (or, without ``topics``, to anything)."""
     if not getattr(args, "live", False):
         return None
     if args.live_wait < 0:
         raise ValueError(f"--live-wait {args.live_wait} must be >= 0 s")
     live = LiveServer(port=args.live_port, clock=clock)
     print(f"live view: {live.url} (Foxglove: Open connection -> Foxglove WebSocket)", file=sys.stderr, flush=True)
-    if args.live_wait > 0 and not topics:
-        live.advertise(SESSION_TOPIC)
-        live.wait_for_subscriber(args.live_wait)
-    elif args.live_wait > 0:
-        schemas = topics if isinstance(topics, dict) else dict.fromkeys(topics, "tactile_rig.Perception")
-        for t, schema in schemas.items():
-            live.advertise(t, schema)
-        live.wait_for_subscriber(args.live_wait, set(topics))
+    if isinstance(topics, tuple):
+        topics = dict.fromkeys(topics, "tactile_rig.Perception")
+    wanted = dict(topics or {SESSION_TOPIC: "tactile_rig.Json"})
+    for topic, schema in wanted.items():
+        live.advertise(topic, schema)
+    if args.live_wait > 0:
+        live.wait_for_subscriber(args.live_wait, set(wanted) if topics else None)
     return live
 
 
@@ -72,31 +83,38 @@ def add_bench_camera_arguments(parser: argparse.ArgumentParser) -> None:
     """What a perception command needs to run live from a bench camera."""
     add_bench_arguments(parser)
     parser.add_argument("--camera", metavar="NAME", help="which camera of the bench (default: the first of the sensor)")
-    parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: at Ctrl-C)")
-    parser.add_argument("--frames-max", dest="frames_max", type=int, metavar="N", help="stop after N frames")
+    parser.add_argument("--duration", type=finite_float, metavar="S", help="stop after S seconds (default: at Ctrl-C)")
+    parser.add_argument("--frames-max", dest="frames_max", type=any_int, metavar="N", help="stop after N frames")
     add_live_arguments(parser)
 
 
-def wants_bench(args: argparse.Namespace) -> bool:
-    """True when the command was given a bench (``--bench``/``--mock``) and runs live."""
-    return bool(getattr(args, "bench", None) or getattr(args, "mock", False))
+def wants_bench(args: argparse.Namespace, *files: str) -> bool:
+    """True when the command runs live from a bench: ``--bench``/``--mock`` given, or none of its file
+    arguments ``files`` given and ``$TACTILE_RIG_BENCH`` set."""
+    if getattr(args, "bench", None) or getattr(args, "mock", False):
+        return True
+    return bool(os.environ.get("TACTILE_RIG_BENCH")) and not any(getattr(args, f, None) for f in files)
 
 
 def _run(args: argparse.Namespace, step: Any, sensor: str, line: Any) -> int:
     bench = bench_from_args(args)
-    live = live_from_args(args)
+    cam = camera_name(bench, args.camera, sensor)
+    live = live_from_args(args, topics={camera_topic(cam, compressed=True): "foxglove.CompressedImage",
+                                        f"/perception/{cam}/{step.name}": "tactile_rig.Perception"})
     as_json = bool(getattr(args, "json", False))
 
     def on_frame(row: dict[str, Any]) -> None:
+        text = line(row)
         if as_json:
             print_json(row)
         else:
-            print(f"{row['frame']:5d} {row['fps']:6.2f} fps {row['work_ms']:6.1f} ms  {line(row)}", flush=True)
+            print(f"{row['frame']:5d} {row['fps']:6.2f} fps {row['work_ms']:6.1f} ms  {text}", flush=True)
 
     try:
-        s = run_live(bench, args.camera, step, sensor=sensor, duration_s=args.duration, max_frames=args.frames_max,
+        s = run_live(bench, cam, step, sensor=sensor, duration_s=args.duration, max_frames=args.frames_max,
                      live=live, on_frame=on_frame,
-                     publish_image=(lambda img: height_image(step.last)) if isinstance(step, GelSightHeightStep)
+                     publish_image=(lambda img: None if step.last is None else height_image(step.last))
+                     if isinstance(step, GelSightHeightStep)
                      else None)
     finally:
         if live is not None:
@@ -109,7 +127,8 @@ def _run(args: argparse.Namespace, step: Any, sensor: str, line: Any) -> int:
 
 
 def track(args: argparse.Namespace, params: Any) -> int:
-    """``fingervision track --bench``: live tracking from the bench's FingerVision camera."""
+    """``fingervision track --bench``: live tracking from the bench's FingerVision camera, from the
+    camera's stored baseline and in newtons through its force map when the bench names them."""
 
     def line(r: dict[str, Any]) -> str:
         if r["calibrating"]:
@@ -153,6 +172,29 @@ def height(args: argparse.Namespace) -> int:
     return rc
 
 
+def localize(args: argparse.Namespace, tactile_map: Any) -> int:
+    """``gelsight localize MAP --bench``: each live frame of the bench's GelSight camera localized in
+    ``tactile_map``; exit 1 when the last frame was refused."""
+    bench = bench_from_args(args)
+    cam = args.camera or next((k for k, c in bench.cameras.items() if c.sensor == "gelsight"), None)
+    if cam is None:
+        raise ValueError(f"{bench.source}: no camera with sensor = \"gelsight\"")
+    step = GelSightLocalizeStep(gelsight_calibration_for(bench, cam, args.calib), tactile_map)
+    args.camera = cam
+    last: dict[str, Any] = {}
+
+    def line(r: dict[str, Any]) -> str:
+        last.update(r)
+        if not r["ok"]:
+            return f"refused: {r['reason']} (confidence {r['confidence']:.3f})"
+        t = r["translation_mm"]
+        return (f"rotation {r['rotation_deg']:+.3f} deg  translation ({t[0]:+.4f}, {t[1]:+.4f}) mm  "
+                f"confidence {r['confidence']:.4f}  {r['method']}")
+
+    rc = _run(args, step, "gelsight", line)
+    return rc if rc else (0 if last.get("ok") else 1)
+
+
 def need_files(args: argparse.Namespace, *names: str) -> None:
     """Without a bench, the file arguments are required: a one-line error naming the first missing."""
     for n in names:
@@ -165,7 +207,8 @@ def scene_live(args: argparse.Namespace, show: Any) -> dict[str, Any]:
     trace on ``/perception/<scene>/trace``, one message per sample, episodes one after the other in
     simulated time. Returns the summary ``run_episodes`` would."""
     stem = resolve_scene_path(args.name).stem
-    live = live_from_args(args, topics=(f"/perception/{stem}/trace", f"/perception/{stem}/episode"))
+    live = live_from_args(args, topics={f"/perception/{stem}/trace": "tactile_rig.Perception",
+                                        f"/perception/{stem}/episode": "tactile_rig.Perception"})
     assert live is not None
     reports = []
     t0 = 0.0

@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
+from tactile_rig.cli.args import SEED, any_int, finite_float, output_dir_or
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
-from tactile_rig.cli.calibrate_sessions import _connect, _guide, register_sessions
+from tactile_rig.cli.calibrate_sessions import connect_session_rig, register_sessions, session_guide
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.cli.replay import extras_as_errors
 from tactile_rig.rig.camera_calibrations import camera_calibrations
@@ -39,7 +40,7 @@ def _source_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--from-recording", metavar="FILE.mcap",
                    help="learn from a recorded session instead of collecting one")
     p.add_argument("--camera", help="perception topic name in the recording (default: the only one)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the mock session (default 0)")
+    p.add_argument("--seed", type=SEED, default=0, help="seed of the mock session (default 0)")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures and Markdown page")
     p.add_argument("--force", action="store_true",
                    help="overwrite the newest model version instead of adding <name>-vN+1")
@@ -84,18 +85,18 @@ def _register_force_map(csub: argparse._SubParsersAction) -> None:
                         "fit RBF kernel ridge regression on robust-scaled marker forces, report the MSE on a "
                         "held-out trial, save force_map.npz + force_map.json (no pickle).")
     _source_arguments(p)
-    p.add_argument("--trials", type=int, default=10, help="number of presses (default 10)")
-    p.add_argument("--max-force", type=float, default=20.0, help="peak force of the last press in N (default 20)")
-    p.add_argument("--holdout", type=int, help="trial held out for the MSE (default: the middle one)")
-    p.add_argument("--alpha", type=float, default=0.02, help="ridge penalty λ (default 0.02, as the thesis)")
-    p.add_argument("--gamma", type=float, default=None, help="RBF gamma on robust-scaled features (default 0.05)")
-    p.add_argument("--out", default="calib/force_map", help="output folder (default calib/force_map)")
-    p.add_argument("--max-effort", type=float, default=0.5,
+    p.add_argument("--trials", type=any_int, default=10, help="number of presses (default 10)")
+    p.add_argument("--max-force", type=finite_float, default=20.0, help="peak force of the last press in N (default 20)")
+    p.add_argument("--holdout", type=any_int, help="trial held out for the MSE (default: the middle one)")
+    p.add_argument("--alpha", type=finite_float, default=0.02, help="ridge penalty λ (default 0.02, as the thesis)")
+    p.add_argument("--gamma", type=finite_float, default=None, help="RBF gamma on robust-scaled features (default 0.05)")
+    p.add_argument("--out", default="calib/force_map", type=output_dir_or("calib/force_map"), help="output folder (default calib/force_map)")
+    p.add_argument("--max-effort", type=finite_float, default=0.5,
                    help="live: effort cap, fraction of the current limit (default 0.5)")
-    p.add_argument("--release-opening-m", type=float, default=0.06,
+    p.add_argument("--release-opening-m", type=finite_float, default=0.06,
                    help="live: opening between presses in m, clear of the platform (default 0.06)")
-    p.add_argument("--ramp", type=float, default=1.0, help="live: seconds to reach each press's peak (default 1)")
-    p.add_argument("--hold", type=float, default=0.5, help="live: seconds at the peak (default 0.5)")
+    p.add_argument("--ramp", type=finite_float, default=1.0, help="live: seconds to reach each press's peak (default 1)")
+    p.add_argument("--hold", type=finite_float, default=0.5, help="live: seconds at the peak (default 0.5)")
     p.set_defaults(func=_force_map)
 
 
@@ -106,7 +107,8 @@ def _force_map(args: argparse.Namespace) -> int:
         raise ValueError(f"--trials {args.trials} must be >= 2 (one trial is held out)")
     if not args.max_force > 0:
         raise ValueError(f"--max-force {args.max_force} must be > 0 N")
-    collect, camera = None, args.camera
+    collect: Callable[[Path], Path] | None = None
+    camera = args.camera
     if live:
         missing = [d for d in ("gripper", "scale") if d not in bench.devices]
         if missing:
@@ -116,15 +118,7 @@ def _force_map(args: argparse.Namespace) -> int:
         plan = PressPlan(peaks_n=tuple(float(v) for v in increasing_peaks(args.trials, args.max_force)),
                          max_effort=args.max_effort, release_opening_m=args.release_opening_m, ramp_s=args.ramp,
                          hold_s=args.hold)
-
-        def collect(path: Path) -> Path:
-            rig = _connect(args, ["gripper", "scale", camera], scene=MOCK_PRESS_SCENE,
-                           connectors={"camera": sim_camera_connector("fingervision")})
-            try:
-                cal = camera_calibrations(rig.bench, camera, load=("calibration",), defaults=not bench.is_mock)
-                return collect_force_map(rig, path, camera=camera, plan=plan, calibrations=cal, guide=_guide(args))
-            finally:
-                rig.close()
+        collect = _press_collector(args, bench, camera, plan)
 
     report = force_map_session(Path(args.out), n_trials=args.trials, max_force_n=args.max_force, seed=args.seed,
                                recording=args.from_recording, holdout=args.holdout, alpha=args.alpha,
@@ -146,13 +140,13 @@ def _register_substance(csub: argparse._SubParsersAction) -> None:
                         description="Stirring trials → windows of marker-force statistics → MLPClassifier "
                         "(10, 10, 10), logistic, lbfgs; accuracy on held-out trials; saves substance.npz + .json.")
     _source_arguments(p)
-    p.add_argument("--per-substance", type=int, default=12, help="mock trials per substance (default 12)")
-    p.add_argument("--window", type=float, default=2.0, help="feature window in s (default 2)")
-    p.add_argument("--test-fraction", type=float, default=0.25, help="trials held out per substance (default 0.25)")
-    p.add_argument("--out", default="calib/substance", help="output folder (default calib/substance)")
+    p.add_argument("--per-substance", type=any_int, default=12, help="mock trials per substance (default 12)")
+    p.add_argument("--window", type=finite_float, default=2.0, help="feature window in s (default 2)")
+    p.add_argument("--test-fraction", type=finite_float, default=0.25, help="trials held out per substance (default 0.25)")
+    p.add_argument("--out", default="calib/substance", type=output_dir_or("calib/substance"), help="output folder (default calib/substance)")
     p.add_argument("--substances", help="live: comma-separated substances to stir, e.g. water,oil,honey")
-    p.add_argument("--trial-s", type=float, default=10.0, help="live: seconds of stirring per trial (default 10)")
-    p.add_argument("--grip-effort", type=float, default=0.3, help="live: effort holding the stick (default 0.3)")
+    p.add_argument("--trial-s", type=finite_float, default=10.0, help="live: seconds of stirring per trial (default 10)")
+    p.add_argument("--grip-effort", type=finite_float, default=0.3, help="live: effort holding the stick (default 0.3)")
     p.set_defaults(func=_substance)
 
 
@@ -161,7 +155,8 @@ def _substance(args: argparse.Namespace) -> int:
     bench, live = _check_source(args, "substance")
     if args.per_substance < 2:
         raise ValueError(f"--per-substance {args.per_substance} must be >= 2 (train and test trials)")
-    collect, camera = None, args.camera
+    collect: Callable[[Path], Path] | None = None
+    camera = args.camera
     if live:
         if bench.is_mock:
             raise ValueError("substance --live: the mock bench has no stirring scene to stir in; drop --live "
@@ -170,17 +165,7 @@ def _substance(args: argparse.Namespace) -> int:
             raise ValueError("substance on a bench: name what will be stirred with --substances water,oil,honey")
         camera = _live_camera(args, bench)
         names = [s.strip() for s in args.substances.split(",") if s.strip()]
-
-        def collect(path: Path) -> Path:
-            devices = [camera] + (["gripper"] if "gripper" in bench.devices else [])
-            rig = _connect(args, devices)
-            try:
-                cal = camera_calibrations(rig.bench, camera, load=("calibration",))
-                return collect_stirring(rig, path, camera=camera, substances=names, per_substance=args.per_substance,
-                                        trial_s=args.trial_s, grip_effort=args.grip_effort, calibrations=cal,
-                                        guide=_guide(args))
-            finally:
-                rig.close()
+        collect = _stir_collector(args, bench, camera, names)
 
     report = substance_session(Path(args.out), per_substance=args.per_substance, seed=args.seed,
                                recording=args.from_recording, test_fraction=args.test_fraction,
@@ -194,3 +179,35 @@ def _substance(args: argparse.Namespace) -> int:
               f"{', '.join(report['classes'])}")
         print(f"model: {report['model']['npz']} + {report['model']['json']}")
     return 0
+
+
+def _press_collector(args: argparse.Namespace, bench: Any, camera: str, plan: PressPlan) -> Callable[[Path], Path]:
+    """``collect(path)`` for the force-map session: connect the devices, press, record, close."""
+
+    def collect(path: Path) -> Path:
+        rig = connect_session_rig(args, ["gripper", "scale", camera], scene=MOCK_PRESS_SCENE,
+                                  connectors={"camera": sim_camera_connector("fingervision")})
+        try:
+            cal = camera_calibrations(rig.bench, camera, load=("calibration",), defaults=not bench.is_mock)
+            return collect_force_map(rig, path, camera=camera, plan=plan, calibrations=cal,
+                                     guide=session_guide(args))
+        finally:
+            rig.close()
+
+    return collect
+
+
+def _stir_collector(args: argparse.Namespace, bench: Any, camera: str, names: list[str]) -> Callable[[Path], Path]:
+    """``collect(path)`` for the substance session: the operator stirs each named substance."""
+
+    def collect(path: Path) -> Path:
+        rig = connect_session_rig(args, [camera] + (["gripper"] if "gripper" in bench.devices else []))
+        try:
+            cal = camera_calibrations(rig.bench, camera, load=("calibration",))
+            return collect_stirring(rig, path, camera=camera, substances=names, per_substance=args.per_substance,
+                                    trial_s=args.trial_s, grip_effort=args.grip_effort, calibrations=cal,
+                                    guide=session_guide(args))
+        finally:
+            rig.close()
+
+    return collect

@@ -16,11 +16,13 @@ from __future__ import annotations
 import argparse
 from typing import Any, Callable
 
+from tactile_rig.cli.args import SEED, any_int, finite_float, output_file_or
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.drivers.dynamixel import DynamixelGripper
 from tactile_rig.mocks.registry import device_from_url
+from tactile_rig.mocks.scale import ScaleMock
 from tactile_rig.rig.bench import Bench, connect_bench
 from tactile_rig.rig.calibration_sessions import (
     BallPressPlan,
@@ -45,11 +47,11 @@ def register_sessions(csub: Any) -> None:
 
     def common(p: argparse.ArgumentParser, out: str) -> None:
         add_bench_arguments(p)
-        p.add_argument("--out", default=out, help=f"calibration to write: version N goes to <name>-vN.*, "
+        p.add_argument("--out", default=out, type=output_file_or(out), help=f"calibration to write: version N goes to <name>-vN.*, "
                                                   f"<name>.* links to the newest (default {out})")
         p.add_argument("--force", action="store_true",
                        help="overwrite the newest version (or the named -vN file) instead of adding a version")
-        p.add_argument("--seed", type=int, default=0, help="seed of the mock world (default 0)")
+        p.add_argument("--seed", type=SEED, default=0, help="seed of the mock world (default 0)")
         p.add_argument("--yes", action="store_true", help="never prompt, even on a terminal")
         add_json_flag(p)
 
@@ -58,13 +60,13 @@ def register_sessions(csub: Any) -> None:
                                     "gradient model, write <out>.npz + <out>.json and a held-out error report.")
     common(g, "calib/gelsight")
     g.add_argument("--device", help="GelSight camera table of the bench (default: the first)")
-    g.add_argument("--ball-radius-mm", type=float, default=2.0, help="radius of the ball (default 2.0 mm)")
-    g.add_argument("--press-depth-mm", type=float, default=0.6, help="press depth past first contact (default 0.6)")
-    g.add_argument("--grid-x", type=float, nargs=3, default=(-7.5, 7.5, 5), metavar=("START", "STOP", "COUNT"),
+    g.add_argument("--ball-radius-mm", type=finite_float, default=2.0, help="radius of the ball (default 2.0 mm)")
+    g.add_argument("--press-depth-mm", type=finite_float, default=0.6, help="press depth past first contact (default 0.6)")
+    g.add_argument("--grid-x", type=finite_float, nargs=3, default=(-7.5, 7.5, 5), metavar=("START", "STOP", "COUNT"),
                    help="jig x positions in mm (default -7.5 7.5 5)")
-    g.add_argument("--grid-y", type=float, nargs=3, default=(-5.0, 5.0, 4), metavar=("START", "STOP", "COUNT"),
+    g.add_argument("--grid-y", type=finite_float, nargs=3, default=(-5.0, 5.0, 4), metavar=("START", "STOP", "COUNT"),
                    help="jig y positions in mm (default -5 5 4)")
-    g.add_argument("--background-mm", type=float, nargs=2, default=(16.0, 0.0), metavar=("X", "Y"),
+    g.add_argument("--background-mm", type=finite_float, nargs=2, default=(16.0, 0.0), metavar=("X", "Y"),
                    help="jig position with the ball out of view, for the no-contact frame (default 16 0)")
     g.add_argument("--method", choices=["lut", "poly", "mlp"], default="lut", help="model (default lut, Li 2014)")
     g.set_defaults(func=_gelsight)
@@ -74,9 +76,9 @@ def register_sessions(csub: Any) -> None:
                                     "the factor and the report. Off a terminal the session waits for a steady "
                                     "load instead of prompting.")
     common(s, "calib/scale.json")
-    s.add_argument("--known-mass-g", type=float, required=True, help="the known mass in grams")
-    s.add_argument("--samples", type=int, default=20, help="readings averaged per step (default 20)")
-    s.add_argument("--wait-timeout", type=float, default=60.0,
+    s.add_argument("--known-mass-g", type=finite_float, required=True, help="the known mass in grams")
+    s.add_argument("--samples", type=any_int, default=20, help="readings averaged per step (default 20)")
+    s.add_argument("--wait-timeout", type=finite_float, default=60.0,
                    help="seconds to wait for the mass when not on a terminal (default 60)")
     s.set_defaults(func=_scale)
 
@@ -84,9 +86,9 @@ def register_sessions(csub: Any) -> None:
                         description="Drive the fingers into the closed and the open stop at a low effort; write "
                                     "closed_ticks, open_ticks and max_opening_m.")
     common(r, "calib/gripper.json")
-    r.add_argument("--effort", type=float, default=0.2, help="fraction of the current limit (default 0.2)")
-    r.add_argument("--max-opening-m", type=float, help="measured opening at the open stop in metres")
-    r.add_argument("--closing-sign", type=int, choices=[-1, 1], default=-1, help="tick direction that closes")
+    r.add_argument("--effort", type=finite_float, default=0.2, help="fraction of the current limit (default 0.2)")
+    r.add_argument("--max-opening-m", type=finite_float, help="measured opening at the open stop in metres")
+    r.add_argument("--closing-sign", type=any_int, choices=[-1, 1], default=-1, help="tick direction that closes")
     r.set_defaults(func=_gripper)
 
     f = csub.add_parser("fingervision", help="FingerVision marker baseline and proximity-vision histograms",
@@ -94,16 +96,16 @@ def register_sessions(csub: Any) -> None:
                                     "histogram; write <out>.npz + <out>.json.")
     common(f, "calib/fingervision")
     f.add_argument("--device", help="FingerVision camera table of the bench (default: the first)")
-    f.add_argument("--frames", type=int, default=10, help="no-contact frames to average (default 10)")
+    f.add_argument("--frames", type=any_int, default=10, help="no-contact frames to average (default 10)")
     f.set_defaults(func=_fingervision)
 
 
-def _guide(args: argparse.Namespace) -> Any:
+def session_guide(args: argparse.Namespace) -> Any:
     # Nobody needs to place a ball or a mass on a mock: the session scripts the simulated operator.
     return Guide(False if args.yes or args.mock else None, quiet=bool(args.json))
 
 
-def _connect(args: argparse.Namespace, names: list[str], *, scene: str | None = None,
+def connect_session_rig(args: argparse.Namespace, names: list[str], *, scene: str | None = None,
              connectors: dict[str, Callable[..., Any]] | None = None, bench_too: bool = False) -> Any:
     """Connect only ``names`` of the chosen bench (mocks: on ``scene``); ``connectors`` apply to
     mocks only unless ``bench_too``."""
@@ -152,13 +154,14 @@ def _gelsight(args: argparse.Namespace) -> int:
                          grid_y_mm=(args.grid_y[0], args.grid_y[1], int(args.grid_y[2])),
                          background_mm=tuple(args.background_mm), method=args.method)
     cam = _camera_name(args, "gelsight")
-    rig = _connect(args, ["jig", cam], scene=MOCK_PRESS_SCENE, connectors={"camera": sim_camera_connector("gelsight")})
+    rig = connect_session_rig(args, ["jig", cam], scene=MOCK_PRESS_SCENE,
+                              connectors={"camera": sim_camera_connector("gelsight")})
 
     def session(rig: Any) -> Any:
         prepare_jig(rig.jig)
         press_rig = DeviceJigRig(rig.jig, rig.devices[cam], rig.clock, world=rig.world, settle_s=0.05)
         return gelsight_session(press_rig, plan, float(rig.bench.devices[cam].mm_per_px_x), args.out,
-                                guide=_guide(args), force=args.force, bench=rig.bench, clock=rig.clock,
+                                guide=session_guide(args), force=args.force, bench=rig.bench, clock=rig.clock,
                                 camera=cam)
 
     return _run(args, rig, session, lambda r: (
@@ -167,10 +170,10 @@ def _gelsight(args: argparse.Namespace) -> int:
 
 
 def _scale(args: argparse.Namespace) -> int:
-    rig = _connect(args, ["scale"])
+    rig = connect_session_rig(args, ["scale"])
     place = _mock_mass_placer(rig) if rig.bench.is_mock else None
     return _run(args, rig, lambda rig: scale_session(
-        rig.scale, args.known_mass_g, args.out, place_mass=place, guide=_guide(args), samples=args.samples,
+        rig.scale, args.known_mass_g, args.out, place_mass=place, guide=session_guide(args), samples=args.samples,
         wait_timeout_s=args.wait_timeout, force=args.force, bench=rig.bench), lambda r: (
         f"scale: {r['cal_factor_counts_per_g']:.5g} counts/g; {args.known_mass_g:g} g reads "
         f"{r['loaded_mean_g']:.3f} g ({r['verify_error_g']:+.3f} g), empty noise {r['empty_noise_g']:.3f} g"))
@@ -181,6 +184,8 @@ def _mock_mass_placer(rig: Any) -> Callable[[float], None]:
 
     name = next(n for n in rig.mock_instances if n.endswith(".scale"))
     device, _ = device_from_url(f"rigsim://@{name}")
+    if not isinstance(device, ScaleMock):
+        raise TypeError(f"mock bench instance {name!r} is a {type(device).__name__}; expected the scale mock")
     cell = device.load_cell
 
     def place(grams: float) -> None:
@@ -195,19 +200,20 @@ def _gripper(args: argparse.Namespace) -> int:
 
         return DynamixelGripper(cfg.port, dxl_id=cfg.ids[0], protocol=cfg.protocol, baudrate=cfg.baud)
 
-    rig = _connect(args, ["gripper"], connectors={"gripper": connect_gripper}, bench_too=True)
+    rig = connect_session_rig(args, ["gripper"], connectors={"gripper": connect_gripper}, bench_too=True)
     return _run(args, rig, lambda rig: gripper_session(
         rig.gripper, args.out, effort=args.effort, max_opening_m=args.max_opening_m,
-        closing_sign=args.closing_sign, guide=_guide(args), force=args.force, bench=rig.bench), lambda r: (
+        closing_sign=args.closing_sign, guide=session_guide(args), force=args.force, bench=rig.bench), lambda r: (
         f"gripper: closed {r['closed_ticks']} ticks, open {r['open_ticks']} ticks "
         f"({r['span_ticks']} ticks for {r['max_opening_m']} m)"))
 
 
 def _fingervision(args: argparse.Namespace) -> int:
     cam = _camera_name(args, "fingervision")
-    rig = _connect(args, [cam], scene="fingervision_rest", connectors={"camera": sim_camera_connector("fingervision")})
+    rig = connect_session_rig(args, [cam], scene="fingervision_rest",
+                              connectors={"camera": sim_camera_connector("fingervision")})
     return _run(args, rig, lambda rig: fingervision_session(rig.devices[cam], args.out, frames=args.frames,
-                                                            guide=_guide(args), force=args.force,
+                                                            guide=session_guide(args), force=args.force,
                                                             bench=rig.bench), lambda r: (
         f"FingerVision: {r['valid_markers']}/{r['markers']} stable markers, median jitter "
         f"{'n/a' if r['median_marker_jitter_px'] is None else format(r['median_marker_jitter_px'], '.3f')} px"))

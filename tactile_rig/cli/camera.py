@@ -13,6 +13,7 @@ import os
 import sys
 from typing import Any
 
+from tactile_rig.cli.args import any_int, finite_float, output_dir
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.rig.bench_camera import camera_name, grab_frames, measure_fps, open_camera, video_devices
@@ -36,10 +37,10 @@ def register(sub: Any) -> None:
         add_bench_arguments(c)
         c.add_argument("--camera", metavar="NAME", help="which camera of the bench (default: the first)")
         if name == "grab":
-            c.add_argument("--count", type=int, default=1, help="frames to save (default 1)")
-            c.add_argument("--out", default=".", metavar="DIR", help="folder for the PNG files (default .)")
+            c.add_argument("--count", type=any_int, default=1, help="frames to save (default 1)")
+            c.add_argument("--out", default=".", metavar="DIR", type=output_dir, help="folder for the PNG files (default .)")
         if name == "fps":
-            c.add_argument("--duration", type=float, default=3.0, metavar="S", help="measuring window (default 3 s)")
+            c.add_argument("--duration", type=finite_float, default=3.0, metavar="S", help="measuring window (default 3 s)")
         add_json_flag(c)
         c.set_defaults(func=func)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])

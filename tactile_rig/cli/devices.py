@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import tempfile
+from typing import Any
 
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.drivers.discovery import discover
@@ -41,6 +42,16 @@ def run(args: argparse.Namespace) -> int:
     for d in found:
         nodes = ", ".join(d.tty + d.video) or "(no node)"
         print(f"{d.kind:12s} {d.usb_id}  {d.port_path:8s} serial={d.serial or '-'}  {nodes}")
-        for link in d.by_id or d.by_path:  # by-id when the device has a serial number, else by-path
+        for link in stable_links(d):
             print(f"{'':12s} {link}")
     return 0
+
+
+def stable_links(d: Any) -> list[str]:
+    """The links to show for a device: by-id when it has a serial number, else by-path.
+
+    A CH340 has no serial number: udev names its by-id link ``..._noserial-...``, and two of them
+    collide on that name, so the link is not shown (the JSON output still lists it).
+    """
+    by_id = [link for link in d.by_id if d.serial and "noserial" not in link]
+    return by_id or list(d.by_path)

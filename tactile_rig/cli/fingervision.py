@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import glob
 import os
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -24,12 +23,10 @@ import numpy as np
 from tactile_rig.cli import bench_live
 from tactile_rig.cli.args import float_in, int_in
 from tactile_rig.cli.common import add_json_flag, print_json
-from tactile_rig.cli.loaders import load_config_mapping, read_frame
-from tactile_rig.core.files import check_file, check_image_dims, checked, quiet_opencv
-
-
 from tactile_rig.core.errors import MarkersNotFound
+from tactile_rig.core.files import check_file, check_image_dims, quiet_opencv
 from tactile_rig.perception.fingervision import FingerVision, FingerVisionParams
+from tactile_rig.rig.loaders import load_fingervision_params, read_frame
 from tactile_rig.rig.bench import load_bench
 from tactile_rig.rig.camera_calibrations import camera_calibrations, describe_files
 
@@ -43,7 +40,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("frames", nargs="?", help="folder of images, glob pattern (quote it) or video file "
                    "(or --bench: live from the bench's camera)")
     t.add_argument("--config", help="TOML or JSON file of FingerVisionParams (sections detector, tracker, force, proximity)")
-    t.add_argument("--calib-frames", type=int_in(1, 100_000), help="no-contact frames for the baseline (overrides the config)")
+    t.add_argument("--calib-frames", type=int_in(1, 100_000),
+                   help="no-contact frames refining the markers' rest positions (ids exist from the first frame); "
+                        "with --init frames, the baseline frames (overrides the config; default 10)")
+    t.add_argument("--init", choices=("lattice", "frames"),
+                   help="lattice (default): marker ids from the first frame; frames: the older scheme, ids only "
+                        "after --calib-frames baseline frames (overrides the config)")
     t.add_argument("--fps", type=float_in(0.0, 100_000.0, "frames/s", low_open=True), help="frame rate, for timestamps t_s = index / fps (Kalman time step)")
     t.add_argument("--object-rect", type=int_in(0, 65535, "px"), nargs=4, metavar=("X", "Y", "W", "H"),
                    help="learn the object's colours from this rectangle (px) of the first frame after calibration")
@@ -60,18 +62,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
-def load_params(path: str | None, calib_frames: int | None = None):
-    """FingerVisionParams from a TOML/JSON file (or the defaults)."""
+def load_params(path: str | None, calib_frames: int | None = None, init: str | None = None) -> FingerVisionParams:
+    """FingerVisionParams from a TOML/JSON file (or the defaults), with the command line's overrides."""
 
-    data: dict[str, Any] = {}
-    if path:
-        data = load_config_mapping(path, "FingerVision config")
-    if calib_frames is not None:
-        data = {**data, "n_calib_frames": calib_frames}
-    if not path:
-        return FingerVisionParams.from_mapping(data)
-    with checked(path, "FingerVision config", "sections detector, tracker, force, proximity of FingerVisionParams"):
-        return FingerVisionParams.from_mapping(data)
+    return load_fingervision_params(path, calib_frames, init)
 
 
 def iter_frames(source: str) -> Iterator[tuple[str, np.ndarray]]:
@@ -144,8 +138,8 @@ def _record(i: int, name: str, r) -> dict[str, Any]:
 
 
 def _track(args: argparse.Namespace) -> int:
-    if bench_live.wants_bench(args):
-        return bench_live.track(args, load_params(args.config, args.calib_frames))
+    if bench_live.wants_bench(args, "frames"):
+        return bench_live.track(args, load_params(args.config, args.calib_frames, args.init))
     bench_live.need_files(args, "frames")
 
     if args.fps is not None and not (0 < args.fps < float("inf")):
@@ -154,18 +148,20 @@ def _track(args: argparse.Namespace) -> int:
         raise ValueError(f"--limit: expected >= 1 frames, got {args.limit}")
     if args.object_rect is not None and (args.object_rect[2] < 1 or args.object_rect[3] < 1):
         raise ValueError(f"--object-rect: expected a width and height >= 1 px, got {args.object_rect[2:]}")
-    fv = FingerVision(load_params(args.config, args.calib_frames))
+    fv = FingerVision(load_params(args.config, args.calib_frames, args.init))
     cal, mm_per_px = _calibrations(args)
     if cal.calibration is not None:
         cal.calibration.apply(fv)  # the stored baseline: no frames spent rebuilding it
     fm = cal.force_map
-    if not args.json:
+    if not args.json and cal.files:  # say which stored files the numbers come from (none: as before)
         print(f"calibration: {describe_files(cal)}")
     learnt = args.object_rect is None
     n = 0
     for i, (name, frame) in enumerate(iter_frames(args.frames)):
         if args.limit is not None and i >= args.limit:
             break
+        if i == 0 and cal.calibration is not None:
+            cal.calibration.check_frame(frame)
         if not learnt and fv.tracker is not None:
             fv.learn_object(frame, rects=[tuple(args.object_rect)])
             learnt = True
@@ -186,7 +182,9 @@ def _track(args: argparse.Namespace) -> int:
         if args.json:
             print_json(rec)
         else:
-            state = "calibrating" if r.calibrating else f"{r.n_markers:3d} markers"
+            n_ids = int(np.count_nonzero(r.marker_ids >= 0))
+            state = (f"{r.n_markers:3d} markers" if not r.calibrating else
+                     f"{r.n_markers:3d} markers, refining" if n_ids else "calibrating")
             f = r.force_px
             obj = "no object" if r.object_centroid_px is None else (
                 f"object {r.object_area_px:.0f} px2 at ({r.object_centroid_px[0]:.1f}, {r.object_centroid_px[1]:.1f})"
@@ -203,10 +201,11 @@ def _track(args: argparse.Namespace) -> int:
 
 
 def _calibrations(args: argparse.Namespace) -> tuple[Any, float | None]:
-    """The marker baseline and force map ``track`` uses: named on the command line, else by the bench
-    (``--bench``/``$TACTILE_RIG_BENCH``) for ``--camera``, else the sessions' default files."""
-    bench_path = getattr(args, "bench", None) or os.environ.get("TACTILE_RIG_BENCH")
-    bench = None if args.no_calibration or not bench_path else load_bench(bench_path, check_ports=False)
+    """The marker baseline and force map ``track`` uses on files: named on the command line, else by
+    ``$TACTILE_RIG_BENCH`` for ``--camera``, else the sessions' default files (``--bench`` runs live:
+    :func:`tactile_rig.cli.bench_live.track` loads the bench camera's)."""
+    env_bench = os.environ.get("TACTILE_RIG_BENCH")
+    bench = load_bench(env_bench, check_ports=False) if env_bench and not args.no_calibration else None
     camera = getattr(args, "camera", None)
     cal = camera_calibrations(bench, camera, calibration=None if args.no_calibration else args.calibration,
                               force_map=None if args.no_calibration else args.force_map,

@@ -16,7 +16,7 @@ import numpy as np
 from tactile_rig.cli import bench_live
 from tactile_rig.cli.args import float_in, int_in, output_dir, output_file
 from tactile_rig.cli.common import add_json_flag, print_json
-from tactile_rig.cli.loaders import (
+from tactile_rig.rig.loaders import (
     load_gelsight_calibration,
     load_height_mm,
     load_press_folder,
@@ -102,7 +102,7 @@ def _npy_writer(shape: tuple[int, ...], dtype: np.dtype):
 
 
 def _cmd_height(args: argparse.Namespace) -> int:
-    if bench_live.wants_bench(args):
+    if bench_live.wants_bench(args, "calib", "images"):
         return bench_live.height(args)
     bench_live.need_files(args, "calib", "images", "output")
     rec = _reconstructor(args.calib, args.background, args.solver)
@@ -192,6 +192,9 @@ def _cmd_map(args: argparse.Namespace) -> int:
 def _cmd_localize(args: argparse.Namespace) -> int:
 
     tmap = load_tactile_map(args.map, params=_params(args))
+    if bench_live.wants_bench(args, "touch"):
+        return bench_live.localize(args, tmap)
+    bench_live.need_files(args, "touch")
     res = tmap.localize(_height_or_image(args.touch, args.calib, args.background))
     return _print_result(res, args.json)
 
@@ -208,7 +211,7 @@ def _add_reg_knobs(p: argparse.ArgumentParser) -> None:
     add_json_flag(p)
 
 
-MM_PER_PX = float_in(0.0, 100.0, "mm/px", low_open=True)
+MM_PER_PX = float_in(1e-4, 10.0, "mm/px")  # 0.1 µm .. 10 mm a pixel: beyond either, a typo
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -267,8 +270,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("localize", help="where a touch lies in a tactile map (exit 1 when refused)")
     p.add_argument("map", help="tactile map .npz from 'gelsight map'")
-    p.add_argument("touch", help="touch: .npy height map, or a frame with --calib")
-    p.add_argument("--calib", help="calibration for a frame given as an image")
+    p.add_argument("touch", nargs="?", help="touch: .npy height map, or a frame with --calib "
+                   "(or --bench: each live frame of the bench's GelSight camera)")
+    p.add_argument("--calib", help="calibration for a frame given as an image (--bench: default the camera's)")
     p.add_argument("--background", help="no-contact frame for --calib")
     _add_reg_knobs(p)
+    bench_live.add_bench_camera_arguments(p)
     p.set_defaults(func=_cmd_localize)

@@ -6,10 +6,12 @@ import argparse
 import json
 from pathlib import Path
 
+from tactile_rig.cli.args import any_int, finite_float, output_file
 from tactile_rig.cli.common import print_json
 from tactile_rig.control.protocols import GripperOutcome
 from tactile_rig.devices.dynamixel.error_codes import decode_hardware_error
-from tactile_rig.drivers.dynamixel.gripper import DynamixelGripper, GripperCalibration
+from tactile_rig.drivers.dynamixel.gripper import DynamixelGripper
+from tactile_rig.rig.loaders import load_gripper_calibration
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -18,9 +20,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     def common(sp: argparse.ArgumentParser) -> None:
         sp.add_argument("--port", required=True, help="device path or URL (e.g. /dev/ttyUSB0, rigsim://dynamixel)")
-        sp.add_argument("--id", dest="dxl_id", type=int, default=1, help="servo ID (default 1)")
-        sp.add_argument("--protocol", type=int, choices=[1, 2], default=2, help="Dynamixel protocol (default 2)")
-        sp.add_argument("--baud", type=int, help="baud rate (default 1000000 for P2, 57600 for P1)")
+        sp.add_argument("--id", dest="dxl_id", type=any_int, default=1, help="servo ID (default 1)")
+        sp.add_argument("--protocol", type=any_int, choices=[1, 2], default=2, help="Dynamixel protocol (default 2)")
+        sp.add_argument("--baud", type=any_int, help="baud rate (default 1000000 for P2, 57600 for P1)")
         sp.add_argument("--calibration", type=Path, help="JSON file of closed_ticks/open_ticks/max_opening_m")
         sp.add_argument("--json", action="store_true", help="print JSON")
 
@@ -28,21 +30,24 @@ def register(sub: argparse._SubParsersAction) -> None:
     common(st)
     st.set_defaults(func=_state)
 
-    go = gsub.add_parser("go", help="activate and move to an opening with an effort cap (torque stays on)")
+    go = gsub.add_parser("go", help="activate and move to an opening with an effort cap (torque stays on)",
+                         description="Outcome: reached (within the position tolerance and slower than 2 mm/s: "
+                                     "settled), stalled (on an object at the effort cap), timeout or fault.")
     common(go)
-    go.add_argument("position", type=float, help="opening in metres (or 0-1 with --normalized)")
-    go.add_argument("--effort", type=float, default=0.3, help="fraction of the current limit, 0-1 (default 0.3)")
+    go.add_argument("position", type=finite_float, help="opening in metres (or 0-1 with --normalized)")
+    go.add_argument("--effort", type=finite_float, default=0.3, help="fraction of the current limit, 0-1 (default 0.3)")
     go.add_argument("--normalized", action="store_true", help="position is 0 (closed) - 1 (open)")
-    go.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the move (default 5)")
+    go.add_argument("--timeout", type=finite_float, default=5.0, help="seconds to wait for the move (default 5)")
     go.add_argument("--no-wait", action="store_true", help="start the move and return")
     go.set_defaults(func=_go)
 
     cal = gsub.add_parser("calibrate", help="find the closed and open stops (moves the fingers!)")
     common(cal)
-    cal.add_argument("--effort", type=float, default=0.2, help="effort used to find the stops (default 0.2)")
-    cal.add_argument("--max-opening-m", type=float, help="measured opening at the open stop, metres")
-    cal.add_argument("--closing-sign", type=int, choices=[-1, 1], default=-1, help="tick direction that closes")
-    cal.add_argument("--save", type=Path, help="write the calibration to this JSON file")
+    cal.add_argument("--effort", type=finite_float, default=0.2, help="effort used to find the stops (default 0.2)")
+    cal.add_argument("--max-opening-m", type=finite_float, help="measured opening at the open stop, metres")
+    cal.add_argument("--closing-sign", type=any_int, choices=[-1, 1], default=-1, help="tick direction that closes")
+    cal.add_argument("--save", type=lambda t: Path(output_file(".json")(t)),
+                     help="write the calibration to this JSON file (its folder must exist)")
     cal.set_defaults(func=_calibrate)
 
     rb = gsub.add_parser("reboot", help="reboot the servo (clears a latched overload/overheating error)")
@@ -54,7 +59,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _open(args: argparse.Namespace, **kw):
     cal = None
     if args.calibration:
-        cal = GripperCalibration.from_dict(json.loads(args.calibration.read_text()))
+        cal = load_gripper_calibration(args.calibration)
     return DynamixelGripper(args.port, dxl_id=args.dxl_id, protocol=args.protocol, baudrate=args.baud,
                             calibration=cal, **kw)
 

@@ -9,6 +9,7 @@ import sys
 import threading
 from typing import Any
 
+from tactile_rig.cli.args import SEED, any_int
 from tactile_rig.cli.common import print_json
 from tactile_rig.core.clock import RealClock
 from tactile_rig.mocks.pty_server import PtyServer
@@ -31,10 +32,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     serve.add_argument("device", help="device kind: dynamixel, scale or jig")
     serve.add_argument("--protocol", choices=["1", "2"], help="Dynamixel protocol version (default 2)")
-    serve.add_argument("--id", dest="ids", type=int, action="append", help="servo ID (repeat for several)")
-    serve.add_argument("--baud", type=int, help="the device's baud rate (default: the device's own)")
+    serve.add_argument("--id", dest="ids", type=any_int, action="append", help="servo ID (repeat for several)")
+    serve.add_argument("--baud", type=any_int, help="the device's baud rate (default: the device's own)")
     serve.add_argument("--scene", help="scene file or built-in scene name for the world the device sees")
-    serve.add_argument("--seed", type=int, help="seed of the scene's noise")
+    serve.add_argument("--seed", type=SEED, help="seed of the scene's noise")
     serve.add_argument("--rate", help="scale samples per second (10 or 80)")
     serve.add_argument("--no-timing", action="store_true", help="answer instantly instead of at wire speed")
     serve.add_argument(

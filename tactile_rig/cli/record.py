@@ -11,18 +11,19 @@ import sys
 import time
 from typing import Any
 
+from tactile_rig.cli.args import finite_float, output_file
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.bench_live import add_live_arguments, live_from_args
 from tactile_rig.cli.common import add_json_flag, print_json
-from tactile_rig.rig.bench_record import record_bench
+from tactile_rig.rig.bench_record import record_bench, record_topics
 
 
 def register(sub: Any) -> None:
     p = sub.add_parser("record", help="record every device of a bench to one MCAP (optionally live)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_bench_arguments(p)
-    p.add_argument("--duration", type=float, required=True, metavar="S", help="how long to record (s)")
-    p.add_argument("--out", metavar="FILE.mcap", help="output file (default: recordings/session-<time>.mcap)")
+    p.add_argument("--duration", type=finite_float, required=True, metavar="S", help="how long to record (s)")
+    p.add_argument("--out", metavar="FILE.mcap", type=output_file(".mcap"), help="output file (default: recordings/session-<time>.mcap)")
     p.add_argument("--png", action="store_true", help="store frames as PNG (lossless) instead of JPEG")
     add_live_arguments(p)
     add_json_flag(p)
@@ -36,7 +37,7 @@ def _record(args: argparse.Namespace) -> int:
     out = args.out or f"recordings/session-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
     if not out.endswith(".mcap"):
         raise ValueError(f"--out {out!r} must name an .mcap file")
-    live = live_from_args(args)
+    live = live_from_args(args, topics=record_topics(bench))
     tty = getattr(sys.stderr, "isatty", lambda: False)()
 
     def tick(o: Any) -> None:
@@ -52,11 +53,13 @@ def _record(args: argparse.Namespace) -> int:
     if tty and not args.json:
         print(file=sys.stderr)
     summary = {"out": str(outcome.path), "duration_s": round(outcome.duration_s, 3), "topics": outcome.counts,
-               "camera_fps": outcome.camera_fps}
+               "camera_fps": outcome.camera_fps, "missed": outcome.missed}
     if args.json:
         print_json(summary)
     else:
         print(f"recorded {sum(outcome.counts.values())} messages in {outcome.duration_s:.1f} s to {outcome.path}")
         for topic, n in sorted(outcome.counts.items()):
-            print(f"  {topic:<32} {n:>7}")
+            print(f"  {topic:<40} {n:>7}")
+        for device, n in sorted(outcome.missed.items()):
+            print(f"  {device}: {n} poll(s) unanswered and skipped")
     return 0

@@ -15,8 +15,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from tactile_rig.cli.args import SEED, finite_float, output_dir
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
-from tactile_rig.cli.bench_live import add_live_arguments, live_from_args
+from tactile_rig.cli.bench_live import JIG_ACCURACY_TOPICS, add_live_arguments, live_from_args
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.rig.jig_accuracy import (
     JigAccuracyConfig,
@@ -39,17 +40,17 @@ def register(subparsers: Any) -> None:
     add_bench_arguments(p)
     p.add_argument("--sweep", choices=["rotation", "translation", "both"], default="both",
                    help="which sweep(s) to run (default: both)")
-    p.add_argument("--out", metavar="DIR",
+    p.add_argument("--out", metavar="DIR", type=output_dir,
                    help=f"output folder: points.jsonl, summary.json, run.mcap, figures, report.md (default: "
                         f"{DEFAULT_OUT_ROOT}/<mock|bench>-<sweep>-<config fingerprint>, so the same command resumes)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the mock world (default 0)")
+    p.add_argument("--seed", type=SEED, default=0, help="seed of the mock world (default 0)")
     p.add_argument("--resume", action="store_true",
                    help="continue the partial run in --out (automatic when the options match)")
     p.add_argument("--overwrite", action="store_true", help="discard any run in --out and start again")
-    p.add_argument("--rotations", type=float, nargs=3, default=(-90.0, 90.0, 10.0),
+    p.add_argument("--rotations", type=finite_float, nargs=3, default=(-90.0, 90.0, 10.0),
                    metavar=("START", "STOP", "STEP"), help="rotation sweep in degrees, stop included "
                    "(default -90 90 10)")
-    p.add_argument("--shifts", type=float, nargs=3, default=(-6.0, 6.0, 1.0), metavar=("START", "STOP", "STEP"),
+    p.add_argument("--shifts", type=finite_float, nargs=3, default=(-6.0, 6.0, 1.0), metavar=("START", "STOP", "STEP"),
                    help="translation sweep in mm, stop included (default -6 6 1)")
     p.add_argument("--shift-axis", choices=["x", "y"], default="x", help="jig axis of the shifts (default x)")
     p.add_argument("--calibration", metavar="FILE",
@@ -58,9 +59,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--camera", metavar="NAME", help="which GelSight camera of the bench (default: the first)")
     p.add_argument("--no-record", action="store_true", help="do not write run.mcap")
     p.add_argument("--no-report", action="store_true", help="do not write figures and report.md")
-    p.add_argument("--max-rotation-mae-deg", type=float, metavar="DEG",
+    p.add_argument("--max-rotation-mae-deg", type=finite_float, metavar="DEG",
                    help="exit 1 when the rotation MAE exceeds this")
-    p.add_argument("--max-translation-mae-mm", type=float, metavar="MM",
+    p.add_argument("--max-translation-mae-mm", type=finite_float, metavar="MM",
                    help="exit 1 when the translation MAE exceeds this")
     add_live_arguments(p)
     add_json_flag(p)
@@ -87,9 +88,7 @@ def _jig_accuracy(args: argparse.Namespace) -> int:
         elif progress is not None:
             progress.update(1)
 
-    # Advertised before the run so a viewer waiting with --live-wait misses none of the first moves.
-    live = live_from_args(args, topics={"/jig/pose": "tactile_rig.JigPose",
-                                        "/perception/jig_accuracy_point": "tactile_rig.Perception"})
+    live = live_from_args(args, topics=JIG_ACCURACY_TOPICS)
     try:
         outcome = execute_jig_accuracy(cfg, out_dir, bench=bench, calibration=args.calibration, camera=args.camera,
                                        resume=True if args.resume else None, overwrite=args.overwrite,

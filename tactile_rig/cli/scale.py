@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from tactile_rig.cli.args import any_int, finite_float
 from tactile_rig.cli.common import print_json
 from tactile_rig.drivers.scale import Scale
 
@@ -15,14 +16,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     def common(sp: argparse.ArgumentParser) -> None:
         sp.add_argument("--port", required=True,
                         help="device path or URL (/dev/serial/by-id/..., /dev/ttyACM0, rigsim://scale?boot_s=0.1)")
-        sp.add_argument("--baud", type=int, default=57600, help="baud rate (default 57600)")
-        sp.add_argument("--boot-timeout", type=float, default=5.0,
+        sp.add_argument("--baud", type=any_int, default=57600, help="baud rate (default 57600)")
+        sp.add_argument("--boot-timeout", type=finite_float, default=5.0,
                         help="seconds to wait for the banner after the reset on open (default 5)")
         sp.add_argument("--json", action="store_true", help="print JSON (one object per line)")
 
     rd = ssub.add_parser("read", help="print readings (grams, newtons, raw counts, sequence number)")
     common(rd)
-    rd.add_argument("--count", type=int, default=10, help="number of readings (default 10)")
+    rd.add_argument("--count", type=any_int, default=10, help="number of readings (default 10)")
     rd.set_defaults(func=_read)
 
     ta = ssub.add_parser("tare", help="zero the scale with what is on it now")
@@ -31,7 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     ca = ssub.add_parser("calibrate", help="calibrate with a known mass on the tared scale (stored in EEPROM)")
     common(ca)
-    ca.add_argument("known_mass_g", type=float, help="the known mass on the scale, grams")
+    ca.add_argument("known_mass_g", type=finite_float, help="the known mass on the scale, grams")
     ca.set_defaults(func=_calibrate)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 

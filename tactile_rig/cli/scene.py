@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 
+from tactile_rig.cli.args import SEED, any_int, finite_float
 from tactile_rig.cli import bench_live
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.rig.scene_runner import list_scenes, run_episodes
@@ -25,9 +26,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     run = ssub.add_parser("run", help="run randomised episodes of a scene in virtual time")
     run.add_argument("name", help="built-in scene name or path to a scene .toml")
-    run.add_argument("--seed", type=int, default=0, help="seed of the first episode (episode i: seed+i)")
-    run.add_argument("--episodes", type=int, default=1, help="number of episodes (default 1)")
-    run.add_argument("--speed-mps", type=float, default=None,
+    run.add_argument("--seed", type=SEED, default=0, help="seed of the first episode (episode i: seed+i)")
+    run.add_argument("--episodes", type=any_int, default=1, help="number of episodes (default 1)")
+    run.add_argument("--speed-mps", type=finite_float, default=None,
                      help="approach speed in m/s (collision scenes; above the cap is refused)")
     add_json_flag(run)
     bench_live.add_live_arguments(run)

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from tactile_rig.cli.args import finite_float
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.cli.fingervision import iter_frames
 from tactile_rig.cli.replay import extras_as_errors
@@ -36,8 +37,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     pr.add_argument("--bench", help="bench.toml naming the camera's substance_model (default: $TACTILE_RIG_BENCH)")
     pr.add_argument("--model", help="substance model (.json, .npz or folder); default: the bench's, else "
                                     "calib/substance")
-    pr.add_argument("--fps", type=float, help="frame rate of FRAMES in frames/s (required with FRAMES)")
-    pr.add_argument("--window", type=float, help="feature window in s (default: the model's)")
+    pr.add_argument("--fps", type=finite_float, help="frame rate of FRAMES in frames/s (required with FRAMES)")
+    pr.add_argument("--window", type=finite_float, help="feature window in s (default: the model's)")
     add_json_flag(pr)
     pr.set_defaults(func=_predict)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])

@@ -6,6 +6,7 @@ import argparse
 import importlib.util
 from pathlib import Path
 
+from tactile_rig.cli.args import SEED
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.rig import trade
 
@@ -23,7 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--list", action="store_true", help="list the topics installed here and exit")
     p.add_argument("--quick", action="store_true",
                    help="fewer frames or episodes per setting (never fewer settings): minutes on 2 cores")
-    p.add_argument("--seed", type=int, default=0, help="seed for rendered data and episodes (default 0)")
+    p.add_argument("--seed", type=SEED, default=0, help="seed for rendered data and episodes (default 0)")
     p.add_argument("--plot", metavar="DIR",
                    help="also draw DIR/trade_<topic>.png, error against speed (needs the report extra)")
     add_json_flag(p)

@@ -175,7 +175,8 @@ class CollisionStop:
                            contact.z_mm + (start.z_mm - contact.z_mm) * f,
                            contact.theta_deg + (start.theta_deg - contact.theta_deg) * f)
             self._settle()
-            move_and_wait(self.motion, self.clock, retreat, self.p.retreat_speed_mps,
+            # no faster than the cap: the retreat is not watched, so it gets the approach's margin
+            move_and_wait(self.motion, self.clock, retreat, min(self.p.retreat_speed_mps, cap),
                           timeout_s=self.p.timeout_s, trace=self.trace)
         figures = {"speed_mps": speed_mps, "force_change_n": mag}
         return CollisionStopResult(Outcome.SUCCESS, self.trace, figures, f"collision along {axis}",

@@ -26,8 +26,20 @@ from tactile_rig.core.clock import Clock
 
 def rotate_xy(x: float, y: float, angle_deg: float) -> tuple[float, float]:
     """Rotate a planar vector by ``angle_deg`` (counter-clockwise in the target axes)."""
+    if not math.isfinite(angle_deg):
+        raise ValueError(f"angle_deg={angle_deg!r} must be a finite rotation in degrees")
     c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
     return c * x - s * y, s * x + c * y
+
+
+def _direction(x: float, y: float) -> tuple[float, float, float]:
+    """(unit x, unit y, length) of a finite planar vector, without overflow for huge components."""
+    m = max(abs(x), abs(y))
+    if m == 0.0:
+        return 0.0, 0.0, 0.0
+    a, b = x / m, y / m
+    n = math.hypot(a, b)
+    return a / n, b / n, m * n  # m·n may be inf for components near the float limit: still ordered
 
 
 @dataclass
@@ -58,6 +70,12 @@ class Following:
         p = params or FollowingParams()
         if p.mode not in ("force", "proximity"):
             raise ValueError(f"mode={p.mode!r} must be 'force' or 'proximity'")
+        for name in ("sensor_rotation_deg", "image_rotation_deg", "gain_mmps_per_n", "gain_per_s", "mm_per_px",
+                     "deadband_n", "deadband_px", "max_speed_mps"):
+            v = getattr(p, name)
+            if not math.isfinite(v) or (name != "sensor_rotation_deg" and name != "image_rotation_deg" and v < 0):
+                raise ValueError(f"following: {name}={v!r} must be finite" +
+                                 ("" if name.endswith("rotation_deg") else " and >= 0"))
         self.motion = motion
         self.sensor = sensor
         self.clock = clock
@@ -67,30 +85,39 @@ class Following:
         self._target: Pose | None = None
 
     def velocity_mmps(self, r: TouchReading) -> tuple[float, float]:
-        """The commanded planar velocity (mm/s, end-effector axes) for one reading."""
+        """The commanded planar velocity (mm/s, end-effector axes) for one reading.
+
+        Never faster than ``max_speed_mps``; a reading that is not finite (a perception glitch)
+        commands a hold, as does nothing in view. Huge readings keep their direction (the law is
+        evaluated as a direction times a capped magnitude, so nothing overflows to inf/NaN).
+        """
         p = self.p
         if p.mode == "force":
-            fx, fy = r.force_n[0], r.force_n[1]
-            mag = math.hypot(fx, fy)
+            fx, fy = float(r.force_n[0]), float(r.force_n[1])
+            if not (math.isfinite(fx) and math.isfinite(fy)):
+                return 0.0, 0.0
+            ux, uy, mag = _direction(fx, fy)
             if mag <= p.deadband_n:
                 return 0.0, 0.0
-            scale = (mag - p.deadband_n) / mag  # continuous at the band's edge
-            vx, vy = rotate_xy(fx * scale, fy * scale, p.sensor_rotation_deg)
-            vx, vy = p.gain_mmps_per_n * vx, p.gain_mmps_per_n * vy
+            # (mag − deadband) along the force: continuous at the band's edge
+            k = p.gain_mmps_per_n
+            speed = k * (mag - p.deadband_n) if k > 0 else 0.0  # 0·inf would be NaN
+            ux, uy = rotate_xy(ux, uy, p.sensor_rotation_deg)
         else:
             if r.object_centroid_px is None:
                 return 0.0, 0.0  # nothing in view: hold still
-            dx = r.object_centroid_px[0] - p.image_centre_px[0]
-            dy = r.object_centroid_px[1] - p.image_centre_px[1]
-            if math.hypot(dx, dy) <= p.deadband_px:
+            dx = float(r.object_centroid_px[0]) - p.image_centre_px[0]
+            dy = float(r.object_centroid_px[1]) - p.image_centre_px[1]
+            if not (math.isfinite(dx) and math.isfinite(dy)):
                 return 0.0, 0.0
-            ex, ey = rotate_xy(dx * p.mm_per_px, dy * p.mm_per_px, p.image_rotation_deg)
-            vx, vy = p.gain_per_s * ex, p.gain_per_s * ey
-        cap = 1000.0 * p.max_speed_mps
-        n = math.hypot(vx, vy)
-        if n > cap:
-            vx, vy = vx * cap / n, vy * cap / n
-        return vx, vy
+            ux, uy, off_px = _direction(dx, dy)
+            if off_px <= p.deadband_px:
+                return 0.0, 0.0
+            k = p.gain_per_s * p.mm_per_px
+            speed = k * off_px if k > 0 else 0.0
+            ux, uy = rotate_xy(ux, uy, p.image_rotation_deg)
+        speed = min(speed, 1000.0 * p.max_speed_mps)
+        return speed * ux, speed * uy
 
     def _needs_replan(self, q: Pose, vx: float, vy: float) -> bool:
         if self._v_cmd is None or self._target is None:

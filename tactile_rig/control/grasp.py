@@ -51,6 +51,8 @@ class LeakyIntegrator:
         """Integrate drive ``u`` (typically −1, 0 or 1) over ``dt_s``; return ``g`` (m)."""
         if not (dt_s >= 0 and math.isfinite(dt_s)):
             raise ValueError(f"dt_s={dt_s!r} must be a finite time step ≥ 0")
+        if not math.isfinite(u):  # NaN would clip to g_min silently: an opening from nowhere
+            raise ValueError(f"u={u!r} must be a finite drive (typically −1, 0 or 1)")
         g = self.g_m + dt_s * (self.gain_mps * float(u) - self.leak_per_s * self.g_m)
         self.g_m = min(self.g_max_m, max(self.g_min_m, g))
         return self.g_m

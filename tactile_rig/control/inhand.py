@@ -105,6 +105,8 @@ class InHandRotation:
             assert self._tau0 is not None
             c0 = math.cos(math.radians(self.p.start_angle_deg))
             ratio = r.torque_nmm[2] / self._tau0 * c0 if self._tau0 else 0.0
+            if not math.isfinite(ratio):  # a torque glitch: unknown angle (as a lost object), not 0°
+                return math.nan
             return math.degrees(math.acos(max(-1.0, min(1.0, ratio)))) - self.p.start_angle_deg
         if r.object_orientation_deg is None:  # the object is out of view (lost)
             return math.nan

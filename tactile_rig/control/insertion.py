@@ -53,10 +53,21 @@ def gripper_goal(b_T_o_goal: Pose, m_T_o: Pose, g_T_m: Pose) -> Pose:
 
 
 def velocity_command(q: Pose, q_goal: Pose, speed: float) -> tuple[float, float, float, float]:
-    """``v* = s* (q* − q)/‖q* − q‖`` in (mm, mm, mm, deg) per second for ``speed`` in mm/s; 0 at the goal."""
-    e = [b - a for a, b in zip(pose_vec(q), pose_vec(q_goal))]
+    """``v* = s* (q* − q)/‖q* − q‖`` in (mm, mm, mm, deg) per second for ``speed`` in mm/s; 0 at the goal.
+
+    The command's norm is exactly ``speed`` (or 0) for any finite poses, however far apart (the
+    difference is taken in scaled units, so it neither overflows nor loses its direction); a
+    non-finite pose or speed is a ``ValueError``.
+    """
+    if not (math.isfinite(speed) and speed >= 0):
+        raise ValueError(f"speed={speed!r} must be a finite speed >= 0 mm/s")
+    a, b = pose_vec(q), pose_vec(q_goal)
+    if not all(math.isfinite(v) for v in (*a, *b)):
+        raise ValueError(f"velocity_command: poses must be finite, got q={q} and q_goal={q_goal}")
+    scale = max(1.0, *(abs(v) for v in (*a, *b)))
+    e = [y / scale - x / scale for x, y in zip(a, b)]
     n = math.sqrt(sum(x * x for x in e))
-    if n < 1e-12:
+    if n * scale < 1e-12:
         return (0.0, 0.0, 0.0, 0.0)
     return tuple(speed * x / n for x in e)  # type: ignore[return-value]
 

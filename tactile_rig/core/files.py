@@ -31,7 +31,7 @@ from tactile_rig.core.errors import BadFile, MissingFile
 __all__ = [
     "MAX_FILE_BYTES", "MAX_ARRAY_ELEMENTS", "MAX_IMAGE_SIDE_PX", "MAX_IMAGE_PIXELS", "MAX_JSON_DEPTH",
     "REAL_KINDS", "check_file", "check_array", "read_npy_header", "load_npy", "load_npz", "loads_json",
-    "load_json", "load_toml", "image_size", "check_image_dims", "read_image", "decode_image_bytes", "checked", "guarded", "quiet_opencv", "json_depth",
+    "load_json", "load_toml", "image_size", "check_image_file", "png_problem", "jpeg_problem", "check_image_dims", "read_image", "decode_image_bytes", "checked", "guarded", "toml_depth", "quiet_opencv", "json_depth",
 ]
 
 MAX_FILE_BYTES = 1 << 30          # 1 GiB: no file the CLI reads is legitimately larger
@@ -139,7 +139,7 @@ def read_npy_header(fp: Any, what: str, path: Path) -> tuple[tuple[int, ...], bo
             shape, fortran, dtype = npformat.read_array_header_2_0(fp)
         else:
             raise ValueError(f"unknown .npy format version {version}")
-    except (ValueError, EOFError, SyntaxError, TypeError, struct.error, UnicodeError, OverflowError) as exc:
+    except Exception as exc:  # noqa: BLE001 - NumPy parses the header text (tokenize, literal_eval): any failure
         msg = str(exc).splitlines()[0][:160] if str(exc) else type(exc).__name__
         raise BadFile(path, f"{what} has no valid .npy header ({msg})", "a NumPy .npy array") from None
     if any((not isinstance(n, int)) or n < 0 for n in shape):
@@ -283,6 +283,11 @@ def json_depth(data: bytes | str) -> int:
     return _nesting(data.encode() if isinstance(data, str) else bytes(data), _JSON_STRING)
 
 
+def toml_depth(text: bytes | str) -> int:
+    """The bracket nesting depth of a TOML text (strings and comments stripped)."""
+    return _nesting(text.encode() if isinstance(text, str) else bytes(text), _TOML_STRING)
+
+
 def _refuse_constant(name: str) -> Any:
     raise ValueError(f"the non-finite constant {name}")
 
@@ -344,6 +349,36 @@ def load_toml(path: str | Path, what: str = "TOML file", *, max_depth: int = MAX
 
 
 # -- images -----------------------------------------------------------------------------------
+def png_problem(data: bytes) -> str | None:
+    """What is wrong with a PNG's chunk structure (a chunk CRC, a cut-off end), or None. PNG stores a
+    CRC-32 per chunk: checking them all costs a pass over the bytes and catches any flipped bit, so
+    the decoder (and its own messages on stderr) never sees a damaged file."""
+    pos = 8
+    n = 0
+    while pos + 12 <= len(data):
+        length = struct.unpack(">I", data[pos:pos + 4])[0]
+        tag = data[pos + 4:pos + 8]
+        end = pos + 12 + length
+        if length > len(data) or end > len(data):
+            return f"chunk {n} ({tag!r}) runs past the end of the file (truncated)"
+        crc = struct.unpack(">I", data[end - 4:end])[0]
+        if zlib.crc32(data[pos + 4:end - 4]) != crc:
+            return f"chunk {n} ({tag!r}) at byte {pos} fails its CRC"
+        if tag == b"IEND":
+            return None
+        pos = end
+        n += 1
+    return "no IEND chunk (truncated)"
+
+
+def jpeg_problem(data: bytes) -> str | None:
+    """A JPEG that does not end with its EOI marker is cut off. (JPEG has no checksum: a flipped bit
+    in the compressed scan decodes to a slightly different picture and cannot be detected.)"""
+    if not data.rstrip(b"\0").endswith(b"\xff\xd9"):
+        return "no end-of-image marker (truncated)"
+    return None
+
+
 def _png_size(h: bytes) -> tuple[int, int] | None:
     if len(h) < 24 or h[12:16] != b"IHDR":
         return None
@@ -455,6 +490,24 @@ def check_image_dims(path: str | Path, what: str, w: int, h: int, max_side_px: i
                       f"at most {max_side_px} px a side and {max_pixels} pixels")
 
 
+def _checked_image(p: Path, what: str, max_side_px: int, max_pixels: int) -> tuple[int, int, str, bytes]:
+    w, h, fmt = image_size(p, what)
+    check_image_dims(p, what, w, h, max_side_px, max_pixels)
+    raw = _read_bytes(p, what)
+    problem = png_problem(raw) if fmt == "PNG" else jpeg_problem(raw) if fmt == "JPEG" else None
+    if problem:
+        raise BadFile(p, f"{what} is a damaged {fmt}: {problem}", f"an intact {fmt} image")
+    return w, h, fmt, raw
+
+
+def check_image_file(path: str | Path, what: str = "image", *, max_side_px: int = MAX_IMAGE_SIDE_PX,
+                     max_pixels: int = MAX_IMAGE_PIXELS) -> tuple[int, int, str]:
+    """``(width_px, height_px, format)`` of an image file whose header is bounded and whose structure
+    is intact (PNG chunk CRCs, JPEG end marker), without decoding it: for code that decodes later."""
+    w, h, fmt, _ = _checked_image(Path(path), what, max_side_px, max_pixels)
+    return w, h, fmt
+
+
 @contextmanager
 def quiet_opencv() -> Iterator[None]:
     """OpenCV's decoder warnings off for the block (a refused file is reported once, by us)."""
@@ -480,9 +533,8 @@ def read_image(path: str | Path, what: str = "image", *, color: bool = True,
     import cv2
 
     p = Path(path)
-    w, h, fmt = image_size(p, what)
-    check_image_dims(p, what, w, h, max_side_px, max_pixels)
-    data = np.frombuffer(_read_bytes(p, what), np.uint8)
+    w, h, fmt, raw = _checked_image(p, what, max_side_px, max_pixels)
+    data = np.frombuffer(raw, np.uint8)
     with quiet_opencv():
         img = cv2.imdecode(data, cv2.IMREAD_COLOR if color else cv2.IMREAD_GRAYSCALE)
     if img is None or img.size == 0:
@@ -504,13 +556,15 @@ def decode_image_bytes(data: bytes, source: str | Path, what: str = "image", *,
     bio = io.BytesIO(data)
     head = data[:32]
     if head.startswith(b"\x89PNG\r\n\x1a\n"):
-        size = _png_size(head)
+        size, problem = _png_size(head), png_problem(data)
     elif head.startswith(b"\xff\xd8"):
-        size = _jpeg_size(bio)
+        size, problem = _jpeg_size(bio), jpeg_problem(data)
     else:
         raise BadFile(p, f"{what} is neither PNG nor JPEG (starts with {head[:8]!r})", "a PNG or JPEG image")
     if size is None:
         raise BadFile(p, f"{what} has a truncated or malformed header", "a complete PNG or JPEG image")
+    if problem:
+        raise BadFile(p, f"{what} is damaged: {problem}", "an intact PNG or JPEG image")
     check_image_dims(p, what, size[0], size[1], max_side_px, max_pixels)
     with quiet_opencv():
         img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)

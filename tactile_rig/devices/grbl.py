@@ -125,7 +125,8 @@ STATUS_FIELDS = ("MPos", "WPos", "Bf", "Ln", "F", "FS", "WCO", "Pn", "Ov", "A")
 PIN_LETTERS = "XYZAPDHRS"  # Pn: limits X Y Z (A), probe, door, hold, soft-reset, cycle-start
 
 # How GRBL prints the numbers of a status report (report.c through print.c's printFloat): a sign
-# only when negative, at least one integer digit, then a fixed number of decimals. Coordinates
+# only when negative, the integer part without leading zeros (at least one digit), then a fixed
+# number of decimals. Coordinates
 # (MPos, WPos, WCO) have 3 decimals in mm and 4 in inches ($13=1); feed and spindle rates 0 in mm/min
 # and 1 in inches/min; Bf, Ln and Ov are unsigned integers. A report whose numbers break these
 # formats was corrupted on the wire (GRBL's lines carry no checksum: the format is all we have).
@@ -134,6 +135,8 @@ RATE_DECIMALS = {"mm": 0, "inch": 1}
 COORD_FIELDS = ("MPos", "WPos", "WCO")
 MAX_AXES = 6  # N_AXIS never exceeds 6 in GRBL and grblHAL builds
 SUBSTATES = {"Hold": range(0, 2), "Door": range(0, 4)}  # the only states GRBL prints with ':<n>'
+OVERRIDE_LIMITS = ((10, 200), (25, 100), (10, 200))  # Ov: feed %, rapid % (25, 50 or 100), spindle %
+RAPID_OVERRIDES = (25, 50, 100)
 ACCESSORY_LETTERS = "SCFM"  # A: spindle CW, CCW, flood, mist
 PIN_OVERRIDE_LETTERS = "BCUVW"  # grblHAL's extra Pn letters (block delete, ..., optional stop)
 # Fields grblHAL adds after GRBL's (kept as text in ``extras``); any other name is line noise.

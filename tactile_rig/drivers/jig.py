@@ -7,6 +7,12 @@ waits for Idle, reads and writes settings, and streams G-code with character cou
 than GRBL's 128-byte receive buffer in flight). Every ``error:N`` becomes :class:`GrblError` and
 every ``ALARM:N`` :class:`GrblAlarm`, with GRBL's own message. It satisfies the controllers'
 ``Motion`` protocol (``move_toward``, ``pose``, ``stop``).
+
+GRBL's lines carry no checksum, so the wire is checked the ways GRBL allows: status reports are
+parsed strictly (GRBL's fixed decimals, known fields; corrupt is ``LinkCorrupt``), Idle positions
+are confirmed by two reports, an ``ok``/``error`` lost on the wire is found from later status
+reports and resynchronised out of the character counting (``ReplyLost`` for that line), an
+unplugged port fails fast and reopens with backoff, and every call holds the driver's lock.
 """
 
 from __future__ import annotations
@@ -69,9 +75,11 @@ class GrblStatus:
         return self.state == "Idle"
 
 
-_UINT = re.compile(r"[0-9]{1,7}")
-_COORD = {d: re.compile(r"-?[0-9]{1,7}\.[0-9]{%d}" % d) for d in gp.COORD_DECIMALS.values()}
-_RATE = {d: re.compile(r"[0-9]{1,7}" + (r"\.[0-9]{%d}" % d if d else "")) for d in gp.RATE_DECIMALS.values()}
+# GRBL prints integers and integer parts without leading zeros (print.c): "0.339", never "00.339".
+_INT_PART = r"(?:0|[1-9][0-9]{0,6})"
+_UINT = re.compile(_INT_PART)
+_COORD = {d: re.compile(r"-?%s\.[0-9]{%d}" % (_INT_PART, d)) for d in gp.COORD_DECIMALS.values()}
+_RATE = {d: re.compile(_INT_PART + (r"\.[0-9]{%d}" % d if d else "")) for d in gp.RATE_DECIMALS.values()}
 _LETTERS = re.compile(r"[A-Z]+")
 MM_PER_INCH = 25.4
 
@@ -144,22 +152,26 @@ def parse_status(line: str, t_s: float = 0.0, wco: tuple[float, ...] | None = No
         elif name in ("F", "FS"):
             if {"F", "FS"} & (seen - {name}):
                 raise _corrupt("both F and FS", line)
-            vals = val.split(",")
-            if len(vals) != (1 if name == "F" else 2):
-                raise _corrupt(f"{name}:{val!r} has {len(vals)} value(s)", line)
-            rates["feed"] = vals[0]
+            texts = val.split(",")
+            if len(texts) != (1 if name == "F" else 2):
+                raise _corrupt(f"{name}:{val!r} has {len(texts)} value(s)", line)
+            rates["feed"] = texts[0]
             if name == "FS":
-                if not _UINT.fullmatch(vals[1]):
-                    raise _corrupt(f"spindle speed {vals[1]!r} is not an integer (GRBL prints RPM without decimals)",
+                if not _UINT.fullmatch(texts[1]):
+                    raise _corrupt(f"spindle speed {texts[1]!r} is not an integer (GRBL prints RPM without decimals)",
                                    line)
-                kw["spindle_rpm"] = float(vals[1])
+                kw["spindle_rpm"] = float(texts[1])
         elif name == "Pn":
             if not val or any(c not in gp.PIN_LETTERS + gp.PIN_OVERRIDE_LETTERS for c in val) \
                     or len(set(val)) != len(val):
                 raise LinkCorrupt(f"unknown pin letters in Pn:{val!r} in {line!r}")
             kw["pins"] = val
         elif name == "Ov":
-            kw["overrides"] = _uints(name, val, 3, line)
+            ov = _uints(name, val, 3, line)
+            if not all(lo <= v <= hi for v, (lo, hi) in zip(ov, gp.OVERRIDE_LIMITS)) or ov[1] not in gp.RAPID_OVERRIDES:
+                raise _corrupt(f"overrides Ov:{val!r} outside GRBL's ranges (feed and spindle 10-200 %, "
+                               "rapid 25, 50 or 100 %)", line)
+            kw["overrides"] = ov
         elif name == "A":
             if not val or any(c not in gp.ACCESSORY_LETTERS for c in val) or len(set(val)) != len(val):
                 raise _corrupt(f"unknown accessory letters in A:{val!r}", line)
@@ -226,6 +238,16 @@ class _Fence:
 
 
 _DWELL = re.compile(r"G0*4(?![0-9.])")
+# Lines that may move the machine (axis words, G28/G30 to a stored position, homing, jogging, sleep)
+# and lines that may change the work offset (WCO = coordinate system + G92 + tool length offset).
+_MAY_MOVE = re.compile(r"[XYZABC][-+.0-9]|G0*28|G30|^\$H|^\$J|^\$SLP")
+_MAY_OFFSET = re.compile(r"G10|G92|G5[4-9]|G43|G49|^\$RST")
+# Absolute straight moves (what move_to and move_toward send): their targets bound the path.
+_ABS_MOVE = re.compile(r"^(?:\$J=G90|G90G([01]))(?![0-9.])")
+_AXIS_WORD = re.compile(r"([XYZA])(-?[0-9]+(?:\.[0-9]*)?)")
+_FEED_WORD = re.compile(r"F([0-9]+(?:\.[0-9]*)?)")
+ENVELOPE_TOL = 0.03  # mm (deg on θ): a step of the θ axis, plus the printed rounding
+FEED_OVERRIDE_MAX = 2.0  # GRBL's feed override tops out at 200 %
 
 
 def clean_gcode_line(line: str) -> str:
@@ -316,6 +338,19 @@ class Jig(Driver):
         self._replies_seen = 0
         self._quiet: tuple[int, int, int] | None = None  # (report no, replies seen, fence ident) of a quiet report
         self._clean_mark = 0  # first ident sent since nothing was outstanding
+        # (position field, lines sent) of the last Idle report returned, and of the one before it
+        self._last_idle: tuple[tuple[float, ...] | None, int] | None = None
+        self._motion_mark = 0  # lines sent that may move the machine
+        # Where the machine can be while it moves: the box spanned by the last confirmed Idle work
+        # position and the targets of the absolute moves sent since (None: not known), and the
+        # fastest feed they asked for (None: a rapid or an unknown line, no bound).
+        self._envelope: tuple[list[float], list[float]] | None = None
+        self._feed_cap: float | None = None
+        #: how far (mm, deg on θ) a report while moving may lie outside the commanded box: at least
+        #: half a step of the coarsest axis (θ on the default jig: 0.028 deg per step)
+        self.path_tolerance = ENVELOPE_TOL
+        self._offset_mark = 0  # lines sent that may change the work offset
+        self._wco_mark = -1  # _offset_mark when the remembered WCO was adopted
         self._uncertain: list[tuple[int, int]] = []  # ident ranges whose answers may be shifted by a loss
         try:
             self._await_banner(boot_timeout_s)
@@ -425,9 +460,21 @@ class Jig(Driver):
                 self._status_errors.append(exc)
                 self._quiet = None
                 return
+            if (st.wco is not None and self._wco is not None and st.wco != self._wco
+                    and self._wco_mark == self._offset_mark):
+                # No line that changes the work offset was sent since it was last seen: the report
+                # was corrupted on the wire (its WCO would make every work position after it wrong).
+                self.corrupt_reports += 1
+                err = LinkCorrupt(f"corrupt status report {line!r}: WCO changed from {self._wco} with no "
+                                  "offset-changing line sent", device=self.device)
+                log.warning("%s: %s", self.device, err)
+                self._status_errors.append(err)
+                self._quiet = None
+                return
             self._reports_seen += 1
             if st.wco is not None:
                 self._wco = st.wco
+                self._wco_mark = self._offset_mark
             self.last_status = st
             self._statuses.append(st)
             while len(self._statuses) > 8:
@@ -450,6 +497,9 @@ class Jig(Driver):
             self._fences.clear()
             self._quiet = None
             self._clean_mark = self._next_id
+            self._last_idle = None  # a reboot may have lost the position without a line sent
+            self._envelope = None
+            self._wco = None  # ... and clears G92
             if self._expect_banner:
                 self._expect_banner = False
             else:
@@ -557,6 +607,13 @@ class Jig(Driver):
         ident = self._next_id
         if not self._outstanding:
             self._clean_mark = ident
+        upper = line.upper()
+        if _MAY_MOVE.search(upper):
+            self._motion_mark += 1
+            self._extend_envelope(upper)
+        if _MAY_OFFSET.search(upper):
+            self._offset_mark += 1
+            self._envelope = None
         self._next_id += 1
         self._outstanding.append(_Outstanding(ident, line, len(data)))
         self.transport.write(data)
@@ -599,7 +656,92 @@ class Jig(Driver):
     def status(self, timeout_s: float = 0.5) -> GrblStatus:
         """Ask for a status report (``?``) and return it parsed. GRBL answers none in a critical
         alarm (hard or soft limit) until a soft reset: that, or a report that an alarm held back
-        past ``timeout_s``, raises :class:`GrblAlarm` instead of a timeout."""
+        past ``timeout_s``, raises :class:`GrblAlarm` instead of a timeout.
+
+        GRBL's lines carry no checksum, and a flipped digit is still a number in GRBL's format. A
+        machine that was Idle and has been sent no line that moves it since (no axis word, G28/G30,
+        $H, $J) cannot have moved: when such a report disagrees with the previous one, a third
+        decides (two that agree), else :class:`LinkCorrupt`; the first Idle report after motion is
+        confirmed by a second one. Reports while moving cannot be checked this way. Likewise a
+        report whose WCO changed with no offset-changing line sent (G10, G92, G54-G59, G43.1/G49,
+        $RST) is ``LinkCorrupt``.
+        """
+        st = self._status_once(timeout_s)
+        if st.state != "Idle":
+            self._last_idle = None
+            if st.state in ("Run", "Jog", "Hold"):
+                self._check_moving(st)
+            return st
+        prev = self._last_idle
+        if prev is None or prev[1] != self._motion_mark:
+            # Nothing to hold this position against yet: a second report must agree.
+            other = self._status_once(timeout_s)
+            if other.state != "Idle":  # it started moving (a queued line): that is the news
+                self._last_idle = None
+                return other
+            prev_pos = _position(other)
+            if prev_pos == _position(st):
+                return self._idle(other)
+        else:
+            prev_pos = prev[0]
+            if prev_pos == _position(st):
+                return self._idle(st)
+        third = self._status_once(timeout_s)
+        if third.state == "Idle" and _position(third) in (_position(st), prev_pos):
+            self.corrupt_reports += 1  # the odd one out was corrupted on the wire
+            return self._idle(third)
+        self._last_idle = None
+        raise LinkCorrupt(f"three Idle reports with no motion line sent between them disagree on the position: "
+                          f"{prev_pos}, {st.raw!r}, {third.raw!r}", device=self.device)
+
+    def _idle(self, st: GrblStatus) -> GrblStatus:
+        self._last_idle = (_position(st), self._motion_mark)
+        if st.wpos is not None and not st.inches:
+            self._envelope = (list(st.wpos), list(st.wpos))
+            self._feed_cap = 0.0
+        else:
+            self._envelope = None
+        return st
+
+    def _extend_envelope(self, upper: str) -> None:
+        """A line that may move was sent: widen the box to its target, or forget the box."""
+        m = _ABS_MOVE.match(upper)
+        if self._envelope is None or m is None or "G9" in upper[m.end():]:
+            self._envelope = None
+            self._feed_cap = None
+            return
+        lo, hi = self._envelope
+        for letter, value in _AXIS_WORD.findall(upper[m.end():]):
+            i = gp.AXIS_LETTERS.index(letter)
+            if i >= len(lo):
+                self._envelope = None
+                return
+            lo[i], hi[i] = min(lo[i], float(value)), max(hi[i], float(value))
+        feed = _FEED_WORD.search(upper)
+        if m.group(1) == "0" or feed is None or self._feed_cap is None:
+            self._feed_cap = None  # a rapid runs at each axis's maximum rate, which the driver need not know
+        else:
+            self._feed_cap = max(self._feed_cap, float(feed.group(1)))
+
+    def _check_moving(self, st: GrblStatus) -> None:
+        """A report while moving must lie on the way the driver sent the machine, at a feed it asked
+        for: else it was corrupted on the wire (a digit flipped into a digit parses)."""
+        env = self._envelope
+        if env is not None and st.wpos is not None and not st.inches and len(st.wpos) == len(env[0]):
+            for i, v in enumerate(st.wpos):
+                if not env[0][i] - self.path_tolerance <= v <= env[1][i] + self.path_tolerance:
+                    self.corrupt_reports += 1
+                    raise LinkCorrupt(f"corrupt status report {st.raw!r}: axis {gp.AXIS_LETTERS[i]} at {v:.3f}, "
+                                      f"outside the path commanded [{env[0][i]:.3f}, {env[1][i]:.3f}]",
+                                      device=self.device)
+        if (self._feed_cap is not None and st.feed_mm_per_min is not None
+                and st.feed_mm_per_min > self._feed_cap * FEED_OVERRIDE_MAX + 1.0):
+            self.corrupt_reports += 1
+            raise LinkCorrupt(f"corrupt status report {st.raw!r}: feed {st.feed_mm_per_min:g} mm/min, above the "
+                              f"{self._feed_cap:g} mm/min commanded (x{FEED_OVERRIDE_MAX:g} override)",
+                              device=self.device)
+
+    def _status_once(self, timeout_s: float) -> GrblStatus:
         if self.needs_reset:
             raise self.fault(gp.alarm(self.last_alarm or 0, device=self.device,
                                       hint="GRBL sends no status until a soft reset (soft_reset() or activate())"))
@@ -661,7 +803,7 @@ class Jig(Driver):
         self.last_fault = None
 
     @locked
-    def activate(self, *, home: bool = True, timeout_s: float = 60.0) -> None:  # type: ignore[override]
+    def activate(self, *, home: bool = True, timeout_s: float = 60.0) -> None:
         """Make the jig ready to move from wherever it is: a soft reset if a critical alarm needs one,
         then, if GRBL is locked (Alarm), ``$H`` (``home=True``) or ``$X`` (only if you know where the
         stage is). Clears a fault; the next move starts from the measured pose."""
@@ -931,6 +1073,11 @@ class Jig(Driver):
 
     def _close(self) -> None:
         self.transport.close()
+
+
+def _position(st: GrblStatus) -> tuple[float, ...] | None:
+    """The position field a report printed (MPos or WPos), for comparing reports."""
+    return st.mpos if "MPos:" in st.raw else st.wpos
 
 
 def _error_code(line: str) -> int:

@@ -6,7 +6,12 @@ and delivers every sample in order as a :class:`ScaleReading` (grams, raw counts
 number, host time). Drops and device resets are detected from the sequence numbers and the banner,
 bad checksums are counted and rejected, and a scale that stops talking raises
 :class:`~tactile_rig.core.errors.DeviceTimeout`. Nothing is lost or duplicated without being counted in
-:attr:`Scale.stats`. The wire codec (:class:`ScaleLineParser`) is pure and usable on its own.
+:attr:`Scale.stats`. The driver computes grams itself from the sketch's absolute raw counts with its
+own zero, so a sketch reboot (which re-tares) changes no reading; where grams cannot be trusted
+(the stock sketch rebooted) :class:`~tactile_rig.core.errors.ZeroLost` is raised instead. An
+unplugged port is ``NotConnected`` at once while it is away and reopened with backoff when it
+returns; every call holds the driver's lock. The wire codec (:class:`ScaleLineParser`) is pure and
+usable on its own.
 """
 
 from __future__ import annotations
@@ -22,7 +27,7 @@ from typing import Callable
 
 import serial
 
-from tactile_rig.core.clock import Clock, Deadline, RealClock
+from tactile_rig.core.clock import Clock, Deadline
 from tactile_rig.core.errors import (
     CalibrationError,
     DeviceTimeout,
@@ -339,7 +344,8 @@ class Scale(Driver):
         self._open(self.port)
         assert self.transport is not None
         #: when to try reopening a port that vanished (backoff on the port's clock)
-        self.reconnect_policy = reconnect_policy if reconnect_policy is not None else Reconnect(self.transport.clock)
+        self.reconnect_policy: Reconnect = (reconnect_policy if reconnect_policy is not None
+                                            else Reconnect(self.transport.clock))
 
     # -- connection -----------------------------------------------------------------------------
     @property
@@ -400,22 +406,31 @@ class Scale(Driver):
                 )
             self._pump(dl.remaining_s() or 0.0)
 
-    @locked
     def reconnect(self, timeout_s: float = 10.0) -> None:
-        """Close and reopen by the stable path (the port may come back under another ttyACM name)."""
-        self.close()
-        dl = Deadline(self._clock_override or _wall(), timeout_s)
-        last: Exception | None = None
-        while True:
-            try:
-                self._open(self.reconnect_port)
-                return
-            except NotConnected as exc:
-                last = exc
-            if dl.expired():
-                raise NotConnected(f"could not reopen {self.reconnect_port!r} within {timeout_s} s: {last}",
-                                   device=self.device)
-            dl.clock.sleep(0.2)
+        """Close and reopen by the stable path now (the port may come back under another ttyACM name),
+        trying every 0.2 s for ``timeout_s``; the backoff of an unplug is bypassed and reset."""
+        with self.call_lock:  # not @locked: an explicit reconnect must not fail fast while away
+            self.close()
+            policy = self.reconnect_policy
+            dl = Deadline(self._clock_override or policy.clock, timeout_s)
+            last: Exception | None = None
+            while True:
+                try:
+                    self._open(self.reconnect_port)
+                    break
+                except (NotConnected, DeviceTimeout) as exc:
+                    last = exc
+                    if self.transport is not None:
+                        self.transport.close()
+                        self.transport = None
+                if dl.expired():
+                    raise NotConnected(f"could not reopen {self.reconnect_port!r} within {timeout_s} s: {last}",
+                                       device=self.device)
+                dl.clock.sleep(0.2)
+            if policy.away:
+                policy.succeeded()
+                self.stats.reconnects += 1
+                self._event("reconnect", policy.clock.now_s(), detail=self.reconnect_port)
 
     def _close(self) -> None:
         if self.transport is not None:
@@ -708,7 +723,3 @@ class Scale(Driver):
         rep = self._await_reply(("id",), timeout_s, "'?'")
         assert rep.info is not None
         return rep.info
-
-
-def _wall() -> Clock:
-    return RealClock()

@@ -38,17 +38,21 @@ def is_device_path(port: str) -> bool:
 
 
 def open_serial(port: str, *, baudrate: int, device: str, timeout_s: float | None = 0.0,
-                **kwargs: Any) -> serial.SerialBase:
+                log_bytes: bool | None = None, **kwargs: Any) -> serial.SerialBase:
     """Open ``port`` (path or URL) with pyserial's ``serial_for_url``; errors become :class:`NotConnected`.
 
     A device path is opened exclusively (an advisory ``flock``, as pyserial's ``exclusive=True``
     takes it): a second handle on the same port, in this process or another, gets
     :class:`PortInUse` naming the port instead of silently sharing (and stealing) its bytes.
+
+    ``log_bytes`` (default: when the ``tactile_rig.transport`` logger is at DEBUG at open time)
+    returns the port wrapped in :class:`ByteLog`, so every byte any client of the port writes or
+    reads (the Dynamixel SDK's ``PortHandler`` included) is logged with ``device``.
     """
     if is_device_path(port) and os.name == "posix":
         kwargs.setdefault("exclusive", True)
     try:
-        return serial.serial_for_url(port, baudrate=baudrate, timeout=timeout_s, **kwargs)
+        ser = serial.serial_for_url(port, baudrate=baudrate, timeout=timeout_s, **kwargs)
     except (serial.SerialException, OSError, ValueError) as exc:
         code = getattr(exc, "errno", None)
         if kwargs.get("exclusive") and (code in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EACCES)
@@ -60,6 +64,40 @@ def open_serial(port: str, *, baudrate: int, device: str, timeout_s: float | Non
             "(check the path, that the device is plugged in, and the permissions on the port)",
             device=device,
         ) from exc
+    if log_bytes if log_bytes is not None else log.isEnabledFor(logging.DEBUG):
+        return ByteLog(ser, device)
+    return ser
+
+
+class ByteLog:
+    """A pyserial port that logs every byte written and read (``DEVICE TX/RX hex``) at DEBUG on
+    ``tactile_rig.transport``; everything else is the port's own (attributes read and set through)."""
+
+    def __init__(self, ser: Any, device: str) -> None:
+        object.__setattr__(self, "_ser", ser)
+        object.__setattr__(self, "_device", device)
+
+    def write(self, data: bytes) -> int | None:
+        log.debug("%s TX %s", self._device, bytes(data).hex(" "))
+        return self._ser.write(data)
+
+    def read(self, size: int = 1) -> bytes:
+        data = self._ser.read(size)
+        if data:
+            log.debug("%s RX %s", self._device, bytes(data).hex(" "))
+        return data
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._ser, name)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        setattr(self._ser, name, value)
+
+    def __enter__(self) -> "ByteLog":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._ser.close()
 
 
 def port_clock(ser: Any) -> Clock:
@@ -87,7 +125,8 @@ class SerialTransport:
     ) -> None:
         if isinstance(port, str):
             self.port_name = port
-            self.serial = open_serial(port, baudrate=baudrate, device=device, **serial_kwargs)
+            # This class logs its own bytes (with the reads it makes), so the port is not wrapped.
+            self.serial = open_serial(port, baudrate=baudrate, device=device, log_bytes=False, **serial_kwargs)
         else:
             self.serial = port
             self.port_name = str(getattr(port, "portstr", None) or getattr(port, "port", "serial"))

@@ -171,6 +171,7 @@ class SimulatedCamera:
         self.ignore_controls = {canonical_control(n) for n in ignore_controls}
         self.channel_order = channel_order
         self._render_fn = render
+        self._seed = int(seed)
         self._rng = np.random.default_rng(seed)
         self.noise_sigma = float(noise_sigma)  # read noise: no two live frames are byte-identical
         self._noise: SensorNoise | None = None
@@ -187,6 +188,12 @@ class SimulatedCamera:
         self.unplugged: list[tuple[float, float]] = []
         self._replugs_seen = 0
         self.duplicate_every = 0  # every n-th frame is sent twice (same timestamp), 0 = never
+
+    def reseed(self, rng: np.random.Generator) -> None:
+        """Draw the read noise from ``rng`` from now on (a run reseeds per step to be resumable)."""
+        self._rng = rng
+        if self._noise is not None:
+            self._noise.reseed(rng)
 
     # -- faults ---------------------------------------------------------------------------------
     def freeze(self, start_s: float, end_s: float = math.inf) -> None:
@@ -315,12 +322,15 @@ class SimulatedCamera:
         bright = (self.table.value("brightness") - 128) * 0.5
         out = img
         if not np.allclose(wb, 1.0):
-            out = cv2.multiply(out, (float(wb[0]), float(wb[1]), float(wb[2]), 0.0))  # type: ignore[call-overload]  # a Scalar is valid; the stubs omit it
+            out = cv2.multiply(out, (float(wb[0]), float(wb[1]), float(wb[2]), 0.0))
         if bright != 0:
-            out = cv2.add(out, (bright, bright, bright, 0.0))  # type: ignore[call-overload]  # a Scalar is valid; the stubs omit it
+            out = cv2.add(out, (bright, bright, bright, 0.0))
         if self.noise_sigma > 0:
             if self._noise is None or self._noise.shape != out.shape:
-                self._noise = SensorNoise(out.shape, self.noise_sigma, self._rng)
+                # The field depends on the seed only (not on when the first frame came); the crops
+                # come from the camera's stream, which reseed() may replace.
+                self._noise = SensorNoise(out.shape, self.noise_sigma, np.random.default_rng([self._seed, 1]))
+                self._noise.reseed(self._rng)
             out = cv2.add(out, self._noise.sample(), dtype=cv2.CV_8U)
         return out
 

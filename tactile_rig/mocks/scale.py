@@ -560,6 +560,12 @@ class ScaleMock(SerialDevice):
 
 
 def _factory(params: Params, *, clock: Clock, world: Any = None) -> ScaleMock:
+    baud = params.integer("baud", sp.BAUD)
+    if baud != sp.BAUD:
+        # The sketch's Serial.begin(57600) is compiled in: a mock that took another rate would hide
+        # the mismatch a real scale shows as garbage. Set the client's rate instead.
+        raise ValueError(f"{params.source}: baud={baud}: the scale sketch talks at {sp.BAUD} baud only "
+                         f"(set the host's baud to {sp.BAUD}; a bench's [scale] baud = {sp.BAUD})")
     cell_name = params.text("load_cell", "load_cell") or "load_cell"
     cell = world.require(cell_name, who="the scale mock") if world is not None else None
     force_n = params.number("force_n")
@@ -572,7 +578,7 @@ def _factory(params: Params, *, clock: Clock, world: Any = None) -> ScaleMock:
         load_cell=cell,
         rate_sps=params.integer("rate", 80),
         boot_s=params.number("boot_s", BOOTLOADER_S),
-        baud=params.integer("baud", sp.BAUD),
+        baud=baud,
         firmware=params.text("firmware", "tactile") or "tactile",
         timing=params.flag("timing", True),
         seed=params.integer("seed", 0),

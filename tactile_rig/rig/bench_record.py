@@ -5,7 +5,7 @@ Topics (the recording schemas of :mod:`tactile_rig.rig.recording`):
 * ``/scale/force`` (``tactile_rig.ScaleReading``): every sample the sketch sends, with grams, raw, seq;
 * ``/state/gripper`` (``tactile_rig.DeviceState``): the gripper's state every ``gripper_period_s``;
 * ``/state/jig`` and ``/jig/pose``: the GRBL status report and work pose every ``jig_period_s``;
-* ``/camera/<name>/compressed`` (``foxglove.CompressedImage``, JPEG): every new frame of every camera.
+* ``/<name>/image/compressed`` (``foxglove.CompressedImage``, JPEG): every new frame of every camera.
 
 One loop polls every device in turn (no thread per device): the scale driver queues its samples, the
 cameras capture on their own threads and keep the newest frame, so nothing waits on another device.
@@ -17,12 +17,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from tactile_rig.core.errors import DeviceTimeout
+from tactile_rig.core.errors import DeviceTimeout, LinkCorrupt, RigError
 from tactile_rig.rig.bench import Bench, connect_bench
 from tactile_rig.rig.live import Tee
-from tactile_rig.rig.recording import Recorder
+from tactile_rig.rig.learning import model_json_path
+from tactile_rig.rig.recording import Recorder, camera_topic
 
 POLL_S = 0.005
+MAX_MISSES_IN_A_ROW = 10  # a device that misses this many polls in a row has stopped: the recording fails
 
 
 @dataclass
@@ -33,6 +35,21 @@ class RecordOutcome:
     counts: dict[str, int] = field(default_factory=dict)
     duration_s: float = 0.0
     camera_fps: dict[str, float] = field(default_factory=dict)
+    missed: dict[str, int] = field(default_factory=dict)  # polls a device did not answer (skipped)
+
+
+def record_topics(bench: Bench) -> dict[str, str]:
+    """The topics (→ schema) a recording of ``bench`` writes."""
+    topics: dict[str, str] = {}
+    if any(d.kind == "scale" for d in bench.devices.values()):
+        topics["/scale/force"] = "tactile_rig.ScaleReading"
+    if any(d.kind == "gripper" for d in bench.devices.values()):
+        topics["/state/gripper"] = "tactile_rig.DeviceState"
+    if any(d.kind == "jig" for d in bench.devices.values()):
+        topics.update({"/state/jig": "tactile_rig.DeviceState", "/jig/pose": "tactile_rig.JigPose"})
+    for name in bench.cameras:
+        topics[camera_topic(name, compressed=True)] = "foxglove.CompressedImage"
+    return topics
 
 
 def record_bench(bench: Bench, duration_s: float, out: str | Path | None, *, live: Any = None,
@@ -55,6 +72,10 @@ def record_bench(bench: Bench, duration_s: float, out: str | Path | None, *, liv
             for name, cfg in bench.devices.items():
                 if cfg.calibration is not None and Path(cfg.calibration).is_file():
                     recorder.add_calibration(name, path=cfg.calibration)
+                for key, stem in (("force_map", "force_map"), ("substance_model", "substance")):
+                    model = getattr(cfg, key, None)  # a camera's learned models (json + npz)
+                    if model is not None and model_json_path(model, stem).is_file():
+                        recorder.add_calibration(f"{name}.{key}", path=model_json_path(model, stem))
         sink = Tee(recorder, live)
         if live is not None:
             live.use_clock(clock)
@@ -63,6 +84,34 @@ def record_bench(bench: Bench, duration_s: float, out: str | Path | None, *, liv
 
         def put(topic: str) -> None:
             counts[topic] = counts.get(topic, 0) + 1
+
+        misses: dict[str, int] = {}
+
+        def poll(device: str, fn: Callable[[], None]) -> None:
+            """One poll of an idempotent read: a lost or garbled reply is skipped and counted (the next
+            poll asks again); only a device that stays silent fails the recording."""
+            try:
+                fn()
+                misses[device] = 0
+            except (DeviceTimeout, LinkCorrupt) as exc:
+                misses[device] = misses.get(device, 0) + 1
+                outcome.missed[device] = outcome.missed.get(device, 0) + 1
+                if misses[device] >= MAX_MISSES_IN_A_ROW:
+                    raise RigError(f"stopped answering: {misses[device]} polls in a row failed; last: {exc}",
+                                   device=device) from exc
+
+        def grip() -> None:
+            sink.write_state("gripper", rig.gripper.state())
+            put("/state/gripper")
+
+        def jig() -> None:
+            st = rig.jig.status()
+            pose = rig.jig.pose_from_status(st)
+            sink.write_state("jig", {"state": st.state, "mpos": st.mpos, "wpos": st.wpos,
+                                     "feed_mm_per_min": st.feed_mm_per_min, "raw": st.raw})
+            sink.write_jig_pose(pose.as_dict())
+            put("/state/jig")
+            put("/jig/pose")
 
         if rig.jig is not None:
             rig.jig.status()  # a first report: GRBL's position is known before the first pose is written
@@ -76,21 +125,18 @@ def record_bench(bench: Bench, duration_s: float, out: str | Path | None, *, liv
                     sink.write_scale(r.newtons, grams=r.grams, raw=r.raw, seq=r.seq, saturated=r.saturated)
                     put("/scale/force")
             if rig.gripper is not None and now >= next_grip:
-                sink.write_state("gripper", rig.gripper.state())
-                put("/state/gripper")
+                poll("gripper", grip)
                 next_grip = now + gripper_period_s
             if rig.jig is not None and now >= next_jig:
-                st = rig.jig.status()
-                pose = rig.jig.pose_from_status(st)
-                sink.write_state("jig", {"state": st.state, "mpos": st.mpos, "wpos": st.wpos,
-                                         "feed_mm_per_min": st.feed_mm_per_min, "raw": st.raw})
-                sink.write_jig_pose(pose.as_dict())
-                put("/state/jig")
-                put("/jig/pose")
+                poll("jig", jig)
                 next_jig = now + jig_period_s
             for name, cam in rig.cameras.items():
                 try:
-                    fr = cam.read_latest(max_age_s=1.0)
+                    # A capture thread keeps the newest frame (real time); without one (a virtual
+                    # clock) the read itself waits, in virtual time, up to one frame period for the
+                    # next frame (a simulated camera, like a V4L2 one, keeps only the newest).
+                    fr = (cam.read_latest(max_age_s=1.0) if cam.threaded
+                          else cam.read(timeout_s=1.0 / float(cam.config.fps)))
                 except DeviceTimeout:
                     continue
                 if fr.seq == last_seq[name]:
@@ -98,7 +144,7 @@ def record_bench(bench: Bench, duration_s: float, out: str | Path | None, *, liv
                 last_seq[name] = fr.seq
                 first_frame.setdefault(name, (fr.t_host_s, fr.seq))
                 sink.write_frame(name, fr.image, t_s=fr.t_host_s, compress="jpeg" if jpeg else "png")
-                put(f"/camera/{name}/compressed")
+                put(camera_topic(name, compressed=True))
                 t_first, seq_first = first_frame[name]
                 if fr.t_host_s > t_first:
                     outcome.camera_fps[name] = round((fr.seq - seq_first) / (fr.t_host_s - t_first), 2)

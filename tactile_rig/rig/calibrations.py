@@ -151,7 +151,8 @@ def publish(ver: CalibrationVersion, suffixes: Iterable[str]) -> list[Path]:
             shutil.copyfile(target, tmp)  # no symbolic links here: a copy of the newest version
         if link.is_dir() and not link.is_symlink():
             tmp.unlink()
-            raise CalibrationExists(f"{link} is a folder; it cannot become a link to {target.name}", device=ver.base.name)
+            raise CalibrationExists(f"{link} is a folder; it cannot become a link to {target.name}",
+                                    device=ver.base.name)
         os.replace(tmp, link)
         links.append(link)
     return links

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from tactile_rig.core.errors import CalibrationError, DeviceTimeout
+from tactile_rig.core.files import load_npz
 from tactile_rig.core.types import TouchReading
 from tactile_rig.perception.fingervision import FingerVision, FingerVisionParams, MarkerBaseline
 from tactile_rig.perception.gelsight.calibration import GelSightCalibration
@@ -67,6 +68,15 @@ class FingerVisionCalibration:
             fv.proximity.bg_median_v = self.bg_median_v
         return fv
 
+    def check_frame(self, image: np.ndarray) -> None:
+        """CalibrationError when ``image`` is not the size the baseline was made at (another camera
+        or another format: its markers would be matched to the wrong rest positions)."""
+        if self.frame_shape != (0, 0) and tuple(image.shape[:2]) != self.frame_shape:
+            h, w = self.frame_shape
+            raise CalibrationError(f"{self.path}: the marker baseline is for {w}x{h} frames, this camera "
+                                   f"gives {image.shape[1]}x{image.shape[0]}; re-run: "
+                                   "tactile-rig calibrate fingervision", device="fingervision")
+
     def processor(self, params: FingerVisionParams | None = None) -> FingerVision:
         return self.apply(FingerVision(params or FingerVisionParams()))
 
@@ -87,9 +97,10 @@ def load_fingervision_calibration(path: str | Path) -> FingerVisionCalibration:
         raise CalibrationError(f"FingerVision calibration arrays {npz} are missing ({js} names them); re-run: "
                                "tactile-rig calibrate fingervision", device="fingervision")
     try:
-        with np.load(npz, allow_pickle=False) as z:
-            pos, sizes, valid = z["positions_px"], z["sizes_px"], z["valid"]
-            bg = z["bg_hist"] if "bg_hist" in z.files else np.zeros(0)
+        z = load_npz(npz, "FingerVision calibration arrays", required=("positions_px", "sizes_px", "valid"),
+                     default={"kinds": "biuf", "min_size": 0})
+        pos, sizes, valid = z["positions_px"], z["sizes_px"], z["valid"]
+        bg = z["bg_hist"] if "bg_hist" in z else np.zeros(0)
     except (OSError, ValueError, KeyError) as exc:
         raise CalibrationError(f"{npz} is not a FingerVision calibration ({exc})", device="fingervision") from None
     n = int(np.asarray(pos).reshape(-1, 2).shape[0])
@@ -215,6 +226,8 @@ class CalibratedFingerVision:
 
     def process(self, image: np.ndarray, t_s: float | None = None) -> dict[str, Any]:
         """One frame → a JSON-able result: the FingerVision fields plus newtons when calibrated."""
+        if self.last is None and isinstance(self.calibrations.calibration, FingerVisionCalibration):
+            self.calibrations.calibration.check_frame(image)
         r = self.fv.process(image, t_s)
         out: dict[str, Any] = {"t_s": t_s, "calibrating": r.calibrating, "marker_count": r.n_markers,
                                "force_px": [float(v) for v in r.force_px],
@@ -246,9 +259,10 @@ class CalibratedFingerVision:
         force = d.get("force_n", d["force_px"])
         torque = d.get("torque_nmm", d.get("torque_npx", d["torque_px2"]))
         return TouchReading(t_s=float(t) if t is not None else float("nan"),
-                            force_n=tuple(force),  # type: ignore[arg-type]
-                            torque_nmm=tuple(torque),  # type: ignore[arg-type]
-                            contact=d["contact"], slip=d["slip"], slip_mm=d["slip_magnitude_px"] * (self.mm_per_px or 1.0),
+                            force_n=tuple(force),
+                            torque_nmm=tuple(torque),
+                            contact=d["contact"], slip=d["slip"],
+                            slip_mm=d["slip_magnitude_px"] * (self.mm_per_px or 1.0),
                             object_area_px=d["object_area_px"], object_centroid_px=d["object_centroid_px"],
                             object_orientation_deg=d["object_orientation_deg"])
 

@@ -16,8 +16,12 @@ TRIALS (never windows of a training trial). Saved the same way; :class:`Substanc
 with numpy only.
 
 Both sessions record to MCAP and learn from the recording, so the same fit runs on a bench's
-recording (``--from-recording``) as on the mocks. scikit-learn is the optional extra ``learn``;
-it is needed to fit, never to predict.
+recording (``--from-recording``) or a live guided collection (``collect``,
+:mod:`tactile_rig.rig.live_collection`) as on the mocks. Models are versioned
+(:mod:`tactile_rig.rig.calibrations`: ``force_map-vN.*`` with ``force_map.*`` linking to the newest).
+The consumers load them with :func:`load_force_map` (``ForceMapModel.to_newtons``: a fingertip's
+marker force in N) and :func:`load_substance_model` (:func:`predict_substance`). scikit-learn is
+the optional extra ``learn``; it is needed to fit, never to predict.
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ import numpy as np
 
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.core.errors import CalibrationError
+from tactile_rig.core.files import checked, load_json, load_npz
 from tactile_rig.core.jsonable import to_jsonable
 from tactile_rig.rig.calibrations import plan_version, publish
 from tactile_rig.rig.recording import Recorder, read_recording
@@ -110,7 +115,7 @@ class ForceMapModel:
             out[i:i + 2048] = np.exp(-self.gamma * np.maximum(d2, 0.0)) @ self.dual_coef
         return out
 
-    def to_newtons(self, force_px: Sequence[float], torque_px2: Sequence[float]
+    def to_newtons(self, force_px: Sequence[float] | np.ndarray, torque_px2: Sequence[float] | np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray, float]:
         """One fingertip's marker force (px) and torque (px²) → (force N (3,), torque N·px (3,), |F| N).
 
@@ -146,7 +151,8 @@ class ForceMapModel:
         if not npz.is_file():
             raise CalibrationError(f"force map arrays {npz} are missing (the .json is there); "
                                    "re-run: tactile-rig calibrate force-map", device="force-map")
-        with np.load(npz, allow_pickle=False) as z:
+        with checked(npz, "force map", "a model written by 'tactile-rig calibrate force-map'"):
+            z = load_npz(npz, "force map arrays")
             model = cls(center=z["center"], scale=z["scale"], x_fit=z["x_fit"], dual_coef=z["dual_coef"],
                         gamma=float(z["gamma"]), alpha=float(z["alpha"]),
                         feature_names=tuple(meta.get("features", FORCE_FEATURES)))
@@ -158,6 +164,12 @@ def _model_path(path: str | Path, name: str) -> Path:
     """A model named by its .json, .npz, stem, or the session's output folder (``<folder>/<name>``)."""
     p = Path(path)
     return p / name if p.is_dir() else p
+
+
+def model_json_path(path: str | Path, name: str) -> Path:
+    """The ``.json`` of a model named by a bench (its folder, stem, ``.json`` or ``.npz``); ``name`` is
+    the file name inside a session folder (``force_map``, ``substance``)."""
+    return _paths(_model_path(path, name))[1]
 
 
 def load_force_map(path: str | Path) -> ForceMapModel:
@@ -187,7 +199,7 @@ def _load_meta(js: Path, fmt: str) -> dict[str, Any]:
     if not js.is_file():
         raise CalibrationError(f"model file {js} does not exist", device=fmt)
     try:
-        meta = json.loads(js.read_text(encoding="utf-8"))
+        meta = load_json(js, "model file")
     except ValueError as exc:
         raise CalibrationError(f"model file {js} is not valid JSON: {exc}", device=fmt) from None
     if meta.get("format") != fmt:
@@ -226,12 +238,14 @@ def fit_force_map(X: np.ndarray, y: np.ndarray, *, alpha: float = 0.02, gamma: f
 
 @dataclass
 class ForceTrialData:
-    """One trial's aligned samples: features (T × 6, px) and the scale's force (T, N)."""
+    """One trial's aligned samples: features (T × 6, px) and the scale's force (T, N); ``scale_lag_s``
+    is how late the scale's readings were taken to be (the pairing's shift)."""
 
     index: int
     features: np.ndarray
     force_n: np.ndarray
     t_s: np.ndarray
+    scale_lag_s: float = 0.0
 
 
 def record_force_map_session(path: str | Path, trials: Sequence[Any], *, camera: str = "fingervision",
@@ -255,9 +269,35 @@ def record_force_map_session(path: str | Path, trials: Sequence[Any], *, camera:
     return Path(path)
 
 
-def force_trials_from_recording(path: str | Path, *, camera: str | None = None,
-                                max_skew_s: float = 0.05) -> list[ForceTrialData]:
-    """Pair each perception sample with the scale reading nearest in time (within ``max_skew_s``).
+MAX_SCALE_LAG_S = 0.2
+
+
+def scale_lag_s(t_perc_s: np.ndarray, force_px: np.ndarray, t_scale_s: np.ndarray, f_scale_n: np.ndarray, *,
+                max_lag_s: float = MAX_SCALE_LAG_S, step_s: float = 0.005) -> float:
+    """How late the scale reports a force the markers show (s, 0 .. ``max_lag_s``): the lag that best
+    correlates the scale's readings with the marker force's magnitude.
+
+    The sketch averages its conversions and the host stamps a line when it arrives, so on a press
+    that rises and falls the scale trails the camera by a frame or two; pairing the two at the same
+    time stamp would teach the map a force that lags its own features."""
+    mag = np.linalg.norm(np.asarray(force_px, float), axis=1)
+    if mag.size < 8 or np.ptp(mag) == 0 or t_scale_s.size < 2:
+        return 0.0
+    best, best_c = 0.0, -np.inf
+    for lag in np.arange(0.0, max_lag_s + step_s / 2, step_s):
+        f = np.interp(t_perc_s + lag, t_scale_s, f_scale_n)
+        if np.ptp(f) == 0:
+            continue
+        c = float(np.corrcoef(mag, f)[0, 1])
+        if c > best_c + 1e-6:
+            best, best_c = float(lag), c
+    return best
+
+
+def force_trials_from_recording(path: str | Path, *, camera: str | None = None, max_skew_s: float = 0.05,
+                                lag_s: float | None = None) -> list[ForceTrialData]:
+    """Pair each perception sample with the scale reading nearest in time to it plus the scale's lag
+    (within ``max_skew_s``); ``lag_s`` None estimates the lag (:func:`scale_lag_s`).
 
     Trials come from the ``trial`` field of the messages (or the ``/command/session`` trial starts).
     """
@@ -278,17 +318,22 @@ def force_trials_from_recording(path: str | Path, *, camera: str | None = None,
     by_trial: dict[int, tuple[list, list, list]] = {}
     order = np.argsort(t_scale)
     t_sorted, f_sorted = t_scale[order], f_scale[order]
-    for m in rec.on(topic):
+    # a live session also records the fingertip at rest, probing and released: only presses train
+    samples = [m for m in rec.on(topic) if "force_px" in m.data and "torque_px2" in m.data
+               and m.data.get("phase", "press") == "press"]
+    if lag_s is None:
+        lag_s = scale_lag_s(np.array([m.t_s for m in samples]), np.array([m.data["force_px"] for m in samples]),
+                            t_sorted, f_sorted)
+    for m in samples:
         d = m.data
-        if "force_px" not in d or "torque_px2" not in d or d.get("phase", "press") != "press":
-            continue  # a live session also records the fingertip at rest, probing and released
         trial = d.get("trial")
         if trial is None:
             trial = max((k for ts, k in starts if ts <= m.t_s), default=0)
-        j = int(np.searchsorted(t_sorted, m.t_s))
+        t = m.t_s + lag_s
+        j = int(np.searchsorted(t_sorted, t))
         cands = [i for i in (j - 1, j) if 0 <= i < t_sorted.size]
-        i = min(cands, key=lambda i: abs(t_sorted[i] - m.t_s))
-        if abs(t_sorted[i] - m.t_s) > max_skew_s:
+        i = min(cands, key=lambda i: abs(t_sorted[i] - t))
+        if abs(t_sorted[i] - t) > max_skew_s:
             continue
         feats, forces, times = by_trial.setdefault(int(trial), ([], [], []))
         feats.append(list(d["force_px"]) + list(d["torque_px2"]))
@@ -297,8 +342,8 @@ def force_trials_from_recording(path: str | Path, *, camera: str | None = None,
     if not by_trial:
         raise CalibrationError(f"{path}: no perception sample on {topic} has a scale reading within "
                                f"{max_skew_s} s", device="force-map")
-    return [ForceTrialData(k, np.asarray(v[0], float), np.asarray(v[1], float), np.asarray(v[2], float))
-            for k, v in sorted(by_trial.items())]
+    return [ForceTrialData(k, np.asarray(v[0], float), np.asarray(v[1], float), np.asarray(v[2], float),
+                           float(lag_s)) for k, v in sorted(by_trial.items())]
 
 
 def fit_force_map_trials(trials: Sequence[ForceTrialData], *, holdout: int | None = None, alpha: float = 0.02,
@@ -355,6 +400,7 @@ def force_map_session(out_dir: str | Path, *, n_trials: int = 10, max_force_n: f
     report["source"] = ("mock stick-press scene" if scene is not None
                         else "live collection" if collect is not None else str(recording))
     report["recording"] = str(recording)
+    report["scale_lag_s"] = trials[0].scale_lag_s
     test = next(t for t in trials if t.index == report["holdout_trial"])
     pred = model.predict(test.features)
     if scene is not None:
@@ -451,7 +497,7 @@ class SubstanceModel:
     def save(self, path: str | Path) -> tuple[Path, Path]:
         npz, js = _paths(path)
         npz.parent.mkdir(parents=True, exist_ok=True)
-        arrays = {"center": self.center, "scale": self.scale}
+        arrays: dict[str, Any] = {"center": self.center, "scale": self.scale}
         for i, (W, b) in enumerate(zip(self.weights, self.biases)):
             arrays[f"W{i}"] = W
             arrays[f"b{i}"] = b
@@ -470,7 +516,8 @@ class SubstanceModel:
         if not npz.is_file():
             raise CalibrationError(f"substance model arrays {npz} are missing (the .json is there)",
                                    device="substance")
-        with np.load(npz, allow_pickle=False) as z:
+        with checked(npz, "substance model", "a model written by 'tactile-rig calibrate substance'"):
+            z = load_npz(npz, "substance model arrays")
             n = int(meta["layers"])
             model = cls(center=z["center"], scale=z["scale"], weights=[z[f"W{i}"] for i in range(n)],
                         biases=[z[f"b{i}"] for i in range(n)], classes=list(meta["classes"]),

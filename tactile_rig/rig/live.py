@@ -1,7 +1,7 @@
 """Live view: a running session's messages over the Foxglove WebSocket protocol on 127.0.0.1.
 
 :class:`LiveServer` publishes the same topics, schemas and JSON bodies as a session recording
-(:mod:`tactile_rig.rig.recording`: ``/camera/<name>/compressed`` as ``foxglove.CompressedImage``,
+(:mod:`tactile_rig.rig.recording`: ``/<name>/image/compressed`` as ``foxglove.CompressedImage``,
 ``/perception/<name>``, ``/state/<device>``, ``/command/<device>``, ``/jig/pose``, ``/scale/force``),
 so the Foxglove app shows a live session with the layout it uses for the recordings. It has the
 recorder's ``write_*`` methods; :class:`Tee` sends every message to a recorder and a live server.
@@ -24,11 +24,12 @@ import numpy as np
 
 from tactile_rig.core.clock import Clock, RealClock
 from tactile_rig.core.jsonable import to_jsonable
-from tactile_rig.rig.recording import SCHEMAS
+from tactile_rig.rig.recording import SCHEMAS, camera_topic
 
 __all__ = ["DEFAULT_LIVE_PORT", "LiveServer", "Tee", "require_foxglove"]
 
 DEFAULT_LIVE_PORT = 8765  # the Foxglove app's default for "Foxglove WebSocket"
+LINGER_S = 0.5  # close(): time for queued messages to reach a subscribed viewer
 BACKLOG_MESSAGES = 16384  # per client; a simulated episode's trace arrives as one burst
 
 
@@ -146,7 +147,7 @@ class LiveServer:
 
     def write_frame(self, camera: str, image: np.ndarray, *, t_s: float | None = None,
                     compress: str | None = None) -> None:
-        """A camera frame as ``/camera/<camera>/compressed`` (JPEG, or PNG when ``compress='png'``)."""
+        """A camera frame as ``/<camera>/image/compressed`` (JPEG, or PNG when ``compress='png'``)."""
         import cv2
 
         t = self.clock.now_s() if t_s is None else float(t_s)
@@ -158,7 +159,7 @@ class LiveServer:
         ns = self.log_time_ns(t)
         msg = {"timestamp": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}, "frame_id": camera,
                "format": "png" if ext == ".png" else "jpeg", "data": base64.b64encode(buf.tobytes()).decode("ascii")}
-        self.write(f"/camera/{camera}/compressed", msg, t_s=t, schema="foxglove.CompressedImage")
+        self.write(camera_topic(camera, compressed=True), msg, t_s=t, schema="foxglove.CompressedImage")
 
     def write_perception(self, name: str, result: Any, *, t_s: float | None = None) -> None:
         self.write(f"/perception/{name}", _as_dict(result), t_s=t_s, schema="tactile_rig.Perception")
@@ -199,9 +200,12 @@ class LiveServer:
         pass
 
     def close(self) -> None:
-        """Stop the server (idempotent)."""
+        """Stop the server (idempotent). With a subscriber, first give the messages still queued for it
+        ``LINGER_S`` to leave (a session's last messages are the ones a viewer wants to see)."""
         server, self._server = self._server, None
         if server is not None:
+            if self.subscribed_topics:
+                time.sleep(LINGER_S)
             for ch in self._channels.values():
                 ch.close()
             server.stop()

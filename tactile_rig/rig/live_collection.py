@@ -112,6 +112,7 @@ class _Session:
         self.record_frames = record_frames
         self.rec.add_bench(rig.bench)
         self.rec.add_metadata("session", {"kind": kind, "camera": camera, "live": True, **meta})
+        self.stored: FingerVisionCalibration | None = None
         self.trial: int | None = None
         self.phase = "rest"  # rest | probe | press | release: only "press" samples train the map
         self.last_force_n = 0.0
@@ -119,6 +120,9 @@ class _Session:
     def sample(self, timeout_s: float) -> Any:
         """One frame through the tracker (recorded), and every scale reading that came meanwhile."""
         image, t = _frame(self.camera, timeout_s)
+        if self.stored is not None:
+            self.stored.check_frame(image)
+            self.stored = None  # one check: the camera keeps its format
         r = self.fv.process(image, t)
         if self.record_frames:
             self.rec.write_frame(self.camera_name, image, t_s=t, compress="jpeg")
@@ -164,6 +168,7 @@ def collect_force_map(rig: Any, path: str | Path, *, camera: str, plan: PressPla
     peaks = sorted(float(p) for p in plan.peaks_n)
     s = _Session(rig, path, camera, "force-map", _tracker(calibrations, params), record_frames,
                  peaks_n=peaks, max_effort=plan.max_effort)
+    _attach_baseline(s, calibrations)
     try:
         guide.step("stand the scale between the fingers, its platform facing the FingerVision fingertip, "
                    "nothing touching it")
@@ -204,6 +209,13 @@ def collect_force_map(rig: Any, path: str | Path, *, camera: str, plan: PressPla
             pass
         s.close()
     return Path(path)
+
+
+def _attach_baseline(s: _Session, calibrations: CameraCalibrations | None) -> None:
+    """Record the stored baseline the session starts from, and check the camera's frames against it."""
+    if calibrations is not None and isinstance(calibrations.calibration, FingerVisionCalibration):
+        s.stored = calibrations.calibration
+        s.rec.add_calibration(calibrations.sensor, path=calibrations.files["calibration"])
 
 
 def _release(s: _Session, plan: PressPlan) -> None:
@@ -260,6 +272,7 @@ def collect_stirring(rig: Any, path: str | Path, *, camera: str, substances: Seq
         raise ValueError(f"substance collection: the bench has no camera [{camera}]")
     s = _Session(rig, path, camera, "substance", _tracker(calibrations, params), record_frames,
                  substances=names, per_substance=int(per_substance))
+    _attach_baseline(s, calibrations)
     clock, gripper = rig.clock, rig.devices.get("gripper")
     try:
         guide.step("put the stirring stick between the fingers")

@@ -4,7 +4,7 @@ with the frame rate measured as it runs and, optionally, everything on the live 
 :func:`run_live` owns the loop (open the camera, read each new frame, process, report, publish) and
 the rate meter; :class:`FingerVisionStep` and :class:`GelSightHeightStep` are the per-frame work.
 What a step returns is one JSON-able dict per frame; it is published on
-``/perception/<camera>/<step>`` with the frame on ``/camera/<camera>/compressed`` (the recording
+``/perception/<camera>/<step>`` with the frame on ``/<camera>/image/compressed`` (the recording
 schemas), so the live view and a recording of the same run look alike.
 """
 
@@ -113,6 +113,20 @@ class GelSightHeightStep:
                 "contact_area_mm2": round(float(np.count_nonzero(h > self.contact_mm)) * self.mm2_per_px, 4)}
 
 
+class GelSightLocalizeStep:
+    """Where each frame's touch lies in a tactile map (:meth:`TactileMap.localize`): rotation (deg),
+    translation (mm), the paper's confidence, or the reason it was refused."""
+
+    name = "localize"
+
+    def __init__(self, calibration: GelSightCalibration, tactile_map: Any) -> None:
+        self.rec = Reconstructor(calibration)
+        self.map = tactile_map
+
+    def __call__(self, image: np.ndarray, t_s: float) -> dict[str, Any]:
+        return self.map.localize(self.rec.height_mm(image)).as_dict()
+
+
 def height_image(h: np.ndarray, range_mm: float = 1.0) -> np.ndarray:
     """A height map as an 8-bit colour image for viewing (0..``range_mm`` → the turbo colormap)."""
     u8 = np.clip(h / max(range_mm, 1e-6) * 255.0, 0, 255).astype(np.uint8)
@@ -146,7 +160,7 @@ def run_live(bench: Bench, camera: str | None, step: Callable[[np.ndarray, float
     """Run ``step`` on every new frame of the bench camera until ``duration_s`` or ``max_frames``
     (or Ctrl-C). ``on_frame`` gets each frame's dict with ``frame``, ``t_s``, ``fps`` and
     ``work_ms`` added. With ``live``, the frame and the dict are published (and
-    ``publish_image(image)``'s picture on ``/camera/<camera>_<step>/compressed`` when it returns one)."""
+    ``publish_image(image)``'s picture on ``/<camera>_<step>/image/compressed`` when it returns one)."""
     name = camera_name(bench, camera, sensor)
     if duration_s is not None and not duration_s > 0:
         raise ValueError(f"duration_s={duration_s!r} must be > 0 s")

@@ -3,8 +3,8 @@
 Channels (all JSON-encoded, so Foxglove and :mod:`tactile_rig.rig.replay` read them without
 plugins)::
 
-    /camera/<name>/image        foxglove.RawImage (bgr8 / mono8)
-    /camera/<name>/compressed   foxglove.CompressedImage (png, jpeg)
+    /<camera>/image             foxglove.RawImage (bgr8 / mono8)
+    /<camera>/image/compressed  foxglove.CompressedImage (png, jpeg)   (the ROS image_transport names)
     /perception/<name>          tactile_rig.Perception   any JSON-able result of a perception step
     /state/<device>             tactile_rig.DeviceState  a device's state snapshot
     /command/<device>           tactile_rig.Command      what was sent to a device
@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import base64
 import json
+import os
 import struct
 import threading
 import time
@@ -42,7 +43,16 @@ from tactile_rig.core.errors import BadFile
 from tactile_rig.core.files import MAX_JSON_DEPTH, check_file, decode_image_bytes, json_depth
 from tactile_rig.core.jsonable import to_jsonable
 
-__all__ = ["Recorder", "Recording", "Message", "read_recording", "iter_messages", "SCHEMAS"]
+__all__ = ["Recorder", "Recording", "Message", "read_recording", "iter_messages", "SCHEMAS", "camera_topic", "MAX_RECORDING_BYTES"]
+
+
+def camera_topic(camera: str, *, compressed: bool = False) -> str:
+    """``/<camera>/image`` or ``/<camera>/image/compressed`` (a bench camera named ``camera_left``
+    records on ``/camera_left/image``); find image topics by schema, not by name."""
+    name = camera.strip("/")
+    if not name:
+        raise ValueError("camera name is empty; expected the bench table name, e.g. 'camera_left'")
+    return f"/{name}/image/compressed" if compressed else f"/{name}/image"
 
 _TIME = {"type": "object", "title": "time",
          "properties": {"sec": {"type": "integer", "minimum": 0},
@@ -156,6 +166,10 @@ class Recorder:
         self.add_metadata("recording", {"clock": "virtual" if self.clock.is_virtual else "monotonic",
                                       "t0_s": repr(self._t0_s), "epoch_offset_ns": str(self._epoch_ns),
                                       "flush_interval_s": repr(self.flush_interval_s)})
+        # Readable from the moment it exists: the magic and header reach the OS now, so a reader never
+        # sees the zero-byte file that read_recording refuses.
+        with self._lock:
+            self._file.flush()
 
     # -- low level --------------------------------------------------------------------------
     def _channel(self, topic: str, schema: str) -> int:
@@ -212,7 +226,7 @@ class Recorder:
             raise ValueError(f"camera {camera!r}: frame must be uint8 HxW or HxWx3 BGR, got "
                              f"{img.dtype} {img.shape}")
         t = self.clock.now_s() if t_s is None else float(t_s)
-        topic = f"/camera/{camera}/image"
+        topic = camera_topic(camera)
         if compress is not None:
             import cv2
 
@@ -222,7 +236,7 @@ class Recorder:
             ok, buf = cv2.imencode(ext, img)
             if not ok:
                 raise ValueError(f"camera {camera!r}: OpenCV could not encode the frame as {compress}")
-            topic = f"/camera/{camera}/compressed"
+            topic = camera_topic(camera, compressed=True)
             msg = {"timestamp": _stamp(self.log_time_ns(t)), "frame_id": camera,
                    "format": "jpeg" if ext == ".jpg" else "png",
                    "data": base64.b64encode(buf.tobytes()).decode("ascii")}
@@ -276,13 +290,22 @@ class Recorder:
 
     def add_calibration(self, name: str, *, path: str | Path | None = None,
                         values: Mapping[str, Any] | None = None) -> None:
-        """A calibration: its values as metadata ``calibration.<name>`` and its file as an attachment."""
+        """A calibration: its values as metadata ``calibration.<name>`` and its files as attachments.
+
+        A calibration of two files (GelSight, FingerVision, the learned models: ``.json`` + ``.npz``)
+        is attached whole, whichever of the two ``path`` names."""
         meta: dict[str, Any] = dict(values or {})
         if path is not None:
             p = Path(path)
             meta.setdefault("path", str(p))
-            self.add_attachment(f"calibration/{name}/{p.name}", p.read_bytes(),
-                                media_type="application/json" if p.suffix == ".json" else "application/octet-stream")
+            files = [p]
+            if p.suffix in (".json", ".npz"):
+                twin = p.with_suffix(".npz" if p.suffix == ".json" else ".json")
+                if twin.is_file():
+                    files = sorted([p, twin], key=lambda f: f.suffix != ".json")
+            for f in files:
+                self.add_attachment(f"calibration/{name}/{f.name}", f.read_bytes(),
+                                    media_type="application/json" if f.suffix == ".json" else "application/octet-stream")
         self.add_metadata(f"calibration.{name}", meta)
 
     # -- flushing and closing ---------------------------------------------------------------
@@ -300,6 +323,27 @@ class Recorder:
         with self._lock:
             if not self._closed:
                 self._flush_locked()
+
+    def sync(self) -> None:
+        """Flush, then have the OS write the file to the disk (``fsync``): survives a power loss."""
+        with self._lock:
+            if not self._closed:
+                self._flush_locked()
+                os.fsync(self._file.fileno())
+
+    def replace(self, target: str | Path) -> None:
+        """Sync this file and atomically rename it to ``target`` (replacing any file there), then go
+        on recording into it. Write-then-rename: until the rename ``target`` is untouched; after it
+        ``target`` holds everything written so far."""
+        target = Path(target)
+        with self._lock:
+            if self._closed:
+                raise ValueError(f"recording {self.path} is closed")
+            self._flush_locked()
+            os.fsync(self._file.fileno())
+            os.replace(self.path, target)
+            _fsync_dir(target.parent)
+            self.path = target
 
     def _flush_loop(self) -> None:
         period = self.flush_interval_s / 2  # so data never waits longer than the interval
@@ -327,6 +371,20 @@ class Recorder:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _fsync_dir(folder: Path) -> None:
+    """Make a rename in ``folder`` durable (POSIX: fsync the directory); a no-op where unsupported."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:  # pragma: no cover - e.g. Windows
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # pragma: no cover
+        pass
+    finally:
+        os.close(fd)
 
 
 def _as_dict(obj: Any) -> dict[str, Any]:
@@ -377,7 +435,7 @@ def decode_image(schema: str, data: Mapping[str, Any], source: str = "recording"
         h, w, step = int(data["height"]), int(data["width"]), int(data["step"])
     except (KeyError, TypeError, ValueError):
         raise BadFile(source, "a RawImage message lacks integer height, width, step", "a foxglove.RawImage") from None
-    channels = {"bgr8": 3, "rgb8": 3, "mono8": 1, "8UC1": 1, "8UC3": 3}.get(data.get("encoding"))
+    channels = {"bgr8": 3, "rgb8": 3, "mono8": 1, "8UC1": 1, "8UC3": 3}.get(str(data.get("encoding")))
     if channels is None:
         raise BadFile(source, f"unsupported RawImage encoding {data.get('encoding')!r}", "bgr8, rgb8 or mono8")
     if not (0 < h <= 16384 and 0 < w <= 16384 and w * channels <= step <= 4 * w * channels and len(raw) >= h * step):
@@ -423,6 +481,7 @@ class Recording:
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 MAX_RECORD_BYTES = 1 << 30  # no record this rig writes comes near it; a flipped length field does
+MAX_RECORDING_BYTES = 1 << 40  # recordings are streamed chunk by chunk: hours of raw frames are fine
 
 
 def _where(kind: str, index: int, offset: int) -> str:
@@ -441,7 +500,7 @@ def _records(path: Path, result: Recording) -> Iterator[tuple[Any, str]]:
     from mcap.records import Chunk, DataEnd, Footer
     from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 
-    p = check_file(path, "recording")
+    p = check_file(path, "recording", max_bytes=MAX_RECORDING_BYTES)
     size = p.stat().st_size
     with open(p, "rb") as f:
         head = f.read(8)
@@ -474,6 +533,9 @@ def _records(path: Path, result: Recording) -> Iterator[tuple[Any, str]]:
                     OverflowError, IndexError) as exc:
                 declared_end = _declared_end(p, pos, size)
                 cut_off = declared_end is None or declared_end > size
+                if cut_off and not complete and n_records == 0:
+                    raise BadFile(p, f"recording holds no complete record ({size} bytes: cut off right after it "
+                                  "was opened)", "an MCAP recording with at least its header") from None
                 if cut_off and not complete:
                     result.truncated = True
                     result.error = f"cut off at byte {pos} of {size} ({type(exc).__name__}{': ' + str(exc) if str(exc) else ''})"
@@ -504,6 +566,9 @@ def _records(path: Path, result: Recording) -> Iterator[tuple[Any, str]]:
             # The data section ends at DataEnd (its CRC checked above); the summary after it only
             # repeats the data section's schemas and channels, so it is not read.
             if isinstance(rec, (DataEnd, Footer)):
+                if not complete:
+                    result.truncated = True
+                    result.error = "cut off in the summary after the data section (every message is intact)"
                 return
 
 
@@ -561,7 +626,7 @@ def iter_messages(path: str | Path, *, topics: set[str] | None = None,
 
 def read_recording(path: str | Path, *, topics: set[str] | None = None) -> Recording:
     """Read a whole recording (tolerating a truncated tail). ``topics`` keeps only those topics."""
-    p = check_file(path, "recording")
+    p = check_file(path, "recording", max_bytes=MAX_RECORDING_BYTES)
     out = Recording(p)
     out.messages = list(iter_messages(p, topics=topics, into=out))
     return out

@@ -18,6 +18,7 @@ from tactile_rig.core.errors import NotConnected
 from tactile_rig.core.files import check_file
 from tactile_rig.drivers.camera import RawFrame
 from tactile_rig.rig.recording import (
+    MAX_RECORDING_BYTES,
     Message,
     Recording,
     decode_image,
@@ -30,7 +31,7 @@ IMAGE_SCHEMAS = ("foxglove.RawImage", "foxglove.CompressedImage")
 
 def summarize(path: str | Path) -> dict[str, Any]:
     """Per topic: message count, schema, first/last time (s); plus metadata names, attachments, truncation."""
-    rec = Recording(check_file(path, "recording"))
+    rec = Recording(check_file(path, "recording", max_bytes=MAX_RECORDING_BYTES))
     topics: dict[str, dict[str, Any]] = {}
     for m in iter_messages(path, into=rec):
         t = topics.setdefault(m.topic, {"count": 0, "schema": m.schema, "first_t_s": m.t_s, "last_t_s": m.t_s})
@@ -114,6 +115,15 @@ class RecordedFrameSource:
 
     def close(self) -> None:
         self._open = False
+
+    def native_format(self) -> tuple[int, int, float]:
+        """(width, height, fps) as recorded: the format a camera on this source opens in by default."""
+        if not self._messages:
+            raise ValueError(f"{self.name}: the recording holds no frames on {self.topic}")
+        first = self._messages[0].image()
+        span = self._messages[-1].t_s - self._messages[0].t_s
+        fps = (len(self._messages) - 1) / span if span > 0 else 30.0
+        return int(first.shape[1]), int(first.shape[0]), float(fps)
 
     def set_format(self, fourcc: str, width: int, height: int, fps: float) -> tuple[str, int, int, float]:
         """A recording has the format it was recorded in: report that one (the driver checks it)."""

@@ -24,11 +24,11 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
 import numpy as np
-import tomllib
 
 from tactile_rig.control.common import ControllerResult
 from tactile_rig.core.clock import Clock, VirtualClock
 from tactile_rig.core.errors import RigError
+from tactile_rig.core.files import load_toml
 from tactile_rig.sim.fakes.sensors import ModelSensor, RenderedSensor
 from tactile_rig.sim.scenes import Scene, builtin_scenes, load_scene, resolve_scene_path
 
@@ -144,7 +144,7 @@ def episode_fn(kind: str) -> EpisodeFn:
 def scene_info(name_or_path: str) -> dict[str, Any]:
     """Name, description and controller kind of a scene, without building its world."""
     path = resolve_scene_path(name_or_path)
-    data = tomllib.loads(path.read_text(encoding="utf-8"))
+    data = load_toml(path, "scene file")[0]
     head = data.get("scene", {})
     return {"name": path.stem, "controller": data.get("controller", {}).get("kind"),
             "description": head.get("description", ""),
@@ -202,7 +202,7 @@ def run_episode(scene_name: str, seed: int = 0, *, episode: int = 0, speed_mps: 
                 clock: Clock | None = None, overrides: dict[str, dict[str, Any]] | None = None) -> EpisodeReport:
     """Run one episode of ``scene_name`` with ``seed`` (a fresh VirtualClock unless ``clock``)."""
     path = resolve_scene_path(scene_name)
-    raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    raw = load_toml(path, "scene file")[0]
     rng = np.random.default_rng(seed)
     drawn, draws = draw_episode(raw, rng)
     for k, v in (overrides or {}).items():

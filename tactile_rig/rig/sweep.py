@@ -164,7 +164,7 @@ def resolve_target(target: str) -> Callable[..., Any]:
             raise ValueError(f"sweep target {target!r}: module {kind!r} has no {rest!r}")
     if not callable(fn):
         raise ValueError(f"sweep target {target!r} is not callable")
-    return fn  # type: ignore[return-value]
+    return fn
 
 
 @dataclass(frozen=True)
@@ -221,9 +221,9 @@ def _model_params(kind: str) -> set[str] | None:
     if isinstance(ret, str):  # postponed annotation: look the class up in the factory's module
         ret = getattr(inspect.getmodule(factory), ret, None)
     if isinstance(ret, type):
-        candidates.append(ret.__init__)
+        candidates.append(vars(ret).get("__init__", ret))  # the class's own signature
     if isinstance(factory, type):
-        candidates = [factory.__init__]
+        candidates = [vars(factory).get("__init__", factory)]
     names: set[str] = set()
     for fn in candidates:  # the factory's own keywords, then (when it forwards **params) the class's
         try:
@@ -402,12 +402,13 @@ class DaskExecutor(cf.Executor):
     """A Dask ``Client``'s executor that also closes the client (and a cluster it started) on
     ``shutdown``; the cluster's logs are kept to errors so a sweep's output stays one table."""
 
-    def __init__(self, client: Any, cluster: Any = None) -> None:
+    def __init__(self, client: Any, cluster: Any = None, *, restore_log_level: int | None = None) -> None:
         self.client = client
         self.cluster = cluster
         self._ex = client.get_executor()
+        self._log_level = restore_log_level
 
-    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> cf.Future:  # type: ignore[override]
+    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> cf.Future:
         return self._ex.submit(fn, *args, **kwargs)
 
     def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
@@ -415,6 +416,9 @@ class DaskExecutor(cf.Executor):
         self.client.close()
         if self.cluster is not None:
             self.cluster.close()
+        if self._log_level is not None:
+            logging.getLogger("distributed").setLevel(self._log_level)
+            self._log_level = None
 
 
 def dask_executor(address: str | None = None, *, workers: int = 2, processes: bool = True,
@@ -425,11 +429,16 @@ def dask_executor(address: str | None = None, *, workers: int = 2, processes: bo
         from distributed import Client, LocalCluster
     except ModuleNotFoundError:
         raise ValueError("--executor dask needs Dask distributed: pip install 'tactile-rig[distributed]'") from None
+    # Dask logs its cluster's life at INFO; a sweep's output is its table: keep only errors (here and,
+    # through silence_logs, in the workers), restored when the executor shuts down.
+    quiet = logging.getLogger("distributed")
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)
     if address:
-        return DaskExecutor(Client(address))
+        return DaskExecutor(Client(address), restore_log_level=level)
     cluster = LocalCluster(n_workers=workers, threads_per_worker=threads_per_worker, processes=processes,
                            dashboard_address=None, silence_logs=logging.ERROR)
-    return DaskExecutor(Client(cluster), cluster)
+    return DaskExecutor(Client(cluster), cluster, restore_log_level=level)
 
 
 def make_executor(kind: str = "process", *, workers: int | None = None, address: str | None = None) -> cf.Executor:

@@ -32,6 +32,7 @@ writes again only if the value is not there. Errors:
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
 from dataclasses import asdict, dataclass
@@ -70,6 +71,8 @@ _TIMEOUT_MARGIN_S = 0.002  # the SDK's 2 ms
 _RESYNC_ADDRESS = 0  # Model Number: readable on both protocols, EEPROM, no side effects
 #: a status later than this after its request failed is not guarded against by a resync
 LATE_HORIZON_S = 1.0
+#: resync reads use lengths 1..this (from address 0; gaps in the table read as zeros)
+_RESYNC_MAX_LENGTH = 64
 
 
 def check_latency_timer(port: str, *, sysfs_root: str | Path = "/sys") -> int | None:
@@ -101,6 +104,9 @@ class UrlPortHandler(sdk.PortHandler):
     the bytes. ``lock`` is the bus lock of the port (shared with every tactile-rig driver on it):
     hold it around each SDK transaction when using the SDK directly from several threads.
     """
+
+    is_open: bool
+    is_using: bool
 
     def __init__(self, port_name: str, *, exclusive: bool | None = None) -> None:
         super().__init__(port_name)
@@ -154,6 +160,7 @@ class BusStats:
     writes_confirmed_by_readback: int = 0  #: writes whose status was lost but whose value read back
     writes_repeated_after_readback: int = 0  #: writes read back as not applied, then sent again
     verify_mismatches: int = 0  #: read-verify pairs that disagreed
+    implausible_values: int = 0  #: reads of a writable item outside its range (damaged, read again)
     disconnects: int = 0
     reconnects: int = 0
 
@@ -241,7 +248,7 @@ class DynamixelBus(Driver):
 
     def _lost(self, exc: BaseException, what: str) -> NotConnected:
         """The port failed under us: close it, free the SDK's ``is_using``, start reconnecting."""
-        why = "unplugged (EIO)" if getattr(exc, "errno", None) == 5 else (str(exc) or type(exc).__name__)
+        why = "unplugged (EIO)" if getattr(exc, "errno", None) == errno.EIO else (str(exc) or type(exc).__name__)
         self.port.closePort()
         self._in_flight.clear()
         self.stats.disconnects += 1
@@ -278,6 +285,13 @@ class DynamixelBus(Driver):
     def _send(self, port: UrlPortHandler, req: wire.Request, what: str) -> int:
         """Send ``req`` through the SDK (its framing, stuffing and CRC); return the bytes sent."""
         n = len(req.params)
+        if self.protocol == 2 and b"\xff\xff\xfd" in bytes([req.instruction]) + req.params:
+            # SDK 4.1.0's addStuffing rebinds its argument and so sends such a packet unstuffed
+            raw = wire.encode_instruction_p2(req.dxl_id, req.instruction, req.params)
+            port.clearPort()
+            if port.writePort(raw) != len(raw):
+                raise NotConnected(f"{what}: the port took only part of the packet", device=self.name(req.dxl_id))
+            return len(raw)
         if self.protocol == 2:
             tx = [0] * (10 + n)
             tx[4], tx[5], tx[6], tx[7] = req.dxl_id, (n + 3) & 0xFF, (n + 3) >> 8, req.instruction
@@ -301,7 +315,8 @@ class DynamixelBus(Driver):
         # a status longer than ours or any still in flight is corruption, not worth waiting for
         longest = max([n, 3] + [k for lengths in self._in_flight.values() for k in lengths])
         scanner = wire.StatusScanner(self.protocol, max_params=longest)
-        deadline = Deadline(self.clock, self.packet_timeout_s(tx_bytes, n + (11 if self.protocol == 2 else 6)))
+        timeout_s = self.packet_timeout_s(tx_bytes, n + (11 if self.protocol == 2 else 6))
+        deadline = Deadline(self.clock, timeout_s)
         corrupt = 0
         ser = port.ser
         dev = self.name(req.dxl_id)
@@ -329,15 +344,17 @@ class DynamixelBus(Driver):
         finally:
             ser.timeout = 0
             self.stats.skipped_bytes += scanner.skipped
-        # Our status may still come, late: the next request to this ID resyncs first.
-        self._expect_late(req.dxl_id, n)
+        # Our status may still come, late: the next request to this ID resyncs first (a fast
+        # read's caller marks its servos instead: a broadcast ID cannot be resynced).
+        if req.dxl_id != wire.BROADCAST_ID:
+            self._expect_late(req.dxl_id, n)
         if corrupt or scanner.pending:
             partial = f" ({len(scanner.pending)} byte(s) of a cut-off packet)" if scanner.pending else ""
             raise LinkCorrupt(f"{what}: corrupt or cut-off status packet{partial}; "
                               f"{corrupt} CRC/checksum failure(s)", device=dev)
         self.stats.timeouts += 1
         raise DeviceTimeout(
-            f"{what}: no status packet within {deadline.timeout_s * 1000:.3g} ms (check the ID, the baud "
+            f"{what}: no status packet within {timeout_s * 1000:.3g} ms (check the ID, the baud "
             f"rate {self.baudrate}, the power and, for a U2D2, the latency timer: {self.latency_timer_ms:g} ms "
             "allowed)", device=dev)
 
@@ -352,10 +369,12 @@ class DynamixelBus(Driver):
         now = self.clock.now_s()
         for k in [k for k, t in busy.items() if now - t > LATE_HORIZON_S]:
             del busy[k]  # a status this late is not waited for any more
-        length = next((k for k in range(1, 12) if k not in busy), None)
+        length = next((k for k in range(1, min(self.table.size, _RESYNC_MAX_LENGTH) + 1) if k not in busy), None)
         if length is None:
-            raise LinkCorrupt(f"{what}: the line is too noisy to resync (11 requests failed within "
-                              f"{LATE_HORIZON_S} s)", device=self.name(dxl_id))
+            # Every length is in flight (a dead line, many fast timeouts): the oldest of those
+            # statuses is the least likely to come at all; reuse its length.
+            length = min((k for k in busy if k), key=lambda k: busy[k])
+            del busy[length]
         req = wire.Request(self.protocol, dxl_id, wire.READ, self._read_params(_RESYNC_ADDRESS, length))
         self.stats.resyncs += 1
         self._flush(port)
@@ -395,19 +414,6 @@ class DynamixelBus(Driver):
         return bytes([address, length])
 
     # -- result handling -------------------------------------------------------------------------
-    def _check_comm(self, dxl_id: int, result: int, what: str) -> None:
-        """SDK result codes of the group helpers → typed errors."""
-        if result == sdk.COMM_SUCCESS:
-            return
-        dev = self.name(dxl_id)
-        if result == sdk.COMM_RX_TIMEOUT:
-            raise DeviceTimeout(f"{what}: no status packet within the SDK's packet timeout", device=dev)
-        if result == sdk.COMM_RX_CORRUPT:
-            raise LinkCorrupt(f"{what}: corrupt or cut-off status packet (CRC/checksum mismatch)", device=dev)
-        if result in (sdk.COMM_TX_FAIL, sdk.COMM_TX_ERROR, sdk.COMM_RX_FAIL):
-            raise NotConnected(f"{what}: {self.packet.getTxRxResult(result)}", device=dev)
-        raise RigError(f"{what}: {self.packet.getTxRxResult(result)} (result {result})", device=dev)
-
     def _check_status(self, dxl_id: int, error: int, what: str, *, fault_ok: bool) -> None:
         dev = self.name(dxl_id)
         if self.protocol == 2:
@@ -466,8 +472,9 @@ class DynamixelBus(Driver):
             self._check_status(dxl_id, pkt.error, "ping", fault_ok=True)
             if self.protocol == 2:
                 return pkt.params[0] | pkt.params[1] << 8
-            # Protocol 1.0 has no model in the ping status: read it, as the SDK does.
-            raw = self._read_raw(dxl_id, 0, 2, "ping (read Model Number)")
+            # Protocol 1.0 has no model in the ping status: read it, as the SDK does, twice (the
+            # model decides whether a driver accepts the servo; P1's checksum is weak)
+            raw = self.read_bytes(dxl_id, 0, 2, what="ping (read Model Number)", verify=True)
             return raw[0] | raw[1] << 8
 
     def read_bytes(self, dxl_id: int, address: int, length: int, *, what: str | None = None,
@@ -541,11 +548,25 @@ class DynamixelBus(Driver):
 
     def read(self, dxl_id: int, name: str, *, verify: bool = False) -> int:
         """The value of control-table item ``name`` (signed items decoded); ``verify``: see
-        :meth:`read_bytes`."""
+        :meth:`read_bytes`.
+
+        A writable item's value must lie in its range (the firmware refuses writes outside it, so
+        a value beyond it is a damaged status that passed the checksum): it is read again, up to
+        ``retries`` times, then ``LinkCorrupt``.
+        """
         it = self.table[name]
-        raw = int.from_bytes(self.read_bytes(dxl_id, it.address, it.size, what=f"read {name}", verify=verify),
-                             "little")
-        return it.from_raw(raw)
+        checked = it.writable and (it.high - it.low + 1) < (1 << (8 * it.size))
+        for _ in range(self.retries + 1):
+            raw = int.from_bytes(self.read_bytes(dxl_id, it.address, it.size, what=f"read {name}", verify=verify),
+                                 "little")
+            value = it.from_raw(raw)
+            if not checked or it.low <= value <= it.high:
+                return value
+            self.stats.implausible_values += 1
+            log.info("%s: read %s: %d is outside [%d, %d]: a damaged status, read again", self.name(dxl_id), name,
+                     value, it.low, it.high)
+        raise LinkCorrupt(f"read {name}: {value} is outside [{it.low}, {it.high}], which the servo never stores "
+                          f"({self.retries + 1} reads): a damaged link", device=self.name(dxl_id))
 
     def write(self, dxl_id: int, name: str, value: int, *, fault_ok: bool = False) -> None:
         """Write item ``name``; values outside its range raise LimitError before anything is sent."""
@@ -627,10 +648,12 @@ class DynamixelBus(Driver):
         ids = list(ids)
         if len(set(ids)) != len(ids):
             raise ValueError(f"sync read: IDs {ids} list one twice")
-        if fast:
-            return self._sdk_group_read(sdk.GroupSyncRead, ids, [(i, it) for i in ids], f"fast sync read {name}")
         params = bytes([it.address & 0xFF, it.address >> 8, it.size & 0xFF, it.size >> 8]) + bytes(ids)
-        raw = self._group_read(0x82, params, [(i, it.address, it.size) for i in ids], f"sync read {name}")
+        reqs = [(i, it.address, it.size) for i in ids]
+        if fast:
+            raw = self._fast_read(wire.FAST_SYNC_READ, params, reqs, f"fast sync read {name}")
+        else:
+            raw = self._group_read(0x82, params, reqs, f"sync read {name}")
         return {i: it.from_raw(int.from_bytes(raw[i], "little")) for i in ids}
 
     def bulk_read(self, requests: Iterable[tuple[int, str]], *, fast: bool = False) -> dict[int, int]:
@@ -639,41 +662,48 @@ class DynamixelBus(Driver):
         ids = [i for i, _ in reqs]
         if len(set(ids)) != len(ids):
             raise ValueError("bulk read: an ID is listed twice")
-        if fast and self.protocol == 2:
-            return self._sdk_group_read(sdk.GroupBulkRead, ids, reqs, "fast bulk read")
         if self.protocol == 2:
             params = b"".join(bytes([i, it.address & 0xFF, it.address >> 8, it.size & 0xFF, it.size >> 8])
                               for i, it in reqs)
         else:
             params = b"\x00" + b"".join(bytes([it.size, i, it.address]) for i, it in reqs)
-        raw = self._group_read(0x92, params, [(i, it.address, it.size) for i, it in reqs], "bulk read")
+        group = [(i, it.address, it.size) for i, it in reqs]
+        if fast and self.protocol == 2:
+            raw = self._fast_read(wire.FAST_BULK_READ, params, group, "fast bulk read")
+        else:
+            raw = self._group_read(0x92, params, group, "bulk read")
         return {i: it.from_raw(int.from_bytes(raw[i], "little")) for i, it in reqs}
 
-    def _sdk_group_read(self, kind: type, ids: list[int], reqs: list[tuple[int, ct.Item]], what: str
-                        ) -> dict[int, int]:
-        """Fast Sync/Bulk Read through the SDK's group helpers (one combined, CRC-checked packet)."""
-        def run() -> dict[int, int]:
+    def _fast_read(self, instruction: int, params: bytes, reqs: list[tuple[int, int, int]], what: str
+                   ) -> dict[int, bytes]:
+        """A Fast Sync/Bulk Read: one combined status from the broadcast ID, each servo's segment
+        checked (ID, order, its CRC) and its error handled as a read's."""
+        sizes = [n for _, _, n in reqs]
+        n_fast = wire.fast_status_params(sizes)
+        req = wire.Request(2, wire.BROADCAST_ID, instruction, params, expect_params=n_fast)
+
+        def run() -> dict[int, bytes]:
             port = self._live_port()
             self.stats.transactions += 1
+            for i, _, _ in reqs:
+                if i in self._in_flight:
+                    self._resync(port, i, what)
             self._flush(port)
-            if kind is sdk.GroupSyncRead:
-                it0 = reqs[0][1]
-                group = sdk.GroupSyncRead(port, self.packet, it0.address, it0.size)
-                for i in ids:
-                    group.addParam(i)
-                result = group.fastSyncRead()
-            else:
-                group = sdk.GroupBulkRead(port, self.packet)
-                for i, it in reqs:
-                    group.addParam(i, it.address, it.size)
-                result = group.fastBulkRead()
-            self._check_comm(ids[0] if ids else wire.BROADCAST_ID, result, what)
-            out = {}
-            for i, it in reqs:
-                if not group.isAvailable(i, it.address, it.size):
-                    raise LinkCorrupt(f"{what}: no data for ID {i}", device=self.name(i))
-                out[i] = it.from_raw(group.getData(i, it.address, it.size))
-            return out
+            sent = self._send(port, req, what)
+            try:
+                pkt = self._receive(port, req, sent, what, exact=True)
+                segments = wire.split_fast_status(pkt, [(i, n) for i, _, n in reqs])
+            except ValueError as exc:
+                for i, _, _ in reqs:
+                    self._expect_late(i, n_fast)
+                raise LinkCorrupt(f"{what}: {exc}", device=self.port_name) from None
+            except (DeviceTimeout, LinkCorrupt):
+                for i, _, _ in reqs:  # their segments may still come: resync each servo first (and
+                    self._expect_late(i, n_fast)  # let the scanner frame the late status whole)
+                raise
+            for i, (err, _) in segments.items():
+                self._check_status(i, err, f"{what}: ID {i}", fault_ok=True)
+            return {i: data for i, (_, data) in segments.items()}
 
         with self.lock:
             return self._retrying(lambda: self._guarded(what, run))

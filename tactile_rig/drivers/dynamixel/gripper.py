@@ -35,6 +35,11 @@ from tactile_rig.drivers.dynamixel.bus import DynamixelBus
 log = logging.getLogger("tactile_rig.dynamixel.gripper")
 
 STALL_CURRENT_A = ct.STALL_CURRENT_A
+# ``reached`` needs the fingers within the position tolerance AND slower than this (m/s): at full
+# speed (0.21 m/s) a finger crosses the 2 mm tolerance band within one 20 ms poll, so a position
+# check alone reports a move as done while it still overshoots. 2 mm/s is a few velocity units
+# (0.229 rpm each) above the encoder's noise at rest.
+SETTLED_SPEED_MPS = 0.002
 _REBOOT_WAIT_S = 0.1
 
 
@@ -93,6 +98,7 @@ class DynamixelGripper(Driver):
         poll_period_s: float = 0.02,
         default_timeout_s: float = 5.0,
         stall_window: int = 5,
+        settled_speed_mps: float = SETTLED_SPEED_MPS,
     ) -> None:
         if isinstance(port, DynamixelBus):
             self.bus = port
@@ -111,7 +117,9 @@ class DynamixelGripper(Driver):
         self.poll_period_s = poll_period_s
         self.default_timeout_s = default_timeout_s
         self.stall_window = max(2, stall_window)
+        self.settled_speed_mps = check_range("settled_speed_mps", settled_speed_mps, 0.0, 10.0, "m/s")
         self.effort = 0.3
+        self._speed_mps = 0.0
         self._connect()
 
     # -- lifecycle ------------------------------------------------------------------------------
@@ -129,7 +137,7 @@ class DynamixelGripper(Driver):
         if self.protocol == 2:
             self.current_limit_a = self.bus.read(self.id, "Current Limit") * ct.P2_CURRENT_A_PER_UNIT
         else:
-            self.max_torque = self.bus.read(self.id, "Max Torque")
+            self.max_torque = self.bus.read(self.id, "Max Torque", verify=True)  # P1's checksum is weak
             self.current_limit_a = STALL_CURRENT_A * self.max_torque / 1023
         if self.bus.hardware_errors.get(self.id):
             self.lifecycle = Lifecycle.FAULT
@@ -144,7 +152,9 @@ class DynamixelGripper(Driver):
             self.effort = check_range("effort", effort, 0.0, 1.0)
         b, i = self.bus, self.id
         b.write(i, "Torque Enable", 0)
-        present = b.read(i, "Present Position")
+        # torque is off, so the position is still: on P1 (weak checksum) read it twice, as a wrong
+        # value here would be the goal the gripper jumps to
+        present = b.read(i, "Present Position", verify=self.protocol == 1)
         if self.protocol == 2:
             if b.read(i, "Operating Mode") != ct.MODE_CURRENT_POSITION:
                 b.write(i, "Operating Mode", ct.MODE_CURRENT_POSITION)
@@ -223,7 +233,10 @@ class DynamixelGripper(Driver):
         return self.wait(goal, timeout_s)
 
     def wait(self, goal_ticks: int, timeout_s: float | None = None) -> GripperOutcome:
-        """Poll the state until the move to ``goal_ticks`` ends; return how it ended."""
+        """Poll the state until the move to ``goal_ticks`` ends; return how it ended.
+
+        ``reached``: within the position tolerance and moving slower than ``settled_speed_mps``
+        (the servo's Present Velocity / Speed, read in the same transaction as the position)."""
         deadline = Deadline(self.clock, self.default_timeout_s if timeout_s is None else timeout_s)
         cal = self.calibration
         tol_ticks = max(1.0, self.position_tolerance_m / cal.max_opening_m * abs(cal.span_ticks))
@@ -234,7 +247,7 @@ class DynamixelGripper(Driver):
             if hw:
                 self.lifecycle = Lifecycle.FAULT
                 return GripperOutcome.FAULT
-            if abs(ticks - goal_ticks) <= tol_ticks:
+            if abs(ticks - goal_ticks) <= tol_ticks and abs(self._speed_mps) <= self.settled_speed_mps:
                 return GripperOutcome.REACHED
             recent.append(ticks)
             if (len(recent) == recent.maxlen and max(recent) - min(recent) <= tol_ticks / 2
@@ -252,12 +265,17 @@ class DynamixelGripper(Driver):
             raw = self.bus.read_bytes(self.id, base, n, what="read present current/velocity/position")
             current = t.value_in(raw, base, "Present Current") * ct.P2_CURRENT_A_PER_UNIT
             ticks = t.value_in(raw, base, "Present Position")
+            tps = t.value_in(raw, base, "Present Velocity") * ct.P2_RPM_PER_VELOCITY_UNIT * ct.TICKS_PER_REV / 60
         else:
             base, n = t.block("Present Position", "Present Load")
             raw = self.bus.read_bytes(self.id, base, n, what="read present position/speed/load")
             ticks = t.value_in(raw, base, "Present Position")
             load = t.value_in(raw, base, "Present Load")
             current = (-1 if load & 0x400 else 1) * (load & 0x3FF) / 1023 * STALL_CURRENT_A
+            speed = t.value_in(raw, base, "Present Speed")
+            tps = (-1 if speed & 0x400 else 1) * (speed & 0x3FF) * ct.P1_RPM_PER_SPEED_UNIT * ct.TICKS_PER_REV / 60
+        cal = self.calibration
+        self._speed_mps = tps * cal.max_opening_m / abs(cal.span_ticks)  # the speed of this poll, for wait()
         return ticks, current, self.bus.hardware_errors.get(self.id, 0)
 
     def state(self) -> GripperState:

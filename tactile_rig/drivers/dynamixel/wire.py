@@ -22,6 +22,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from tactile_rig.devices.dynamixel.error_codes import P1_COMMAND_MASK
+
 P2_HEADER = b"\xff\xff\xfd"
 P1_HEADER = b"\xff\xff"
 STATUS_INSTRUCTION = 0x55
@@ -37,7 +39,6 @@ MAX_P1_LENGTH = 250  # the SDK's RXPACKET_MAX_LEN
 P1_ERROR_RESERVED_BIT = 0x80
 #: error bits that reject the command (a status that may come without the read's data)
 P2_ERROR_NUMBER_MASK = 0x7F
-P1_COMMAND_MASK = 0x02 | 0x08 | 0x10 | 0x40  # angle limit, range, checksum, instruction
 
 
 def _crc_table() -> list[int]:
@@ -117,9 +118,14 @@ class Request:
     dxl_id: int
     instruction: int
     params: bytes = b""
+    #: the status parameter count when the instruction does not imply it (a Fast Sync/Bulk Read's
+    #: one combined status from the broadcast ID)
+    expect_params: int | None = None
 
     @property
     def expected_params(self) -> int | None:
+        if self.expect_params is not None:
+            return self.expect_params
         if self.dxl_id == BROADCAST_ID:
             return None
         if self.instruction == PING:
@@ -220,7 +226,7 @@ class StatusScanner:
             ev = self._step()
             if ev is None:
                 return out
-            if ev is not True:
+            if not isinstance(ev, bool):
                 out.append(ev)
 
     def _drop(self, n: int) -> None:
@@ -293,9 +299,64 @@ class StatusScanner:
         return StatusPacket(1, raw[2], raw[4], raw[5:-1], raw)
 
 
+FAST_SYNC_READ, FAST_BULK_READ = 0x8A, 0x9A
+
+
+def fast_status_params(sizes: list[int]) -> int:
+    """Parameter count of the combined status of a Fast Sync/Bulk Read of these data sizes:
+    ``[ERR ID DATA CRC]`` per servo, the first ERR in the error byte, the last CRC the packet's."""
+    return sum(n + 4 for n in sizes) - 3
+
+
+def split_fast_status(packet: StatusPacket, expected: list[tuple[int, int]]) -> dict[int, tuple[int, bytes]]:
+    """A Fast Sync/Bulk Read's combined status → {ID: (error, data)}, in the order asked.
+
+    Checks each servo's ID and the cumulative CRC each one appended (the packet's own CRC was
+    checked by the scanner); ``ValueError`` names the first problem."""
+    if packet.dxl_id != BROADCAST_ID:
+        raise ValueError(f"a fast read status comes from ID 0xFE, not {packet.dxl_id}")
+    if len(packet.params) != fast_status_params([n for _, n in expected]):
+        raise ValueError(f"{len(packet.params)} parameter byte(s), expected "
+                         f"{fast_status_params([n for _, n in expected])}")
+    raw = packet.raw
+    body = raw[8:-2]  # ERR1 ID1 DATA1 CRC1 ... ERRk IDk DATAk
+    out: dict[int, tuple[int, bytes]] = {}
+    pos = 0
+    for k, (dxl_id, n) in enumerate(expected):
+        err, sid = body[pos], body[pos + 1]
+        if sid != dxl_id:
+            raise ValueError(f"segment {k} is from ID {sid}, expected ID {dxl_id}")
+        data = body[pos + 2:pos + 2 + n]
+        end = 8 + pos + 2 + n
+        if k < len(expected) - 1 and crc16(raw[:end]) != (raw[end] | raw[end + 1] << 8):
+            raise ValueError(f"segment {k} (ID {dxl_id}) fails its CRC")
+        out[dxl_id] = (err, bytes(data))
+        pos += n + 4
+    return out
+
+
 def parse_status(protocol: int, data: bytes) -> list[StatusPacket | Corrupt | Foreign]:
     """Every event in ``data`` (a complete byte string), as :class:`StatusScanner` finds them."""
     return StatusScanner(protocol).feed(data)
+
+
+def stuff(payload: bytes) -> bytes:
+    """Protocol 2.0 byte stuffing of instruction + parameters (``FF FF FD`` → ``FF FF FD FD``)."""
+    out = bytearray()
+    for b in payload:
+        out.append(b)
+        if b == 0xFD and out[-3:-1] == b"\xff\xff" and len(out) >= 3:
+            out.append(0xFD)
+    return bytes(out)
+
+
+def encode_instruction_p2(dxl_id: int, instruction: int, params: bytes) -> bytes:
+    """A Protocol 2.0 instruction packet, stuffed (for payloads the SDK 4.1.0 does not stuff)."""
+    body = stuff(bytes([instruction]) + bytes(params))
+    length = len(body) + 2
+    pkt = P2_HEADER + bytes([0, dxl_id, length & 0xFF, length >> 8]) + body
+    crc = crc16(pkt)
+    return pkt + bytes([crc & 0xFF, crc >> 8])
 
 
 def encode_status(protocol: int, dxl_id: int, error: int, params: bytes) -> bytes:

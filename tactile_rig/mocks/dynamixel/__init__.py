@@ -15,7 +15,7 @@ boot_ms             time a servo is deaf after Reboot / Factory Reset (default 5
 fingers             name of the ``fingers`` model in the scene that the first ID drives
                     (default ``fingers``; without a scene or that model, a default plant)
 object_width_mm     width of an object between the fingers of the default plant (none by default)
-object_stiffness_npm  its stiffness (default 5000 N/m)
+object_stiffness_npm  its stiffness (default 100 000 N/m: a rigid part between rubber pads)
 position            initial shaft position in ticks of the default plant (default mid-range)
 ==================  ========================================================================
 """
@@ -27,7 +27,7 @@ from typing import Any
 from tactile_rig.mocks.dynamixel.device import DynamixelBusDevice, nominal_baud
 from tactile_rig.mocks.dynamixel.firmware import Servo
 from tactile_rig.mocks.registry import Params, register_kind
-from tactile_rig.sim.world.fingers import Fingers
+from tactile_rig.sim.world.fingers import OBJECT_STIFFNESS_NPM, Fingers
 
 __all__ = ["DynamixelBusDevice", "Servo", "make_bus"]
 
@@ -72,7 +72,7 @@ def _factory(params: Params, *, clock: Any, world: Any = None) -> DynamixelBusDe
     t0 = clock.now_s()
     fingers_name = params.text("fingers", "fingers")
     width_mm = params.number("object_width_mm")
-    stiffness = params.number("object_stiffness_npm", 5000.0)
+    stiffness = params.number("object_stiffness_npm", OBJECT_STIFFNESS_NPM)
     position = params.integer("position")
     plant = world.get(fingers_name) if world is not None else None
     if plant is not None and not isinstance(plant, Fingers):

@@ -215,6 +215,7 @@ def refine_centroids(
     rel_threshold: float = 0.5,
     iterations: int = 2,
     disc_margin_px: float | None = 1.0,
+    max_radius_px: np.ndarray | float | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Sub-pixel centroids by thresholded moments of the contrast in a window around each centre.
 
@@ -223,7 +224,12 @@ def refine_centroids(
     and silences the texture around it. The size is the diameter of the disc whose area equals the
     peak-normalised contrast mass above a quarter of the peak. After the first pass only a disc of
     the half-maximum radius + ``disc_margin_px`` around the last centroid counts (None: the whole
-    window). A window with no contrast keeps its centre and reports peak 0.
+    window), at most ``max_radius_px`` (per centre or one value: the tracker passes the marker's known
+    radius plus a margin, so print next to a marker cannot widen the disc). A window with no contrast
+    keeps its centre and reports peak 0.
+
+    Valid input: a float contrast map (H x W, >= 1 x 1) and any centres (non-finite ones are read
+    as 0 and clipped into the frame); outputs are finite, positions inside the window around each centre.
     """
     centres = np.asarray(centres_xy, dtype=np.float64).reshape(-1, 2)
     n = centres.shape[0]
@@ -259,6 +265,8 @@ def refine_centroids(
         if disc_margin_px is not None:
             half_max_r = np.sqrt(np.count_nonzero(wt > 0, axis=(1, 2)) / np.pi)
             radius = half_max_r + disc_margin_px
+            if max_radius_px is not None:
+                radius = np.minimum(radius, max_radius_px)
     return pos, np.where(peak > 0, size, 0.0), peak
 
 
@@ -287,7 +295,10 @@ def _blob_detector(p: MarkerDetectorParams) -> cv2.SimpleBlobDetector:
 def detect_markers(
     frame_bgr: np.ndarray, params: MarkerDetectorParams = MarkerDetectorParams()
 ) -> Detections:
-    """Find markers in one frame (full-frame SimpleBlobDetector chain + darkness filter + sub-pixel)."""
+    """Find markers in one frame (full-frame SimpleBlobDetector chain + darkness filter + sub-pixel).
+
+    Valid input: see :func:`check_frame_bgr` (any size from 1 x 1); flat, black or saturated frames give
+    no detections. Raises :class:`InvalidFrame` outside it."""
     value, bg, contrast = contrast_map(frame_bgr, params)
     return detect_in_contrast(value, bg, contrast, params)
 
@@ -376,6 +387,8 @@ def build_baseline(
     the median position and ``size_max_px`` of the median size are inliers (the reference's
     DistMaxCalib / DSMaxCalib, made robust to one bad frame); the rest position and size are the
     inlier means, and the marker is valid when inliers make up at least ``min_fraction`` of the frames.
+    Valid input: at least one frame's detections (a frame may have none; no detections at all give an
+    empty baseline).
     """
     if not detections:
         raise ValueError("build_baseline: expected at least one frame of detections, got none")

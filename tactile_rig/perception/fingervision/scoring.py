@@ -142,7 +142,7 @@ def score_sequence(
         tid = np.asarray(tid).reshape(-1)
         if len(np.unique(pid)) != len(pid):
             raise ValueError(f"score_sequence: frame {k} repeats a predicted id")
-        r = radius_px if np.isscalar(radius_px) else radius_px[k]  # type: ignore[index]
+        r: float | np.ndarray = float(radius_px) if isinstance(radius_px, (int, float)) else np.asarray(radius_px[k])
         u = None if unsure is None else unsure[k]
         s = match_frame(ppx, tpx, r, u, dont_care_px, dont_care_radius_px)
         ignore = np.zeros(len(tid), bool) if u is None else np.asarray(u, dtype=bool).reshape(-1)

@@ -26,10 +26,10 @@
     baud = 115200
     x_limits_mm = [-20.0, 20.0]
     y_limits_mm = [-20.0, 20.0]
-    theta_limits_deg = [-90.0, 90.0]
+    theta_limits_deg = [-180.0, 180.0]
 
     [camera]                       # any table named camera or camera_<name>
-    port = "/dev/video0"           # or "run.mcap#/camera/left/image": a recording as the camera
+    port = "/dev/video0"           # or "run.mcap#/camera_left/image": a recording as the camera
     sensor = "gelsight"            # gelsight | fingervision
     mm_per_px_x = 0.0634
     mm_per_px_y = 0.0634

@@ -9,13 +9,13 @@ The loader (:mod:`.load`) finds it by ``kind`` and types each TOML value from th
 from __future__ import annotations
 
 import difflib
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, ClassVar
 
-from tactile_rig.core.errors import CalibrationError
+from tactile_rig.core.errors import CalibrationError, LimitError
+from tactile_rig.core.files import load_json
 from tactile_rig.drivers.camera import FingertipCamera
 from tactile_rig.drivers.dynamixel.gripper import DynamixelGripper, GripperCalibration
 from tactile_rig.drivers.jig import Jig
@@ -139,9 +139,9 @@ class GripperConfig(DeviceConfig):
         cal = None
         if self.calibration is not None:
             try:
-                d = json.loads(self.calibration.read_text(encoding="utf-8"))
+                d = load_json(self.calibration, "gripper calibration", expect=None)
                 cal = GripperCalibration.from_dict(d.get("calibration", d) if isinstance(d, dict) else d)
-            except (OSError, ValueError, TypeError, KeyError, AttributeError) as exc:
+            except (OSError, ValueError, TypeError, KeyError, AttributeError, RecursionError) as exc:
                 raise CalibrationError(f"gripper calibration {self.calibration} is unreadable: {exc}; re-make it "
                                        f"with: {self.calibration_command}", device=self.name) from None
         return DynamixelGripper(self.port, dxl_id=self.ids[0], protocol=self.protocol, baudrate=self.baud,
@@ -172,13 +172,17 @@ class ScaleConfig(DeviceConfig):
 
 @dataclass
 class JigConfig(DeviceConfig):
-    """GRBL x-y-θ jig with its travel limits (mm, deg) and speed cap."""
+    """GRBL x-y-θ jig with its travel limits (mm, deg) and speed cap.
+
+    The defaults are the project's jig (GRBL settings of :mod:`tactile_rig.mocks.grbl`): ±20 mm in
+    x and y, θ ±180° (a full turn of the stage). Every move the CLI or a session makes is checked
+    against these limits before anything is sent (:meth:`check_target`)."""
 
     baud: int = 115200
     x_limits_mm: tuple[float, float] = (-20.0, 20.0)
     y_limits_mm: tuple[float, float] = (-20.0, 20.0)
     z_limits_mm: tuple[float, float] = (0.0, 10.0)
-    theta_limits_deg: tuple[float, float] = (-90.0, 90.0)
+    theta_limits_deg: tuple[float, float] = (-180.0, 180.0)
     max_speed_mmps: float = 10.0
 
     kind: ClassVar[str] = "jig"
@@ -195,6 +199,19 @@ class JigConfig(DeviceConfig):
             problem("theta_limits_deg", f"= [{lo}, {hi}] must lie within [-360, 360] deg")
         if not (math.isfinite(self.max_speed_mmps) and self.max_speed_mmps > 0):
             problem("max_speed_mmps", f"= {self.max_speed_mmps} must be a finite speed > 0 mm/s")
+
+    def check_target(self, *, x_mm: float | None = None, y_mm: float | None = None,
+                     theta_deg: float | None = None, source: str = "the bench") -> None:
+        """Raise LimitError naming the axis, the value and the limit when a target lies outside the
+        limits (None: that axis does not move). Called before any motion."""
+        for axis, value, key, unit in (("x", x_mm, "x_limits_mm", "mm"), ("y", y_mm, "y_limits_mm", "mm"),
+                                       ("theta", theta_deg, "theta_limits_deg", "deg")):
+            if value is None:
+                continue
+            lo, hi = getattr(self, key)
+            if not (math.isfinite(value) and lo <= value <= hi):
+                raise LimitError(f"{axis} = {value:g} {unit} is outside [{self.name}] {key} = [{lo:g}, {hi:g}] "
+                                 f"{unit} of {source}; nothing was moved", device=self.name)
 
     def connect(self, ctx: ConnectContext) -> Any:
         return Jig(self.port, baudrate=self.baud, x_range_mm=self.x_limits_mm, y_range_mm=self.y_limits_mm,

@@ -15,7 +15,8 @@ from typing import Any, Mapping
 
 import tomllib
 
-from tactile_rig.core.errors import BenchError
+from tactile_rig.core.errors import BadFile, BenchError
+from tactile_rig.core.files import MAX_JSON_DEPTH, check_file, toml_depth
 from tactile_rig.core.jsonable import to_jsonable
 from tactile_rig.rig.bench.devices import DEVICE_CLASSES, CameraConfig, DeviceConfig
 from tactile_rig.rig.bench.toml_lines import line_index
@@ -84,6 +85,9 @@ class _Sources:
         return f" (from ${var})" if var else ""
 
 
+MAX_BENCH_BYTES = 1 << 20  # a bench file is a page of tables; 1 MiB is far beyond any real one
+
+
 def load_bench(
     path: str | Path | None = None,
     *,
@@ -102,16 +106,23 @@ def load_bench(
         if path is None:
             raise ValueError("load_bench needs a path or text")
         p = Path(path)
-        if not p.is_file():
+        if not p.exists():
             raise BenchError(str(p), [(None, f"bench file {str(p)!r} does not exist "
                                        f"(use --mock for the built-in bench of mocks, or write one: "
                                        f"see {mock_bench_path()})")])
         try:
+            check_file(p, "bench file", max_bytes=MAX_BENCH_BYTES, allow_empty=True)
             text = p.read_text(encoding="utf-8")
+        except BadFile as exc:
+            raise BenchError(str(p), [(None, f"{exc.problem}; expected {exc.expected}")]) from None
         except (OSError, UnicodeDecodeError) as exc:
             raise BenchError(str(p), [(None, f"cannot be read as UTF-8 text ({exc}); expected a TOML file")]) from None
     source = str(path) if path is not None else "<bench>"
     base = Path(path).resolve().parent if path is not None else Path.cwd()
+    depth = toml_depth(text)
+    if depth > MAX_JSON_DEPTH:
+        raise BenchError(source, [(None, f"nests {depth} levels deep; expected at most {MAX_JSON_DEPTH} "
+                                         "(a bench file is flat tables of keys)")])
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -162,6 +173,10 @@ def _read_head(bench: Bench, head: dict[str, Any], base: Path, src: _Sources,
     bench.name = str(head.get("name", bench.name))
     bench.scene = head.get("scene") if isinstance(head.get("scene"), str) else None
     bench.seed = head.get("seed", 0) if isinstance(head.get("seed"), int) else 0
+    if _is_int(head.get("seed")) and not 0 <= head["seed"] < 2**63:
+        problems.append((src.line("bench", "seed"), f"[bench] seed = {head['seed']}{src.origin('bench', 'seed')} "
+                         f"must be in 0 .. 2**63 - 1 (a NumPy seed)"))
+        bench.seed = 0
     if isinstance(head.get("force_map"), str):
         fm = _resolve(base, head["force_map"])
         bench.force_map = fm
@@ -324,8 +339,10 @@ def _model_exists(p: Path) -> bool:
 
 def _parse_env_value(raw: str) -> Any:
     try:
+        if toml_depth(raw) > MAX_JSON_DEPTH:
+            return raw  # reported by the key's type check, naming the variable
         return tomllib.loads(f"v = {raw}")["v"]
-    except tomllib.TOMLDecodeError:
+    except (tomllib.TOMLDecodeError, RecursionError):
         return raw
 
 

@@ -40,6 +40,7 @@ class DeviceJigRig:
         self.description = dict(description or {"kind": "mock" if world is not None else "bench"})
         self.recorder = recorder
         self.camera_name = camera_name
+        self._primed = False
         self._settled_at_s: float | None = None  # when the last move had settled (the clock's time)
 
     def now_s(self) -> float:
@@ -85,6 +86,27 @@ class DeviceJigRig:
 
     def describe(self) -> dict[str, Any]:
         return dict(self.description)
+
+    def begin_step(self, step: int) -> None:
+        """Mocks: reseed every noise source (the world's models, the simulated camera) from
+        ``(world seed, step, source)``: step 0 is the map, step i + 1 point i. The noise a point
+        sees then depends on nothing before it, so a run interrupted and resumed at any point gives
+        the same results as one that ran straight through. A bench has no noise to seed."""
+        if self.world is None:
+            return
+        if not self._primed:
+            # The camera driver drops its warm-up frames at the first read after opening: let that
+            # happen before any step's noise is seeded, whichever step an attempt starts at.
+            self.camera.read(timeout_s=self.frame_timeout_s)
+            self._primed = True
+        seed = int(getattr(self.world, "seed", 0))
+        sources: list[tuple[str, Any]] = [(name, self.world.get(name)) for name in self.world]
+        sources.append(("camera", getattr(self.camera, "source", None)))
+        for k, (name, obj) in enumerate(sources):
+            reseed = getattr(obj, "reseed", None)
+            if callable(reseed):
+                key = int.from_bytes(name.encode()[:8].ljust(8, b"\0"), "little")
+                reseed(np.random.default_rng(np.random.SeedSequence([seed, int(step), key])))
 
 
 def sim_camera_connector(sensor_model: str) -> Callable[[Any, Any], Any]:

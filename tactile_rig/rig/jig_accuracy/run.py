@@ -12,6 +12,7 @@ from typing import Any, Callable
 import numpy as np
 
 from tactile_rig.core.errors import CalibrationError
+from tactile_rig.core.files import load_json
 from tactile_rig.core.geometry import Pose
 from tactile_rig.rig.jig_accuracy.localizer import (
     JigRig,
@@ -38,6 +39,12 @@ class RunOutcome:
 PointCallback = Callable[[PointResult, int, int], None]
 
 
+def _begin_step(rig: JigRig, step: int) -> None:
+    begin = getattr(rig, "begin_step", None)  # optional (JigRig): mocks reseed their noise per step
+    if callable(begin):
+        begin(step)
+
+
 def build_map(rig: JigRig, localizer: TouchLocalizer, cfg: JigAccuracyConfig) -> list[dict[str, Any]]:
     """Touch the object at the configured jig positions and grow the tactile map (Li 2014: c > 0.98).
 
@@ -45,6 +52,7 @@ def build_map(rig: JigRig, localizer: TouchLocalizer, cfg: JigAccuracyConfig) ->
     Raises :class:`CalibrationError` when the first touch shows no contact texture.
     """
     rows: list[dict[str, Any]] = []
+    _begin_step(rig, 0)
     for i, (x, y) in enumerate(cfg.map_touches_mm):
         pose = Pose(float(x), float(y), theta_deg=0.0)
         rig.move_to(pose)
@@ -68,6 +76,7 @@ def measure_point(rig: JigRig, localizer: TouchLocalizer, point: JigPoint, retou
     to ``retouches`` times; the localization with the highest confidence is kept.
     """
     t_wall = time.perf_counter()
+    _begin_step(rig, point.index + 1)
     rig.move_to(point.pose)
     truth = rig.truth(point.pose)
     loc = TouchLocalization(None, 0.0, "none", "not touched")
@@ -103,7 +112,7 @@ def run_jig_accuracy(rig: JigRig, localizer: TouchLocalizer, cfg: JigAccuracyCon
     if by_index and map_path.exists():
         localizer.load_map(map_path)
         if (store.out / "map.json").exists():
-            map_rows = json.loads((store.out / "map.json").read_text(encoding="utf-8"))
+            map_rows = load_json(store.out / "map.json", "map report", expect=list)
     else:
         map_rows = build_map(rig, localizer, cfg)
         localizer.save_map(map_path)

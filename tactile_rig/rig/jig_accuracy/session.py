@@ -4,11 +4,11 @@ missing), the devices, the MCAP recording, the run and its report."""
 from __future__ import annotations
 
 import hashlib
+import os
 from pathlib import Path
 from typing import Any
 
-from tactile_rig.core.errors import CalibrationError
-from tactile_rig.perception.gelsight.calibration import GelSightCalibration
+from tactile_rig.core.errors import BadFile, CalibrationError
 from tactile_rig.rig.calibration_sessions import BallPressPlan, gelsight_session
 from tactile_rig.rig.jig_accuracy.devices import (
     MOCK_PRESS_SCENE,
@@ -25,6 +25,7 @@ from tactile_rig.rig.jig_accuracy.results import PointResult
 from tactile_rig.rig.jig_accuracy.run import PointCallback, RunOutcome, run_jig_accuracy
 from tactile_rig.rig.jig_accuracy.store import RunStore
 from tactile_rig.rig.live import Tee
+from tactile_rig.rig.loaders import load_gelsight_calibration
 from tactile_rig.rig.recording import Recorder, iter_messages
 
 
@@ -44,24 +45,62 @@ class RunRecorder:
         self.recorder.flush()  # the point is in points.jsonl: make it readable in the MCAP too
 
 
-def open_run_recording(out_dir: Path, clock: Any, *, resume: bool) -> Any:
-    """``OUT/run.mcap`` (None without the ``mcap`` package). On a resumed run the messages of the
-    interrupted attempt (readable up to its last flush) are copied into the new file first."""
+def kept_messages(messages: list[Any], finished: int) -> list[Any]:
+    """The messages of an interrupted attempt that a resumed run keeps: everything up to the
+    ``finished``-th ``jig_accuracy_point`` message (the points in ``points.jsonl``); what came after
+    belongs to the point that was cut short, which the resumed run measures again from the start."""
+    if finished <= 0:
+        return []  # no point finished: the resumed run builds the map again, and records it again
+    seen = 0
+    for i, m in enumerate(messages):
+        if m.topic == "/perception/jig_accuracy_point":
+            seen += 1
+            if seen == finished:
+                return messages[: i + 1]
+    return list(messages)  # fewer point messages than points: keep all (a flush was lost, not data)
+
+
+def open_run_recording(out_dir: Path, clock: Any, *, resume: bool, finished: int = 0,
+                       points: list[PointResult] | None = None) -> Any:
+    """``OUT/run.mcap`` (None without the ``mcap`` package).
+
+    A fresh run writes ``run.mcap.partial`` and renames it to ``run.mcap`` at once. A resumed run
+    never truncates ``run.mcap``: it writes the kept messages of the interrupted attempt (see
+    :func:`kept_messages`) into ``run.mcap.partial``, syncs it, and only then renames it over
+    ``run.mcap`` (atomic), so a kill at any moment leaves either the old recording whole or the new
+    one holding all of it. An old recording that fails its checks is moved aside to
+    ``run.damaged-N.mcap``, never deleted. ``points`` (the finished points of ``points.jsonl``): a
+    point whose message the old recording lacks (killed between the two writes) is written from it."""
     try:
         import mcap  # noqa: F401
     except ModuleNotFoundError:
         return None
     path = out_dir / "run.mcap"
+    tmp = out_dir / "run.mcap.partial"
     old: list[Any] = []
+    if points is not None:
+        finished = len(points)
     if resume and path.exists():
         try:
-            old = list(iter_messages(path))
-        except Exception:  # noqa: BLE001 - an unreadable old recording is replaced, not fatal
+            old = kept_messages(list(iter_messages(path)), finished)
+        except BadFile:
+            n = 1
+            while (out_dir / f"run.damaged-{n}.mcap").exists():
+                n += 1
+            os.replace(path, out_dir / f"run.damaged-{n}.mcap")
             old = []
-    rec = Recorder(path, clock=clock, background_flush=False)
-    for m in old:
-        rec.write(m.topic, m.data, t_s=m.t_s, schema=m.schema)
-    rec.flush()
+    rec = Recorder(tmp, clock=clock, background_flush=False)
+    try:
+        for m in old:
+            rec.write(m.topic, m.data, t_s=m.t_s, schema=m.schema)
+        recorded = {m.data.get("index") for m in old if m.topic == "/perception/jig_accuracy_point"}
+        for r in sorted(points or [], key=lambda r: r.index):
+            if r.index not in recorded:
+                rec.write_perception("jig_accuracy_point", r.to_json(), t_s=r.t_s)
+        rec.replace(path)
+    except BaseException:
+        rec.close()
+        raise
     return rec
 
 
@@ -129,7 +168,7 @@ def execute_jig_accuracy(cfg: JigAccuracyConfig, out_dir: str | Path, *, bench: 
                                    device="jig_accuracy")
     if cal_path is None:
         cal_path = mock_gelsight_calibration(out / "calibration" / "gelsight", seed=cfg.seed, guide=guide)
-    cal = GelSightCalibration.load(cal_path)
+    cal = load_gelsight_calibration(cal_path)
     cal_id = {"path": str(Path(cal_path).resolve().with_suffix(".json")), "sha256": calibration_digest(cal_path)}
     previous = store.read_points() if store.read_meta() is not None else []
     start_s = (max(r.t_s for r in previous) + 1.0) if previous else 0.0
@@ -147,7 +186,8 @@ def execute_jig_accuracy(cfg: JigAccuracyConfig, out_dir: str | Path, *, bench: 
     try:
         prepare_jig(rig_handle.jig)
         if record:
-            recorder = open_run_recording(out, rig_handle.clock, resume=bool(previous))
+            recorder = open_run_recording(out, rig_handle.clock, resume=bool(previous),
+                                          points=previous)
             if recorder is not None:
                 recorder.add_bench(rig_handle.bench)
                 recorder.add_calibration("gelsight", path=cal_path)

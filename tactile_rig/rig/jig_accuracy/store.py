@@ -10,6 +10,7 @@ from typing import Any
 
 from tactile_rig.core.clock import utc_now
 from tactile_rig.core.errors import RunConflict
+from tactile_rig.core.files import load_json
 from tactile_rig.rig.jig_accuracy.plan import JigAccuracyConfig, plan_points
 from tactile_rig.rig.jig_accuracy.results import PointResult
 
@@ -29,9 +30,10 @@ class RunStore:
         if not self.run_path.exists():
             return None
         try:
-            return json.loads(self.run_path.read_text(encoding="utf-8"))
-        except (OSError, json.JSONDecodeError) as exc:
+            meta = load_json(self.run_path, "run state")
+        except (OSError, ValueError) as exc:
             raise RunConflict(f"{self.run_path} is unreadable ({exc}); use another --out or --overwrite") from None
+        return meta
 
     def write_meta(self, meta: dict[str, Any]) -> None:
         self.out.mkdir(parents=True, exist_ok=True)
@@ -51,7 +53,7 @@ class RunStore:
                 break
             try:
                 good.append(PointResult.from_json(json.loads(line)))
-            except (ValueError, KeyError, TypeError):
+            except (ValueError, KeyError, TypeError, AttributeError, RecursionError):
                 break
             keep += len(line)
         if keep != len(raw):

@@ -6,6 +6,12 @@
     process because they share one world (on a real bench the object on the stage is what the
     fingertip camera sees).
 
+``python -m tactile_rig.rig.rehearsal.child press [--scene S] [--seed N] [--fps F]``
+    The gripper pressing its FingerVision fingertip on the scale: the MX-64 mock and the scale's
+    mock each on a pty, and the fingertip camera rendering the skin as MJPEG over HTTP, on one world
+    (the ``force_map_press`` scene): the servo's squeeze loads the cell and deforms the skin, which
+    is what a force-map collection needs.
+
 ``python -m tactile_rig.rig.rehearsal.child camera --source FILE[#TOPIC] [--name NAME]``
     A camera playing recorded footage (:mod:`.frames`) at its recorded rate, as MJPEG over HTTP.
 
@@ -31,6 +37,7 @@ from tactile_rig.rig.rehearsal.frames import load_footage
 from tactile_rig.sim.scenes import load_scene
 
 STAGE_SCENE = "jig_accuracy"
+PRESS_SCENE = "force_map_press"
 GELSIGHT_FORMAT = ("MJPG", 320, 240)  # GelSight Mini's 320x240 mode, the mock bench's camera
 
 
@@ -76,6 +83,27 @@ def serve_stage(args: argparse.Namespace) -> int:
                                          f"camera failed: {cams.error}" if cams.error else None))
 
 
+def serve_press(args: argparse.Namespace) -> int:
+    """Gripper and scale on ptys, the FingerVision camera over HTTP, on one world (see the module doc)."""
+    clock = RealClock()
+    world = load_scene(args.scene, clock=clock, seed=args.seed).world
+    grip = create_device("dynamixel", Params({"protocol": "2", "ids": "1", "baud": "57600"}, source="rehearsal press"),
+                         clock=clock, world=world)
+    scale = create_device("scale", Params({"rate": str(args.rate), "seed": str(args.seed)}, source="rehearsal press"),
+                          clock=clock, world=world)
+    fourcc, width, height = GELSIGHT_FORMAT  # the FingerVision renderer's 320x240 too
+    cam = SimulatedCamera(world.require("fingervision", "the rehearsal's FingerVision camera"), clock=clock,
+                          name="fingervision", fourcc=fourcc, width=width, height=height, fps=args.fps,
+                          modes={GELSIGHT_FORMAT: args.fps}, seed=args.seed)
+    with PtyServer(grip, clock=clock, name="gripper") as g, PtyServer(scale, clock=clock, name="scale") as sc, \
+            CameraServer(cam) as cams:
+        _emit({"device": "press", "gripper": {"port": g.port, "baud": 57600}, "scale": {"port": sc.port, "baud": 57600},
+               "scene": args.scene, "camera": {"url": cams.url, "sensor": "fingervision", "fourcc": fourcc,
+                                               "width": width, "height": height, "fps": args.fps}})
+        return _wait_for_signal(lambda: next((f"{n} failed: {e}" for n, e in (("gripper", g.error),
+                                              ("scale", sc.error), ("camera", cams.error)) if e), None))
+
+
 def serve_camera(args: argparse.Namespace) -> int:
     """Recorded footage as a camera over HTTP."""
     footage = load_footage(args.source)
@@ -100,6 +128,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     st.add_argument("--fps", type=float, default=25.0)
     st.add_argument("--jpeg-quality", type=int, default=95)
     st.set_defaults(func=serve_stage)
+    pr = sub.add_parser("press")
+    pr.add_argument("--scene", default=PRESS_SCENE)
+    pr.add_argument("--seed", type=int, default=0)
+    pr.add_argument("--fps", type=float, default=25.0)
+    pr.add_argument("--rate", type=int, default=80, help="scale samples per second (10 or 80)")
+    pr.set_defaults(func=serve_press)
     cam = sub.add_parser("camera")
     cam.add_argument("--source", required=True)
     cam.add_argument("--name", default="camera")

@@ -22,6 +22,7 @@ import math
 import cv2
 import numpy as np
 
+from tactile_rig.core.files import read_image
 from tactile_rig.rig.recording import read_recording
 from tactile_rig.sim.render.fingervision import FingerVisionRenderer, contact_shear_field
 
@@ -112,10 +113,7 @@ def _from_folder(folder: Path, source: str) -> Footage:
     files = sorted(p for p in folder.iterdir() if p.suffix.lower() in _IMAGE_EXT)[:MAX_FRAMES]
     frames = []
     for f in files:
-        img = cv2.imread(str(f), cv2.IMREAD_COLOR)
-        if img is None:
-            raise ValueError(f"camera footage {f}: OpenCV cannot decode it")
-        frames.append(img)
+        frames.append(read_image(f, "camera footage frame"))
     if not frames:
         raise ValueError(f"camera footage folder {folder} holds no images ({', '.join(_IMAGE_EXT)})")
     if len({f.shape for f in frames}) != 1:
@@ -131,7 +129,7 @@ def write_fingervision_footage(path: str | Path, *, seconds: float = 8.0, fps: f
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     renderer = FingerVisionRenderer((240, 320), seed=seed)
-    writer = cv2.VideoWriter(str(out), cv2.VideoWriter_fourcc(*"MJPG"), float(fps), (320, 240))
+    writer = cv2.VideoWriter(str(out), cv2.VideoWriter.fourcc(*"MJPG"), float(fps), (320, 240))
     if not writer.isOpened():
         raise OSError(f"OpenCV cannot write an MJPG video to {out}")
     try:

@@ -9,11 +9,26 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Sequence
 
 from tactile_rig.core.errors import NotConnected
 
 START_TIMEOUT_S = 60.0  # a cold start imports numpy, OpenCV and the scene under a loaded machine
+
+# Runs a module as ``python -m`` would, after asking Linux to send it SIGTERM when the process that
+# started it dies (prctl PR_SET_PDEATHSIG), so a rehearsal killed outright (SIGKILL, a test timeout)
+# leaves no device behind. Best effort: elsewhere the module just runs.
+_LAUNCHER = (
+    "import ctypes, runpy, signal, sys\n"
+    "try:\n"
+    "    ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)\n"
+    "except (OSError, AttributeError):\n"
+    "    pass\n"
+    "module = sys.argv[1]\n"
+    "sys.argv = [module] + sys.argv[2:]\n"
+    "runpy.run_module(module, run_name='__main__', alter_sys=True)\n"
+)
 
 
 @dataclass
@@ -24,15 +39,27 @@ class DeviceProcess:
     argv: list[str]
     proc: subprocess.Popen | None = None
     info: dict[str, Any] = field(default_factory=dict)
+    log_path: Path | None = None  # the process's stderr (a pipe nobody reads would fill and stall it)
 
-    def start(self) -> "DeviceProcess":
-        """Launch the process (does not wait for it: see :meth:`wait_ready`)."""
+    def start(self, log_dir: str | Path | None = None) -> "DeviceProcess":
+        """Launch the process (does not wait for it: see :meth:`wait_ready`); its stderr goes to
+        ``log_dir/<name>.log`` (default: discarded)."""
         env = dict(os.environ)
         # The child must import the same tactile_rig as this process (a worktree run with PYTHONPATH).
         here = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
         env["PYTHONPATH"] = os.pathsep.join([here, *filter(None, [env.get("PYTHONPATH")])])
-        self.proc = subprocess.Popen([sys.executable, *self.argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                     stdin=subprocess.DEVNULL, env=env)
+        if log_dir is not None:
+            Path(log_dir).mkdir(parents=True, exist_ok=True)
+            self.log_path = Path(log_dir) / f"{self.name}.log"
+            err: Any = open(self.log_path, "wb")
+        else:
+            err = subprocess.DEVNULL
+        try:
+            self.proc = subprocess.Popen([sys.executable, *self.argv], stdout=subprocess.PIPE, stderr=err,
+                                         stdin=subprocess.DEVNULL, env=env)
+        finally:
+            if err is not subprocess.DEVNULL:
+                err.close()  # the child holds its own descriptor
         return self
 
     def wait_ready(self, timeout_s: float = START_TIMEOUT_S) -> dict[str, Any]:
@@ -62,11 +89,11 @@ class DeviceProcess:
         return self.info
 
     def _stderr_tail(self) -> str:
-        if self.proc is None or self.proc.stderr is None or self.proc.poll() is None:
+        if self.log_path is None or not self.log_path.is_file():
             return ""
         try:
-            return self.proc.stderr.read().decode(errors="replace").strip()[-500:]
-        except (OSError, ValueError):
+            return self.log_path.read_bytes().decode(errors="replace").strip()[-500:]
+        except OSError:
             return ""
 
     @property
@@ -89,15 +116,15 @@ class DeviceProcess:
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait(timeout_s)
-        for stream in (p.stdout, p.stderr):
-            if stream is not None:
-                stream.close()
+        if p.stdout is not None:
+            p.stdout.close()
 
 
 def mock_serve_argv(kind: str, options: Sequence[str]) -> list[str]:
     """``tactile-rig mock serve KIND OPTIONS`` as a module run (the same interpreter and package)."""
-    return ["-m", "tactile_rig.cli", "mock", "serve", kind, *options]
+    return ["-c", _LAUNCHER, "tactile_rig.cli", "mock", "serve", kind, *options]
 
 
 def child_argv(what: str, options: Sequence[str]) -> list[str]:
-    return ["-m", "tactile_rig.rig.rehearsal.child", what, *options]
+    """One of the rehearsal's own device processes (:mod:`tactile_rig.rig.rehearsal.child`)."""
+    return ["-c", _LAUNCHER, "tactile_rig.rig.rehearsal.child", what, *options]

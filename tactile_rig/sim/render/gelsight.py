@@ -165,6 +165,10 @@ class SensorNoise:
         else:
             self._field = rng.standard_normal(big, dtype=np.float32) * np.asarray(sigma, dtype=np.float32)
 
+    def reseed(self, rng: np.random.Generator) -> None:
+        """Draw the crops from ``rng`` from now on (the field itself stays: it depends on the seed only)."""
+        self._rng = rng
+
     def sample(self) -> np.ndarray:
         """A (read-only) noise frame of ``shape``: rows are contiguous, so OpenCV takes it without a copy."""
         dy, dx = (int(v) for v in self._rng.integers(0, self.MARGIN_PX + 1, size=2))
@@ -211,6 +215,13 @@ class GelSightRenderer:
         self._rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
         rows, cols = self.shape_px
         self._noise = SensorNoise((rows, cols, 3), sig, self._rng) if sig.max() > 0 else None
+
+    def reseed(self, rng: np.random.Generator) -> None:
+        """Draw the per-frame noise (crops and flicker) from ``rng`` from now on, so a run that reseeds
+        per step renders each step the same whatever came before it (a resumed run)."""
+        self._rng = rng
+        if self._noise is not None:
+            self._noise.reseed(rng)
 
     @property
     def shape_px(self) -> tuple[int, int]:
@@ -492,6 +503,10 @@ class GelSightRendererModel:
 
     def advance_to(self, t_s: float) -> None:
         self.t_s = max(self.t_s, float(t_s))
+
+    def reseed(self, rng: np.random.Generator) -> None:
+        """The renderer's per-frame noise from ``rng`` from now on (:meth:`GelSightRenderer.reseed`)."""
+        self.renderer.reseed(rng)
 
     def contact_state(self) -> tuple[HeightField | None, float, float, float, float]:
         """(shape, press_depth_mm, x_mm, y_mm, theta_deg) from the scene (shape None: nothing to touch)."""

@@ -27,6 +27,9 @@ from tactile_rig.devices.dynamixel.control_table import NO_LOAD_RPM, STALL_CURRE
 from tactile_rig.sim.base import register_model
 
 COIL_RESISTANCE_OHM = 12.0 / STALL_CURRENT_A  # the winding: stall current at 12 V is V / R
+# A rigid part (wood, hard plastic) between rubber finger pads: ~100 N/mm, so 100 N of grip squeezes
+# it by 1 mm. (5 kN/m, the former default, let a 40 mm object be squashed to 20 mm at 40 % effort.)
+OBJECT_STIFFNESS_NPM = 1.0e5
 
 
 class Fingers:
@@ -42,7 +45,7 @@ class Fingers:
         max_opening_m: float = 0.10,
         position_ticks: float | None = None,
         object_width_m: float | None = None,
-        object_stiffness_npm: float = 5000.0,
+        object_stiffness_npm: float = OBJECT_STIFFNESS_NPM,
         force_per_a_n: float = 40.0,
         stop_stiffness_npm: float = 2.0e5,
         friction_current_a: float = 0.15,

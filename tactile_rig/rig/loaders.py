@@ -1,4 +1,4 @@
-"""The CLI's checked loaders for the project's own file formats (GelSight calibration, tactile map,
+"""Checked loaders for the project's own file formats (GelSight calibration, tactile map,
 press folders, height maps, FingerVision configs, gripper calibrations).
 
 Each one checks the file with :mod:`tactile_rig.core.files` (size, dtype, shape, finiteness,
@@ -9,17 +9,21 @@ a :class:`~tactile_rig.core.errors.BadFile` naming the file, so the command exit
 from __future__ import annotations
 
 import csv
+import dataclasses
+import math
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
 from tactile_rig.core import files
 from tactile_rig.core.errors import BadFile, CalibrationError, MissingFile
+from tactile_rig.drivers.dynamixel.gripper import GripperCalibration
+from tactile_rig.perception.fingervision import FingerVisionParams
 from tactile_rig.perception.gelsight import GelSightCalibration, Reconstructor, TactileMap, load_presses
 
 __all__ = ["load_height_mm", "read_frame", "load_gelsight_calibration", "load_tactile_map", "load_press_folder",
-           "load_config_mapping", "IMAGE_SUFFIXES"]
+           "load_config_mapping", "load_fingervision_params", "load_gripper_calibration", "check_settings", "IMAGE_SUFFIXES"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
 MAX_PRESSES = 10000
@@ -91,6 +95,10 @@ def load_tactile_map(path: str | Path, params: Any = None) -> TactileMap:
         v = meta.get(key)
         if not isinstance(v, (int, float)) or isinstance(v, bool) or not lo <= float(v) <= hi:
             raise BadFile(p, f"tactile map metadata has {key}={v!r}", f"a number in [{lo:g}, {hi:g}]")
+    ts = meta.get("touch_shape")
+    if ts is not None and not (isinstance(ts, list) and len(ts) == 2 and all(
+            isinstance(v, int) and not isinstance(v, bool) and 8 <= v <= files.MAX_IMAGE_SIDE_PX for v in ts)):
+        raise BadFile(p, f"tactile map metadata has touch_shape={ts!r}", "[rows, cols] in 8..16384 px, or null")
     with files.checked(p, "tactile map", "a map written by 'tactile-rig gelsight map'"):
         return TactileMap.load(p, params=params)
 
@@ -107,8 +115,7 @@ def load_press_folder(press_dir: str | Path) -> Any:
         d = d / "presses"
     labels = files.check_file(d / "labels.csv", "press labels", max_bytes=files.MAX_TEXT_BYTES)
     bg = d / "background.png"
-    w, h, _ = files.image_size(bg, "background frame")
-    files.check_image_dims(bg, "background frame", w, h)
+    w, h, _ = files.check_image_file(bg, "background frame")
     with files.checked(labels, "press labels", "CSV columns file, center_x_px, center_y_px, contact_radius_px"):
         rows = list(csv.DictReader(labels.read_text(encoding="utf-8").splitlines(), skipinitialspace=True))
     if len(rows) > MAX_PRESSES:
@@ -124,7 +131,7 @@ def load_press_folder(press_dir: str | Path) -> Any:
                 raise BadFile(labels, f"line {i}: {key}={row.get(key)!r}", "a number of pixels") from None
             if not np.isfinite(v) or not -1e5 < v < 1e5 or (key == "contact_radius_px" and v <= 0):
                 raise BadFile(labels, f"line {i}: {key}={v!r}", "a finite pixel value (radius > 0)")
-        fw, fh, _ = files.image_size(d / name, f"press frame {name}")
+        fw, fh, _ = files.check_image_file(d / name, f"press frame {name}")
         if (fw, fh) != (w, h):
             raise BadFile(d / name, f"press frame is {fw}x{fh} px", f"the background's {w}x{h} px")
     with files.checked(d, "press folder", "background.png, press images and labels.csv"), files.quiet_opencv():
@@ -132,6 +139,95 @@ def load_press_folder(press_dir: str | Path) -> Any:
             return load_presses(d)
         except CalibrationError as exc:
             raise BadFile(d, str(exc).split(": ", 1)[-1], "background.png, press images and labels.csv") from None
+
+
+MAX_SETTING = 1e6  # no FingerVision or registration setting is a million of its unit
+
+
+def check_settings(data: Any, default: Any, path: str | Path, where: str = "") -> None:
+    """Check a parsed settings mapping against a dataclass of defaults: each value of the default's
+    type (an int for an int, a finite number for a float, a list of the same length), not negative
+    where the default is not, and at most a million in size. Unknown keys are left to the class."""
+    p = Path(path)
+    if not dataclasses.is_dataclass(default) or not isinstance(data, Mapping):
+        return
+    for key, value in data.items():
+        if not hasattr(default, key):
+            continue
+        d = getattr(default, key)
+        name = f"{where}{key}"
+        if dataclasses.is_dataclass(d):
+            if not isinstance(value, Mapping):
+                raise BadFile(p, f"[{name}] is {value!r}", f"a table of {type(d).__name__} settings")
+            check_settings(value, d, p, f"{name}.")
+            continue
+        _check_setting(p, name, value, d)
+
+
+def _check_setting(p: Path, name: str, value: Any, d: Any) -> None:
+    if isinstance(d, bool) or d is None:
+        if isinstance(d, bool) and not isinstance(value, bool):
+            raise BadFile(p, f"{name} = {value!r}", "true or false")
+        return
+    if isinstance(d, (int, float)):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise BadFile(p, f"{name} = {value!r}", f"a number like {d!r}")
+        if isinstance(d, int) and not isinstance(value, int):
+            raise BadFile(p, f"{name} = {value!r}", f"a whole number like {d!r}")
+        if not math.isfinite(value) or abs(value) > MAX_SETTING:
+            raise BadFile(p, f"{name} = {value!r}", f"a finite number of magnitude at most {MAX_SETTING:g}")
+        if d >= 0 and value < 0:
+            raise BadFile(p, f"{name} = {value!r}", f"a number >= 0 (default {d!r})")
+        return
+    if isinstance(d, str):
+        if not isinstance(value, str):
+            raise BadFile(p, f"{name} = {value!r}", f"a string like {d!r}")
+        return
+    if isinstance(d, (tuple, list)):
+        if not isinstance(value, (list, tuple)) or (len(d) and len(value) != len(d)):
+            raise BadFile(p, f"{name} = {value!r}", f"a list of {len(d)} values like {list(d)!r}")
+        for i, (v, dv) in enumerate(zip(value, d)):
+            _check_setting(p, f"{name}[{i}]", v, dv)
+
+
+def load_fingervision_params(path: str | Path | None, calib_frames: int | None = None,
+                             init: str | None = None) -> FingerVisionParams:
+    """FingerVisionParams from a TOML/JSON file (or the defaults), every value checked first; the
+    command line's ``calib_frames`` and ``init`` override the file's."""
+    data: dict[str, Any] = {}
+    if path:
+        data = load_config_mapping(path, "FingerVision config")
+        check_settings(data, FingerVisionParams(), path)
+    if calib_frames is not None:
+        data = {**data, "n_calib_frames": calib_frames}
+    if init is not None:
+        data = {**data, "init": init}
+    if not path:
+        return FingerVisionParams.from_mapping(data)
+    with files.checked(path, "FingerVision config",
+                       "sections detector, tracker, force, proximity, lattice of FingerVisionParams"):
+        return FingerVisionParams.from_mapping(data)
+
+
+def load_gripper_calibration(path: str | Path) -> GripperCalibration:
+    """A gripper calibration JSON (``closed_ticks``, ``open_ticks``, ``max_opening_m``, optionally
+    under ``calibration``), each value checked against the type of its default."""
+    data = files.load_json(path, "gripper calibration")
+    data = data.get("calibration", data)
+    if not isinstance(data, dict):
+        raise BadFile(path, "gripper calibration's 'calibration' is not an object", "a JSON object")
+    keys = {"closed_ticks", "open_ticks", "max_opening_m"}
+    unknown, missing = sorted(set(data) - keys), sorted(keys - set(data))
+    if missing:
+        raise BadFile(path, f"gripper calibration lacks {', '.join(missing)}", "closed_ticks, open_ticks, max_opening_m")
+    if unknown:
+        raise BadFile(path, f"gripper calibration has unknown key(s) {unknown}", "closed_ticks, open_ticks, max_opening_m")
+    check_settings(data, GripperCalibration(), path)
+    with files.checked(path, "gripper calibration", "closed_ticks, open_ticks, max_opening_m"):
+        try:
+            return GripperCalibration(**data)
+        except CalibrationError as exc:
+            raise BadFile(path, f"gripper calibration {exc}", "distinct closed and open ticks, an opening > 0 m") from None
 
 
 def load_config_mapping(path: str | Path, what: str = "config") -> dict[str, Any]:

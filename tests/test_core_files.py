@@ -1,0 +1,138 @@
+"""core.files: whatever bytes a file holds, a loader returns a checked value or raises BadFile
+(never another exception, never an allocation the header asked for)."""
+
+from __future__ import annotations
+
+import io
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from tactile_rig.core import files
+from tactile_rig.core.errors import BadFile, MissingFile
+
+SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+
+
+def _npy(arr: np.ndarray) -> bytes:
+    b = io.BytesIO()
+    np.save(b, arr)
+    return b.getvalue()
+
+
+def _npz(**arrays: np.ndarray) -> bytes:
+    b = io.BytesIO()
+    np.savez_compressed(b, **arrays)
+    return b.getvalue()
+
+
+def _png(img: np.ndarray) -> bytes:
+    import cv2
+
+    return cv2.imencode(".png", img)[1].tobytes()
+
+
+GOOD = {
+    "npy": _npy(np.linspace(0, 1, 64 * 48, dtype=np.float32).reshape(48, 64)),
+    "npz": _npz(a=np.arange(100, dtype=np.float64), b=np.ones((4, 4), np.int16)),
+    "json": b'{"a": [1, 2, {"b": 3.5}], "c": "text"}',
+    "png": _png(np.arange(48 * 64 * 3, dtype=np.uint8).reshape(48, 64, 3)),
+}
+LOAD = {
+    "npy": lambda p: files.load_npy(p, "array", ndim=2),
+    "npz": lambda p: files.load_npz(p, "archive"),
+    "json": lambda p: files.load_json(p, "doc"),
+    "png": lambda p: files.read_image(p, "frame"),
+}
+
+
+def _mutate(data: bytes, pos: float, bit: int, cut: float, mode: str) -> bytes:
+    i = int(pos * len(data))
+    if mode == "flip":
+        b = bytearray(data)
+        b[i] ^= 1 << bit
+        return bytes(b)
+    return data[: int(cut * len(data))]
+
+
+@SETTINGS
+@given(kind=st.sampled_from(sorted(GOOD)), pos=st.floats(0, 1, exclude_max=True), bit=st.integers(0, 7),
+       cut=st.floats(0, 1, exclude_max=True), mode=st.sampled_from(["flip", "cut"]))
+def test_a_damaged_file_is_a_value_or_a_badfile(tmp_path: Path, kind: str, pos: float, bit: int, cut: float,
+                                                 mode: str) -> None:
+    p = tmp_path / f"x.{kind}"
+    p.write_bytes(_mutate(GOOD[kind], pos, bit, cut, mode))
+    try:
+        LOAD[kind](p)
+    except BadFile as exc:
+        assert exc.path == str(p) and exc.problem
+
+
+@SETTINGS
+@given(data=st.binary(max_size=400), kind=st.sampled_from(sorted(GOOD)))
+def test_arbitrary_bytes_are_a_badfile(tmp_path: Path, data: bytes, kind: str) -> None:
+    p = tmp_path / f"y.{kind}"
+    p.write_bytes(data)
+    try:
+        LOAD[kind](p)
+    except BadFile:
+        pass
+
+
+def test_png_flips_never_reach_the_decoder(tmp_path: Path) -> None:
+    """PNG keeps a CRC per chunk: every single-bit flip in the file is refused by name."""
+    data = GOOD["png"]
+    for i in range(8, len(data), max(1, len(data) // 300)):
+        b = bytearray(data)
+        b[i] ^= 0x04
+        p = tmp_path / "f.png"
+        p.write_bytes(bytes(b))
+        with pytest.raises(BadFile):
+            files.read_image(p)
+
+
+@pytest.mark.parametrize("w,h", [(65535, 65535), (99999, 99999), (0, 5), (20000, 1)])
+def test_image_headers_are_bounded_before_decoding(tmp_path: Path, w: int, h: int) -> None:
+    def chunk(tag: bytes, d: bytes) -> bytes:
+        return struct.pack(">I", len(d)) + tag + d + struct.pack(">I", zlib.crc32(tag + d))
+
+    p = tmp_path / "big.png"
+    p.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
+                  + chunk(b"IEND", b""))
+    with pytest.raises(BadFile, match=f"{w}x{h}"):
+        files.read_image(p)
+
+
+def test_npy_headers_dtypes_and_values(tmp_path: Path) -> None:
+    cases = {
+        "c.npy": (np.zeros((4, 4), np.complex64), "complex"),
+        "s.npy": (np.zeros(3, dtype=[("a", "f4")]), "structured"),
+        "n.npy": (np.full((4, 4), np.nan), "NaN"),
+        "b.npy": (np.ones((4, 4), bool), "bool"),
+    }
+    for name, (arr, word) in cases.items():
+        np.save(tmp_path / name, arr)
+        with pytest.raises(BadFile, match=word):
+            files.load_npy(tmp_path / name)
+    big = GOOD["npy"].replace(b"(48, 64)", b"(99999, 99999)"[:8])
+    (tmp_path / "h.npy").write_bytes(big)
+    with pytest.raises(BadFile):
+        files.load_npy(tmp_path / "h.npy")
+    with pytest.raises(MissingFile):
+        files.load_npy(tmp_path / "missing.npy")
+    (tmp_path / "d.npy").mkdir()
+    with pytest.raises(BadFile, match="directory"):
+        files.load_npy(tmp_path / "d.npy")
+
+
+def test_json_depth_is_bounded_without_recursion(tmp_path: Path) -> None:
+    p = tmp_path / "deep.json"
+    p.write_text("[" * 200000 + "]" * 200000)
+    with pytest.raises(BadFile, match="200000 levels deep"):
+        files.load_json(p, expect=None)
+    assert files.json_depth('{"a": "[[[[", "b": [[1]]}') == 3  # brackets inside strings do not count
