@@ -182,6 +182,10 @@ def measure(*, quick: bool, seed: int = 0) -> TradeTable:
                "min_ncc, max_sigma_*, min_rotation_pinning": "refusal thresholds (one row: the pre-issue-13 "
                                                              "defaults, offset-only polish)",
                "heights_downsample": "the touches reconstructed with integration downsample 2"},
+        default_note=("the front ignores wrong answers: a row that localizes more but answers even once "
+                      "confidently wrong (see its note) is not a better default; among the rows with no wrong "
+                      "answer, orb_features=500 localizes more at some speed cost, and rows that differ from the "
+                      "default only in RANSAC samples run the same code at the same speed within timing noise"),
         notes=["a row with confident wrong answers says so in its note: the front alone does not make it usable",
                f"machine load average {os.getloadavg()[0]:.1f} at the end of the run (2 shared cores)"],
     )
