@@ -17,7 +17,6 @@ hang or a wrong value.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import platform
 import sys

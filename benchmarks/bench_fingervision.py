@@ -1,6 +1,6 @@
 """FingerVision benchmark: detection and tracking on real frames, rendered scenes, Kalman vs none, speed.
 
-    python benchmarks/bench_fingervision.py [--quick] [--speed-only] [--save]
+    python benchmarks/bench_fingervision.py [--quick] [--speed-only | --real-only] [--save]
 
 Side by side in the same run: the reference setting (fv_2_r.yaml thresholds through plain
 SimpleBlobDetector), our per-frame detector, tracking with ids from the first frame (the default,
@@ -291,9 +291,19 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="fewer frames and angles")
     ap.add_argument("--speed-only", action="store_true",
                     help="re-measure speed only (e.g. on an idle machine); with --save, update the saved results")
+    ap.add_argument("--real-only", action="store_true",
+                    help="re-measure the real-frame tables only (seconds); with --save, update the saved results")
     add_save_args(ap, "fingervision.json")
     args = parse_args(ap)
     saved = ROOT / "benchmarks" / "results" / "fingervision.json"
+    if args.real_only:
+        real = bench_real()
+        if saved.is_file():  # update the real-frame figures of the saved full run, keep the rest
+            res = json.loads(saved.read_text())
+            res["real"] = real
+            save_json(args, res, default=float)
+        _print_real(real)
+        return 0
     if args.speed_only:
         speed = bench_speed(args.quick)
         if saved.is_file():  # update the speed figures of the saved full run, keep its accuracy figures
@@ -351,7 +361,11 @@ def bench_mock_renderer() -> dict:
 
 
 def _print(res: dict) -> None:
-    real = res["real"]
+    _print_real(res["real"])
+    _print_rest(res)
+
+
+def _print_real(real: dict | None) -> None:
     if real:
         print("Real frames (3 hand-labelled frames, 28 sure markers each)")
         print(f"{'method':<34}{'TP':>5}{'FP':>5}{'prec':>7}{'recall':>8}{'err px':>8}")
@@ -369,6 +383,9 @@ def _print(res: dict) -> None:
         print("light gain sweep (frames x gain):  gain  ours TP/FP   reference TP/FP")
         for g, row in real["light_gain_sweep"].items():
             print(f"  {g:>5}  {row['ours']['tp']:>4}/{row['ours']['fp']:<4}  {row['reference']['tp']:>4}/{row['reference']['fp']:<4}")
+
+
+def _print_rest(res: dict) -> None:
     syn = res["synthetic"]
     print("\nRendered scenes (own synthetic maker)")
     for k, v in syn.items():

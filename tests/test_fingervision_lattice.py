@@ -88,3 +88,48 @@ def test_ids_from_the_first_frame_while_a_printed_card_slides_behind_the_skin(se
             assert first.recall >= 0.95 and first.fp == 0, "every marker has an id on frame 0"
     s = score_sequence(seq, 3.0)
     assert s.precision >= 0.98 and s.recall >= 0.95 and s.id_switches == 0
+
+
+def test_a_marker_hidden_on_the_first_frame_gets_an_id_when_it_shows_up() -> None:
+    pts = lattice()
+    first = render(pts, seed=0)
+    clean = render(None, seed=0)
+    x, y = np.rint(pts[8]).astype(int)
+    first[y - 8:y + 9, x - 8:x + 9] = clean[y - 8:y + 9, x - 8:x + 9]  # a finger tip over marker 8
+    fv = FingerVision()
+    r0 = fv.process(first)
+    assert len(r0.marker_ids) == len(pts) - 1
+    before = dict(zip(r0.marker_ids.tolist(), r0.marker_positions_px.tolist()))
+    for k in range(1, 4):
+        r = fv.process(render(pts, seed=k))
+    assert len(r.marker_ids) == len(pts) and r.marker_found.all()
+    assert np.hypot(*(r.marker_positions_px[-1] - pts[8])) < 0.5, "the new id is the hidden marker"
+    for i, p in before.items():  # the other ids did not move
+        assert np.hypot(*(r.marker_positions_px[i] - np.array(p))) < 0.5
+
+
+def test_late_ids_can_be_switched_off() -> None:
+    from tactile_rig.perception.fingervision import FingerVisionParams
+
+    pts = lattice()
+    first = render(pts, seed=0)
+    clean = render(None, seed=0)
+    x, y = np.rint(pts[8]).astype(int)
+    first[y - 8:y + 9, x - 8:x + 9] = clean[y - 8:y + 9, x - 8:x + 9]
+    fv = FingerVision(FingerVisionParams(late_ids=False))
+    fv.process(first)
+    for k in range(1, 4):
+        r = fv.process(render(pts, seed=k))
+    assert len(r.marker_ids) == len(pts) - 1
+
+
+@given(hnp.arrays(np.float64, st.tuples(st.integers(0, 30), st.just(2)),
+                  elements=st.one_of(st.floats(-50, 400), st.just(np.nan))))
+def test_extend_lattice_takes_any_detections(det: np.ndarray) -> None:
+    from tactile_rig.perception.fingervision.lattice import extend_lattice
+
+    pts = lattice()
+    idx = np.array([[i % 6, i // 6] for i in range(len(pts))])
+    got = extend_lattice(idx, pts, Detections(det, np.full(len(det), 8.0)), (50.0, 45.0), 0.0)
+    taken = {tuple(i) for i in idx}
+    assert all(ij not in taken and np.isfinite(p).all() for ij, p, _s in got)

@@ -36,3 +36,18 @@ def test_measure_returns_a_table_with_the_default_marked(monkeypatch) -> None:
     assert isinstance(table, TradeTable) and len(table.rows) == 2 and table.rows[0].is_default
     assert all(np.isfinite(r.speed) and r.speed > 0 and 0 <= r.error <= 100 for r in table.rows)
     assert "ABSENT" in table.data
+
+
+def test_the_default_note_names_what_beats_the_default_and_why_it_stays() -> None:
+    from tactile_rig.rig.trade.table import TradeRow
+
+    rows = [TradeRow({"setting": "default"}, 100.0, 0.0, True, {"rest_force_px": 0.009}),
+            TradeRow({"kalman": False}, 120.0, 0.0, False, {"rest_force_px": 0.018}),
+            TradeRow({"refine_frames": 1}, 101.0, 0.0, False, {"rest_force_px": 0.021})]
+    t = TradeTable("fingervision", "frames per CPU-s", "error", "test", rows)
+    note = topic.explain_default(t)
+    assert not t.default_on_front()
+    assert "kalman=False" in note and "0.018 against 0.009" in note
+    assert "refine_frames=1" not in note.split("off the front because")[1], "a tie within tolerance does not beat it"
+    t.rows[1] = TradeRow({"kalman": False}, 102.0, 0.0, False, {"rest_force_px": 0.018})
+    assert t.default_on_front() and "off the front" not in topic.explain_default(t)

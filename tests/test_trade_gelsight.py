@@ -69,5 +69,6 @@ def test_interleaved_timing_returns_one_figure_per_function() -> None:
     calls = []
     per = topic_gelsight.interleaved_best_s([lambda: calls.append("a"), lambda: calls.append("b")], [2, 3], rounds=2)
     assert len(per) == 2 and all(p >= 0 for p in per)
-    # Warm-up once each, then the rounds interleave the functions.
-    assert calls[:2] == ["a", "b"] and calls[2:4] == ["a", "a"] and calls[4:7] == ["b", "b", "b"]
+    # Warm-up once each, then the rounds interleave the functions, each batch after one untimed call.
+    assert calls[:2] == ["a", "b"] and calls[2:5] == ["a", "a", "a"] and calls[5:9] == ["b"] * 4
+    assert len(calls) == 2 + 2 * (3 + 4)

@@ -113,7 +113,8 @@ def _run(args: argparse.Namespace, step: Any, sensor: str, line: Any) -> int:
     try:
         s = run_live(bench, cam, step, sensor=sensor, duration_s=args.duration, max_frames=args.frames_max,
                      live=live, on_frame=on_frame,
-                     publish_image=(lambda img: height_image(step.last)) if isinstance(step, GelSightHeightStep)
+                     publish_image=(lambda img: None if step.last is None else height_image(step.last))
+                     if isinstance(step, GelSightHeightStep)
                      else None)
     finally:
         if live is not None:

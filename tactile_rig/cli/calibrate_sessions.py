@@ -22,6 +22,7 @@ from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.drivers.dynamixel import DynamixelGripper
 from tactile_rig.mocks.registry import device_from_url
+from tactile_rig.mocks.scale import ScaleMock
 from tactile_rig.rig.bench import Bench, connect_bench
 from tactile_rig.rig.calibration_sessions import (
     BallPressPlan,
@@ -183,6 +184,8 @@ def _mock_mass_placer(rig: Any) -> Callable[[float], None]:
 
     name = next(n for n in rig.mock_instances if n.endswith(".scale"))
     device, _ = device_from_url(f"rigsim://@{name}")
+    if not isinstance(device, ScaleMock):
+        raise TypeError(f"mock bench instance {name!r} is a {type(device).__name__}; expected the scale mock")
     cell = device.load_cell
 
     def place(grams: float) -> None:

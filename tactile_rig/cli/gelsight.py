@@ -83,7 +83,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _npy_writer(shape: tuple[int, ...], dtype: np.dtype):
+def _npy_writer(shape: tuple[int, ...], dtype: type[np.generic] | np.dtype):
     """A writer of .npy files for arrays of one shape and dtype: the header (np.save's format) is
     built once, then each file is the header plus the array's bytes (no per-file formatting)."""
     import io

@@ -35,6 +35,9 @@ several devices failed          ConnectErrors                          2
 an answer lost on the wire      ReplyLost (LinkCorrupt)                2
 a port another handle holds     PortInUse (NotConnected)               2
 a scale zero no longer true     ZeroLost (ValueError)                  2
+a file that cannot be used      BadFile (ValueError)                   2
+a file that does not exist      MissingFile (FileNotFoundError)        2
+a bug in tactile-rig itself     (any other exception)                  70
 ==============================  =====================================  =====================
 
 Device-specific texts (GRBL's messages, Dynamixel error names) are device facts and live in

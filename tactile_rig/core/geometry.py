@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -108,3 +108,11 @@ def compose(*transforms: np.ndarray) -> np.ndarray:
     for t in transforms[1:]:
         out = out @ np.asarray(t, dtype=float)
     return out
+
+
+def pitch_xy_mm(mm_per_px: float | tuple[float, float] | Sequence[float]) -> tuple[float, float]:
+    """A pixel pitch given as one number (square pixels) or as (x, y), in mm per pixel, as (x, y)."""
+    if isinstance(mm_per_px, (int, float, np.floating, np.integer)):
+        return float(mm_per_px), float(mm_per_px)
+    sx, sy = mm_per_px
+    return float(sx), float(sy)

@@ -176,8 +176,8 @@ class FingertipCamera(Driver):
             nw, nh, nfps = native()
             width, height, fps = width or nw, height or nh, fps or nfps
         config = config or CameraConfig()
-        overrides = {k: v for k, v in (("fourcc", fourcc), ("width", width), ("height", height), ("fps", fps),
-                                       ("controls", controls)) if v is not None}
+        overrides: dict[str, Any] = {k: v for k, v in (("fourcc", fourcc), ("width", width), ("height", height),
+                                                       ("fps", fps), ("controls", controls)) if v is not None}
         if overrides:
             config = dataclasses.replace(config, **overrides)
         self.config = config
@@ -255,11 +255,13 @@ class FingertipCamera(Driver):
         """Write ``controls`` (auto switches first), read each back; raise listing every mismatch."""
         items = [(canonical_control(k), float(v)) for k, v in controls.items()]
         items.sort(key=lambda kv: 0 if kv[0] in AUTO_SWITCHES else 1)
-        problems, readback = [], {}
+        problems: list[str] = []
+        readback: dict[str, float] = {}
         for name, value in items:
             accepted = self.source.set_control(name, value)
             got = self.source.get_control(name)
-            readback[name] = got
+            if got is not None:  # a control that reads back nothing is a problem below
+                readback[name] = got
             if not accepted:
                 problems.append(f"{name}={value:g} was refused")
             elif got is None or abs(got - value) > self.config.readback_tolerance:

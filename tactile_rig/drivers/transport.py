@@ -65,7 +65,7 @@ def open_serial(port: str, *, baudrate: int, device: str, timeout_s: float | Non
             device=device,
         ) from exc
     if log_bytes if log_bytes is not None else log.isEnabledFor(logging.DEBUG):
-        return ByteLog(ser, device)  # type: ignore[return-value]
+        return ByteLog(ser, device)
     return ser
 
 

@@ -322,9 +322,9 @@ class SimulatedCamera:
         bright = (self.table.value("brightness") - 128) * 0.5
         out = img
         if not np.allclose(wb, 1.0):
-            out = cv2.multiply(out, (float(wb[0]), float(wb[1]), float(wb[2]), 0.0))  # type: ignore[call-overload]  # a Scalar is valid; the stubs omit it
+            out = cv2.multiply(out, (float(wb[0]), float(wb[1]), float(wb[2]), 0.0))
         if bright != 0:
-            out = cv2.add(out, (bright, bright, bright, 0.0))  # type: ignore[call-overload]  # a Scalar is valid; the stubs omit it
+            out = cv2.add(out, (bright, bright, bright, 0.0))
         if self.noise_sigma > 0:
             if self._noise is None or self._noise.shape != out.shape:
                 # The field depends on the seed only (not on when the first frame came); the crops

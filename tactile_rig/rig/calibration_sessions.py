@@ -158,7 +158,7 @@ class SessionOutcome:
     calibration_path: Path
     report_path: Path
     report: dict[str, Any]
-    files: dict[str, str] = field(default_factory=dict)
+    files: dict[str, Any] = field(default_factory=dict)  # paths, plus the version and links
 
     def as_dict(self) -> dict[str, Any]:
         return {"kind": self.kind, "calibration": str(self.calibration_path), "report": str(self.report_path),
@@ -480,14 +480,14 @@ def gelsight_session(rig: PressRig, plan: BallPressPlan, mm_per_px: float, out: 
         raise
     cal = calibrate_from_presses(presses, float(mm_per_px), float(plan.ball_radius_mm), plan.method, sensor=sensor)
     cal.extra.update({"session": "jig ball presses", "press_depth_mm": plan.press_depth_mm,
-                      "ball_offset_px": list(presses.offset_px)})  # type: ignore[attr-defined]
+                      "ball_offset_px": list(presses.offset_px)})
     npz = cal.save(base)
     folds = max(2, min(int(plan.folds), len(presses.frames)))
     cv = cross_validate(presses, float(mm_per_px), float(plan.ball_radius_mm), plan.method, folds=folds)
     report = {"presses": len(presses.frames), "method": plan.method, "mm_per_px": float(mm_per_px),
               "ball_radius_mm": plan.ball_radius_mm, "press_depth_mm": plan.press_depth_mm,
               "contact_radius_px": round(plan.contact_radius_mm / float(mm_per_px), 3),
-              "ball_offset_px": list(presses.offset_px),  # type: ignore[attr-defined]
+              "ball_offset_px": list(presses.offset_px),
               "heldout_protocol": cv.protocol, "heldout_mean_normal_deg": cv.mean_normal_deg,
               "heldout_mean_height_rms_mm": cv.mean_height_rms_mm, "colour_coverage": cv.colour_coverage,
               "per_press": [{"name": e.name, "normal_deg": e.normal_deg, "height_rms_mm": e.height_rms_mm}
@@ -622,7 +622,7 @@ def gripper_session(gripper: Any, out: str | Path, *, effort: float = 0.2, max_o
         raise
     values = dict(cal.to_dict())
     span = int(values["open_ticks"]) - int(values["closed_ticks"])
-    report = {"span_ticks": span, "effort": float(effort), "closing_sign": int(closing_sign),
+    report: dict[str, Any] = {"span_ticks": span, "effort": float(effort), "closing_sign": int(closing_sign),
               "m_per_tick": float(values["max_opening_m"]) / abs(span) if span else None}
     report["recording"] = None if rec.path is None else str(rec.path)
     path, rpath = write_calibration(out, "gripper", values, report, device=str(getattr(gripper, "device", "gripper")),
@@ -690,7 +690,7 @@ def fingervision_session(camera: Any, out: str | Path, *, frames: int = 10, guid
             jitter.append(float(np.median(d)))
     values = {"arrays": npz.name, "frame_shape": list(imgs[0].shape[:2]), "markers": n, "valid_markers": n_valid,
               "bg_median_v": fv.proximity.bg_median_v}
-    report = {"frames": int(frames), "valid_fraction": n_valid / n if n else 0.0,
+    report: dict[str, Any] = {"frames": int(frames), "valid_fraction": n_valid / n if n else 0.0,
               "median_marker_jitter_px": float(np.median(jitter)) if jitter else None,
               "mean_marker_size_px": float(np.mean(base.sizes_px[base.valid])) if n_valid else None,
               "background_histogram_bins": int(0 if bg_hist is None else np.size(bg_hist))}

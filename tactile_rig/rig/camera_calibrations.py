@@ -259,8 +259,8 @@ class CalibratedFingerVision:
         force = d.get("force_n", d["force_px"])
         torque = d.get("torque_nmm", d.get("torque_npx", d["torque_px2"]))
         return TouchReading(t_s=float(t) if t is not None else float("nan"),
-                            force_n=tuple(force),  # type: ignore[arg-type]
-                            torque_nmm=tuple(torque),  # type: ignore[arg-type]
+                            force_n=tuple(force),
+                            torque_nmm=tuple(torque),
                             contact=d["contact"], slip=d["slip"],
                             slip_mm=d["slip_magnitude_px"] * (self.mm_per_px or 1.0),
                             object_area_px=d["object_area_px"], object_centroid_px=d["object_centroid_px"],

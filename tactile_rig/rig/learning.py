@@ -115,7 +115,7 @@ class ForceMapModel:
             out[i:i + 2048] = np.exp(-self.gamma * np.maximum(d2, 0.0)) @ self.dual_coef
         return out
 
-    def to_newtons(self, force_px: Sequence[float], torque_px2: Sequence[float]
+    def to_newtons(self, force_px: Sequence[float] | np.ndarray, torque_px2: Sequence[float] | np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray, float]:
         """One fingertip's marker force (px) and torque (px²) → (force N (3,), torque N·px (3,), |F| N).
 
@@ -497,7 +497,7 @@ class SubstanceModel:
     def save(self, path: str | Path) -> tuple[Path, Path]:
         npz, js = _paths(path)
         npz.parent.mkdir(parents=True, exist_ok=True)
-        arrays = {"center": self.center, "scale": self.scale}
+        arrays: dict[str, Any] = {"center": self.center, "scale": self.scale}
         for i, (W, b) in enumerate(zip(self.weights, self.biases)):
             arrays[f"W{i}"] = W
             arrays[f"b{i}"] = b

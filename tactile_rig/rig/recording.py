@@ -435,7 +435,7 @@ def decode_image(schema: str, data: Mapping[str, Any], source: str = "recording"
         h, w, step = int(data["height"]), int(data["width"]), int(data["step"])
     except (KeyError, TypeError, ValueError):
         raise BadFile(source, "a RawImage message lacks integer height, width, step", "a foxglove.RawImage") from None
-    channels = {"bgr8": 3, "rgb8": 3, "mono8": 1, "8UC1": 1, "8UC3": 3}.get(data.get("encoding"))
+    channels = {"bgr8": 3, "rgb8": 3, "mono8": 1, "8UC1": 1, "8UC3": 3}.get(str(data.get("encoding")))
     if channels is None:
         raise BadFile(source, f"unsupported RawImage encoding {data.get('encoding')!r}", "bgr8, rgb8 or mono8")
     if not (0 < h <= 16384 and 0 < w <= 16384 and w * channels <= step <= 4 * w * channels and len(raw) >= h * step):

@@ -41,7 +41,7 @@ def _pyplot() -> Any:
     return plt
 
 
-def _finite_pair(true: Sequence[float], est: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+def _finite_pair(true: Sequence[float] | np.ndarray, est: Sequence[float] | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     t = np.asarray(true, float).ravel()
     e = np.asarray(est, float).ravel()
     if t.shape != e.shape:
@@ -67,7 +67,7 @@ def error_stats(true: Sequence[float], est: Sequence[float], *, angle: bool = Fa
             "rmse": float(np.sqrt(np.mean(err**2))), "bias": float(err.mean()), "max_abs": float(a.max())}
 
 
-def plot_estimated_vs_true(true: Sequence[float], est: Sequence[float], path: str | Path, *,
+def plot_estimated_vs_true(true: Sequence[float] | np.ndarray, est: Sequence[float] | np.ndarray, path: str | Path, *,
                            quantity: str = "rotation", unit: str = "deg", title: str | None = None,
                            true_label: str | None = None, est_label: str | None = None) -> Path:
     """Estimated against true (Li 2014 Fig. 7b/c): each commanded value's mean ± std, raw points faint."""

@@ -164,7 +164,7 @@ def resolve_target(target: str) -> Callable[..., Any]:
             raise ValueError(f"sweep target {target!r}: module {kind!r} has no {rest!r}")
     if not callable(fn):
         raise ValueError(f"sweep target {target!r} is not callable")
-    return fn  # type: ignore[return-value]
+    return fn
 
 
 @dataclass(frozen=True)
@@ -221,9 +221,9 @@ def _model_params(kind: str) -> set[str] | None:
     if isinstance(ret, str):  # postponed annotation: look the class up in the factory's module
         ret = getattr(inspect.getmodule(factory), ret, None)
     if isinstance(ret, type):
-        candidates.append(ret.__init__)
+        candidates.append(vars(ret).get("__init__", ret))  # the class's own signature
     if isinstance(factory, type):
-        candidates = [factory.__init__]
+        candidates = [vars(factory).get("__init__", factory)]
     names: set[str] = set()
     for fn in candidates:  # the factory's own keywords, then (when it forwards **params) the class's
         try:
@@ -408,7 +408,7 @@ class DaskExecutor(cf.Executor):
         self._ex = client.get_executor()
         self._log_level = restore_log_level
 
-    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> cf.Future:  # type: ignore[override]
+    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> cf.Future:
         return self._ex.submit(fn, *args, **kwargs)
 
     def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:

@@ -194,7 +194,7 @@ def _map_members(nrng: np.random.Generator, **over: object) -> dict[str, bytes]:
                 arrays.pop(k[4:], None)
             else:
                 arrays[k[4:]] = v  # type: ignore[assignment]
-    return {f"{k}.npy": _npy_bytes(v, allow_pickle=v.dtype == object) for k, v in arrays.items()}  # type: ignore[union-attr]
+    return {f"{k}.npy": _npy_bytes(v, allow_pickle=v.dtype == object) for k, v in arrays.items()}
 
 
 def _map_cases(rng: random.Random, nrng: np.random.Generator) -> list[tuple[str, bytes | None]]:
@@ -403,13 +403,15 @@ def _calibration_cases(rng: random.Random, nrng: np.random.Generator) -> list[tu
     for n, d in _map_cases(rng, nrng)[:40]:
         if d is not None:
             out.append((f"npz-{n}", {".json": good_json, ".npz": d}))
-    for k, v in (("background", np.zeros((10, 10), np.uint8)), ("background", np.zeros((10, 10, 3), np.float32)),
+    npz_members: tuple[tuple[str, np.ndarray | None], ...] = (
+                 ("background", np.zeros((10, 10), np.uint8)), ("background", np.zeros((10, 10, 3), np.float32)),
                  ("background", None), ("model_table", np.full((8, 8, 8, 2), np.nan, np.float32)),
                  ("model_table", np.zeros((3,), np.float32)), ("model_hyper", np.array([1e300, 1.0])),
                  ("model_hyper", np.array([])), ("model_table", None), ("model_filled", np.zeros(2, np.complex64)),
-                 ("background", np.zeros((1, 70000, 3), np.uint8))):
-        shape = "none" if v is None else f"{v.dtype}{v.shape}"
-        out.append((f"npz-{k}-{shape}", {".json": good_json, ".npz": npz(**{k: v})}))
+                 ("background", np.zeros((1, 70000, 3), np.uint8)))
+    for key, arr in npz_members:
+        shape = "none" if arr is None else f"{arr.dtype}{arr.shape}"
+        out.append((f"npz-{key}-{shape}", {".json": good_json, ".npz": npz(**{key: arr})}))
     return out
 
 

@@ -16,6 +16,8 @@ pictures) has no such structure. :func:`fit_lattice` uses that on a single frame
    sized like its neighbours and lands where the lattice expects it.
 
 Detections that never receive an index (print, debris, a bubble between markers) are dropped.
+:func:`extend_lattice` finds, on later frames, detections on empty nodes next to the lattice (markers
+hidden on the first frame that came into view).
 Positions in pixels (x = column, y = row); indices ``(col, row)`` relative to the seed node.
 Valid input: a contrast map (float, 0..1, H x W >= 1 x 1) and detections inside it; any number of
 detections (fewer than ``min_markers`` gives an empty lattice, never an error).
@@ -30,7 +32,7 @@ import numpy as np
 
 from tactile_rig.perception.fingervision.markers import Detections, refine_centroids
 
-__all__ = ["LatticeParams", "Lattice", "fit_lattice"]
+__all__ = ["LatticeParams", "Lattice", "fit_lattice", "extend_lattice"]
 
 
 @dataclass(frozen=True)
@@ -313,3 +315,45 @@ def _measure(contrast: np.ndarray, value: np.ndarray | None, p: np.ndarray, step
     if value is not None and int(value[y, x]) > params.fill_max_value:
         return None
     return q, s
+
+
+def extend_lattice(
+    indices: np.ndarray,
+    positions_px: np.ndarray,
+    detections: Detections,
+    pitch_px: tuple[float, float],
+    axis_deg: float,
+    params: LatticeParams = LatticeParams(),
+) -> list[tuple[tuple[int, int], np.ndarray, float]]:
+    """Detections that sit on empty nodes next to a known lattice: ``[(index, position_px, size_px)]``.
+
+    ``indices`` (N, 2) and ``positions_px`` (N, 2) are the lattice's markers now (e.g. tracked);
+    a detection is returned when it lies within ``tolerance`` x the local step of the prediction of a
+    node that has no marker yet and touches the lattice (a marker hidden on the first frame that has
+    come into view). The caller decides when to believe it (e.g. the same place in two frames).
+    """
+    idx = np.asarray(indices, dtype=np.int64).reshape(-1, 2)
+    pos = np.asarray(positions_px, dtype=np.float64).reshape(-1, 2)
+    det = np.asarray(detections.positions_px, dtype=np.float64).reshape(-1, 2)
+    if len(idx) < params.min_markers or len(det) == 0 or not np.isfinite(pos).all():
+        return []
+    nodes = {(int(i), int(j)): k for k, (i, j) in enumerate(idx)}
+    t = math.radians(axis_deg)
+    u = np.array([math.cos(t), math.sin(t)])
+    v = np.array([-u[1], u[0]])
+    default_steps = (u * pitch_px[0], v * pitch_px[1])
+    frontier = {(i + di, j + dj) for (i, j) in nodes for di, dj in ((1, 0), (-1, 0), (0, 1), (0, -1))} - set(nodes)
+    out: list[tuple[tuple[int, int], np.ndarray, float]] = []
+    used: set[int] = set()
+    for ij in sorted(frontier):
+        pr = _predict(nodes, pos, ij, default_steps)
+        if pr is None or pr[1] < params.min_step_px:
+            continue
+        p, step, _support = pr
+        d = np.hypot(*(det - p).T)
+        k = int(np.argmin(d))
+        # not already a marker (a tracked marker that drifted is not a new one)
+        if d[k] <= params.tolerance * step and k not in used and np.hypot(*(pos - det[k]).T).min() > 0.3 * step:
+            used.add(k)
+            out.append((ij, det[k].copy(), float(detections.sizes_px[k])))
+    return out

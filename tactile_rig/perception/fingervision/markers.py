@@ -227,6 +227,9 @@ def refine_centroids(
     window), at most ``max_radius_px`` (per centre or one value: the tracker passes the marker's known
     radius plus a margin, so print next to a marker cannot widen the disc). A window with no contrast
     keeps its centre and reports peak 0.
+
+    Valid input: a float contrast map (H x W, >= 1 x 1) and any centres (non-finite ones are read
+    as 0 and clipped into the frame); outputs are finite, positions inside the window around each centre.
     """
     centres = np.asarray(centres_xy, dtype=np.float64).reshape(-1, 2)
     n = centres.shape[0]
@@ -292,7 +295,10 @@ def _blob_detector(p: MarkerDetectorParams) -> cv2.SimpleBlobDetector:
 def detect_markers(
     frame_bgr: np.ndarray, params: MarkerDetectorParams = MarkerDetectorParams()
 ) -> Detections:
-    """Find markers in one frame (full-frame SimpleBlobDetector chain + darkness filter + sub-pixel)."""
+    """Find markers in one frame (full-frame SimpleBlobDetector chain + darkness filter + sub-pixel).
+
+    Valid input: see :func:`check_frame_bgr` (any size from 1 x 1); flat, black or saturated frames give
+    no detections. Raises :class:`InvalidFrame` outside it."""
     value, bg, contrast = contrast_map(frame_bgr, params)
     return detect_in_contrast(value, bg, contrast, params)
 
@@ -381,6 +387,8 @@ def build_baseline(
     the median position and ``size_max_px`` of the median size are inliers (the reference's
     DistMaxCalib / DSMaxCalib, made robust to one bad frame); the rest position and size are the
     inlier means, and the marker is valid when inliers make up at least ``min_fraction`` of the frames.
+    Valid input: at least one frame's detections (a frame may have none; no detections at all give an
+    empty baseline).
     """
     if not detections:
         raise ValueError("build_baseline: expected at least one frame of detections, got none")

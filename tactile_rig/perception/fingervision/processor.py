@@ -29,7 +29,7 @@ import numpy as np
 
 from tactile_rig.core.errors import InvalidFrame, MarkersNotFound
 from tactile_rig.perception.fingervision.force import ForceParams, estimate_force_torque
-from tactile_rig.perception.fingervision.lattice import LatticeParams, fit_lattice
+from tactile_rig.perception.fingervision.lattice import LatticeParams, extend_lattice, fit_lattice
 from tactile_rig.perception.fingervision.markers import (
     Detections,
     MarkerBaseline,
@@ -65,6 +65,10 @@ class FingerVisionParams:
     n_calib_frames: int = 10
     """No-contact frames averaged into the baseline (the reference's NCalibPoints); with ``lattice``
     the ids exist from the first of them and these frames only refine the rest positions."""
+    late_ids: bool = True
+    """With ``lattice``: a marker hidden on the first frame that shows up on an empty lattice node in
+    two of the refinement frames (same place) gets the next free id (costs a detector run per
+    refinement frame)."""
     n_background_frames: int = 3
     """Of those, frames used for the background histogram (NCalibBGFrames)."""
     baseline_match_px: float = 3.0
@@ -96,7 +100,7 @@ class FingerVisionParams:
                 bad = sorted(set(value) - known)
                 if bad:
                     raise ValueError(f"FingerVision config: unknown key(s) {bad} in [{key}]; expected some of {sorted(known)}")
-                kwargs[key] = dataclasses.replace(default, **dict(value))
+                kwargs[key] = dataclasses.replace(default, **dict(value))  # type: ignore[type-var]  # a dataclass instance
             else:
                 kwargs[key] = value
         return cls(**kwargs)
@@ -161,6 +165,11 @@ class FingerVision:
         self._sum_pos = np.zeros((0, 2))
         self._sum_size = np.zeros(0)
         self._n_seen = np.zeros(0, np.int64)
+        # the lattice's indices per marker, its pitch and axis (lattice init), and markers seen on empty
+        # nodes during the refinement frames, waiting for a second sighting at the same place
+        self._lattice_ij = np.zeros((0, 2), np.int64)
+        self._lattice_geom: tuple[tuple[float, float], float] = ((0.0, 0.0), 0.0)
+        self._late: dict[tuple[int, int], tuple[np.ndarray, float]] = {}
 
     # -- calibration -----------------------------------------------------------------------------
     def calibrate(self, frames_bgr: list[np.ndarray]) -> MarkerBaseline:
@@ -227,6 +236,11 @@ class FingerVision:
             self.set_baseline(MarkerBaseline(lat.positions_px.copy(), lat.sizes_px.copy(), np.ones(n, bool)))
             self._refine_left = refine_frames
             self._sum_pos, self._sum_size, self._n_seen = np.zeros((n, 2)), np.zeros(n), np.zeros(n, np.int64)
+            self._lattice_ij = lat.indices.copy()
+            self._lattice_geom = (lat.pitch_px, lat.axis_deg)
+            self._late = {}
+        elif self._refine_left > 0 and self.params.late_ids:
+            self._late_ids(value, bg, contrast)
         tracker = self.tracker
         assert tracker is not None
         st = tracker.update(contrast, t_s)
@@ -241,6 +255,34 @@ class FingerVision:
             if self._refine_left == 0:
                 self._end_refinement()
         return st
+
+    def _late_ids(self, value, bg, contrast) -> None:
+        """Markers hidden on the first frame that come into view during the refinement frames get ids:
+        a detection on an empty node next to the lattice, at the same place (1 px) in two frames."""
+        tracker = self.tracker
+        assert tracker is not None
+        det = detect_in_contrast(value, bg, contrast, self.params.detector)
+        pitch, axis = self._lattice_geom
+        seen = extend_lattice(self._lattice_ij, tracker.positions_px, det, pitch, axis, self.params.lattice)
+        late: dict[tuple[int, int], tuple[np.ndarray, float]] = {}
+        new_ij, new_pos, new_size = [], [], []
+        for ij, p, size in seen:
+            prev = self._late.get(ij)
+            if prev is not None and float(np.hypot(*(p - prev[0]))) <= 1.0:
+                new_ij.append(ij)
+                new_pos.append(p)
+                new_size.append(size)
+            else:
+                late[ij] = (p, size)
+        self._late = late
+        if new_pos:
+            tracker.add_markers(np.array(new_pos), np.array(new_size))
+            self.baseline = tracker.baseline
+            k = len(new_pos)
+            self._lattice_ij = np.vstack([self._lattice_ij, np.array(new_ij, np.int64)])
+            self._sum_pos = np.vstack([self._sum_pos, np.zeros((k, 2))])
+            self._sum_size = np.concatenate([self._sum_size, np.zeros(k)])
+            self._n_seen = np.concatenate([self._n_seen, np.zeros(k, np.int64)])
 
     def _end_refinement(self) -> MarkerBaseline:
         """Rest positions := mean measured positions of the refinement frames; the ids stay."""

@@ -96,7 +96,9 @@ def _median_u8(channel: np.ndarray) -> float:
 
 
 def object_moments(mask: np.ndarray, scale: float = 1.0, round_tolerance: float = 0.03) -> ObjectMoments:
-    """Area, centroid and orientation of a binary mask whose pixels are ``scale`` full-res pixels wide."""
+    """Area, centroid and orientation of a binary mask whose pixels are ``scale`` full-res pixels wide.
+
+    Valid input: any 2-D mask (an empty one is "no object": area 0, centroid and orientation None)."""
     m = cv2.moments(np.ascontiguousarray(mask, dtype=np.uint8), binaryImage=True)
     m00 = m["m00"]
     if not m00 > 0:
@@ -120,7 +122,8 @@ def estimate_shift(
     """Translation (dx, dy) in pixels that moves ``prev`` onto ``cur`` over ``region`` (iterative LK).
 
     Each image is divided by its mean over the region first (robust to a light gain). Returns None
-    when the region holds too few textured pixels to tell.
+    when the region holds too few textured pixels to tell, or when the solution leaves the image
+    (never a non-finite or out-of-frame shift). Valid input: three arrays of one shape.
     """
     if prev.shape != cur.shape or region.shape != cur.shape:
         raise ValueError(f"estimate_shift: shapes differ: prev {prev.shape}, cur {cur.shape}, region {region.shape}")
@@ -150,7 +153,7 @@ def estimate_shift(
     h, w = b.shape
     for _ in range(max(1, iterations)):
         # warp prev forward by d: warped(x) = prev(x - d); residual against cur
-        M = np.float32([[1, 0, d[0]], [0, 1, d[1]]])
+        M = np.array([[1, 0, d[0]], [0, 1, d[1]]], dtype=np.float32)
         warped = cv2.warpAffine(a, M, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         it = (b - warped)[sel].astype(np.float64)
         step = -Ainv @ np.array([sx @ it, sy @ it])
@@ -314,7 +317,9 @@ class ProximityVision:
         """Object moments and slip in one frame.
 
         ``exclude_px``: (N, 2) points (markers, which do not move with the object) whose
-        neighbourhood of ``exclude_radius_px`` is left out of the slip estimate.
+        neighbourhood of ``exclude_radius_px`` is left out of the slip estimate (non-finite ones are
+        ignored). Valid input: frames of at least 2 x downsample px a side (:class:`InvalidFrame`
+        otherwise); no object learnt gives "no object" and no slip.
         """
         p = self.params
         mask = self.object_mask(frame_bgr)
@@ -324,9 +329,9 @@ class ProximityVision:
         # slip on the coarse grid
         f = self._checked(frame_bgr)
         # luminance, not the HSV value: a saturated red channel would flatten an orange object's texture
-        gray = f.reshape(f.shape[:2]) if f.ndim == 2 or f.shape[2] == 1 else cv2.cvtColor(f, cv2.COLOR_BGR2GRAY)
+        gray: np.ndarray = f.reshape(f.shape[:2]) if f.ndim == 2 or f.shape[2] == 1 else cv2.cvtColor(f, cv2.COLOR_BGR2GRAY)
         ks = p.slip_downsample
-        sh, sw = gray.shape[0] // ks, gray.shape[1] // ks
+        sh, sw = int(f.shape[0]) // ks, int(f.shape[1]) // ks
         small = cv2.resize(gray, (sw, sh), interpolation=cv2.INTER_AREA) if ks > 1 else gray.copy()
         region = cv2.resize(mask, (sw, sh), interpolation=cv2.INTER_NEAREST)
         if mom.area_px == 0:

@@ -75,6 +75,9 @@ class KalmanBank:
     covariance are equal and independent of the size block, so the 5x5 covariance of each marker is
     stored as one symmetric 2x2 axis block ``(p00, p01, p11)`` plus a size variance ``ps``: the same
     filter in closed form, elementwise over markers (no batched matrix algebra per frame).
+
+    Valid input: noises > 0 (``ValueError`` otherwise), time steps >= 0 s; the covariance stays
+    symmetric positive definite and finite (10^5-step and extreme-step property tests).
     """
 
     def __init__(
@@ -114,39 +117,39 @@ class KalmanBank:
         """Advance the selected markers by ``dt_s`` seconds (constant velocity)."""
         if not np.any(which):
             return
-        which = _sel(which)
+        sel = _sel(which)
         q = self.q
-        self.pos[which] += self.vel[which] * dt_s
+        self.pos[sel] += self.vel[sel] * dt_s
         # all new values are computed before any is stored: with a slice the inputs are views
-        p00, p01, p11 = self.p00[which], self.p01[which], self.p11[which]
+        p00, p01, p11 = self.p00[sel], self.p01[sel], self.p11[sel]
         n00 = p00 + 2.0 * dt_s * p01 + dt_s * dt_s * p11 + q
         n01 = p01 + dt_s * p11
         n11 = p11 + q
-        self.p00[which], self.p01[which], self.p11[which] = n00, n01, n11
-        self.ps[which] += q
+        self.p00[sel], self.p01[sel], self.p11[sel] = n00, n01, n11
+        self.ps[sel] += q
 
     def update(self, z: np.ndarray, which: np.ndarray) -> None:
         """Fuse measurements ``z`` (N, 3) = (x, y, size) for the selected markers (Joseph form)."""
         if not np.any(which):
             return
-        which = _sel(which)
+        sel = _sel(which)
         r = self.r
-        p00, p01, p11 = self.p00[which], self.p01[which], self.p11[which]
+        p00, p01, p11 = self.p00[sel], self.p01[sel], self.p11[sel]
         k0 = p00 / (p00 + r)
         k1 = p01 / (p00 + r)
-        innov = z[which, :2] - self.pos[which]
-        self.pos[which] += k0[:, None] * innov
-        self.vel[which] += k1[:, None] * innov
+        innov = z[sel, :2] - self.pos[sel]
+        self.pos[sel] += k0[:, None] * innov
+        self.vel[sel] += k1[:, None] * innov
         a = 1.0 - k0
         # P+ = A P A^T + r K K^T with A = I - K H, H = [1, 0]: stays symmetric positive definite
         n00 = a * a * p00 + r * k0 * k0
         n01 = a * (p01 - k1 * p00) + r * k0 * k1
         n11 = k1 * k1 * p00 - 2.0 * k1 * p01 + p11 + r * k1 * k1
-        self.p00[which], self.p01[which], self.p11[which] = n00, n01, n11
-        ps = self.ps[which]
+        self.p00[sel], self.p01[sel], self.p11[sel] = n00, n01, n11
+        ps = self.ps[sel]
         ks = ps / (ps + r)
-        self.size[which] += ks * (z[which, 2] - self.size[which])
-        self.ps[which] = (1.0 - ks) ** 2 * ps + r * ks * ks
+        self.size[sel] += ks * (z[sel, 2] - self.size[sel])
+        self.ps[sel] = (1.0 - ks) ** 2 * ps + r * ks * ks
 
     def hold(self, which: np.ndarray, previous: tuple[np.ndarray, ...]) -> None:
         """A missed marker stays where it was before the prediction, with zero velocity (no drift)."""
@@ -154,6 +157,18 @@ class KalmanBank:
         self.pos[which] = pos[which]
         self.vel[which] = 0.0
         self.size[which] = size[which]
+
+    def append(self, positions_px: np.ndarray, sizes_px: np.ndarray) -> None:
+        """Add markers at rest (zero velocity, initial covariance) after the existing ones."""
+        pos = np.asarray(positions_px, dtype=np.float64).reshape(-1, 2)
+        n = len(pos)
+        self.pos = np.vstack([self.pos, pos])
+        self.vel = np.vstack([self.vel, np.zeros((n, 2))])
+        self.size = np.concatenate([self.size, np.asarray(sizes_px, dtype=np.float64).reshape(n)])
+        self.p00 = np.concatenate([self.p00, np.full(n, self.r)])
+        self.p01 = np.concatenate([self.p01, np.zeros(n)])
+        self.p11 = np.concatenate([self.p11, np.full(n, self.r)])
+        self.ps = np.concatenate([self.ps, np.full(n, self.r)])
 
     def covariance(self, i: int) -> np.ndarray:
         """The full 5x5 covariance of marker ``i`` in state order (x, vx, y, vy, s)."""
@@ -211,6 +226,27 @@ class MarkerTracker:
             else None
         )
         self._last_t_s: float | None = None
+
+    def add_markers(self, positions_px: np.ndarray, sizes_px: np.ndarray) -> np.ndarray:
+        """Add markers (rest positions and diameters, px) with new ids after the existing ones; returns
+        the new ids. The existing ids, positions and filter states do not change."""
+        pos = np.asarray(positions_px, dtype=np.float64).reshape(-1, 2)
+        size = np.asarray(sizes_px, dtype=np.float64).reshape(len(pos))
+        n0, n = len(self.ids), len(pos)
+        b = self.baseline
+        self.baseline = MarkerBaseline(np.vstack([b.positions_px.reshape(-1, 2), pos]),
+                                       np.concatenate([b.sizes_px, size]),
+                                       np.concatenate([np.asarray(b.valid, bool), np.ones(n, bool)]))
+        self.ids = np.arange(n0 + n)
+        self.positions_px = np.vstack([self.positions_px, pos])
+        self.sizes_px = np.concatenate([self.sizes_px, size])
+        self.misses = np.concatenate([self.misses, np.zeros(n, np.int64)])
+        self.lost = np.concatenate([self.lost, np.zeros(n, bool)])
+        self._confirm = np.concatenate([self._confirm, np.zeros(n, np.int64)])
+        self._confirm_pos = np.vstack([self._confirm_pos, np.zeros((n, 2))])
+        if self.kalman is not None:
+            self.kalman.append(pos, size)
+        return self.ids[n0:].copy()
 
     def update(self, contrast: np.ndarray, t_s: float | None = None) -> TrackState:
         """Measure every marker in ``contrast`` (see :func:`markers.contrast_map`); returns the new state.

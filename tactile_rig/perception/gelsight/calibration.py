@@ -12,11 +12,13 @@ import datetime as _dt
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 
 from tactile_rig.core.errors import CalibrationError, GradientOutOfRange, SaturatedFrame
+from tactile_rig.core.geometry import pitch_xy_mm
 from tactile_rig.perception.gelsight.models import COLOUR_SCALE, MODELS, LutModel
 
 FORMAT_VERSION = 1
@@ -185,8 +187,9 @@ class GelSightCalibration:
                  mm_per_px_y: float | None = None, ball_radius_mm: float = float("nan"),
                  sensor: str = "gelsight", date: str | None = None, bake_bins: int | None = 32,
                  bake_cells: tuple[int, int] = (6, 8), colour_range: float = 128.0,
-                 extra: dict | None = None) -> None:
+                 extra: dict | None = None, *, baked_table: np.ndarray | None = None) -> None:
         _check_frame(background_bgr, None, "background_bgr")
+        self._preloaded_table = baked_table  # a saved bake, used (and dropped) by _bake when it fits
         self.model = model
         self.background = np.ascontiguousarray(background_bgr)
         # Pixels already clipped with nothing touching (hot LEDs) do not count against a frame.
@@ -215,6 +218,7 @@ class GelSightCalibration:
         h, w = self.shape
         self._g0: np.ndarray | None = None
         self._raw_table: np.ndarray | None = None
+        self._table: np.ndarray | None = None
         if isinstance(self.model, LutModel):
             self._setup_table(self.model.table.reshape(-1, 2), self.model.bins, self.model.colour_range,
                               np.zeros(h * w, np.int64))
@@ -248,7 +252,7 @@ class GelSightCalibration:
     def _bake(self, bins: int) -> None:
         h, w = self.shape
         cy, cx = self.bake_cells
-        baked = self.__dict__.pop("_preloaded_table", None)
+        baked, self._preloaded_table = self._preloaded_table, None
         if baked is not None and baked.shape == (cy * cx * bins ** 3, 2):
             # The table saved with the calibration: baking an MLP costs about a second per load,
             # which a folder of frames through the CLI would pay every run.
@@ -385,11 +389,11 @@ class GelSightCalibration:
             background = data["background"]
             baked = data["baked_table"].astype(np.float32) if "baked_table" in data.files else None
         model = MODELS[kind].from_arrays(arrays)
-        cal = cls.__new__(cls)
-        cal._preloaded_table = baked
-        cal.__init__(model, background, meta["mm_per_px_x"], meta["mm_per_px_y"], meta["ball_radius_mm"],
-                     meta.get("sensor", "gelsight"), meta.get("date"), meta.get("bake_bins"),
-                     tuple(meta.get("bake_cells", (6, 8))), meta.get("colour_range", 128.0), meta.get("extra"))
+        cells = tuple(meta.get("bake_cells", (6, 8)))
+        cal = cls(model, background, meta["mm_per_px_x"], meta["mm_per_px_y"], meta["ball_radius_mm"],
+                  meta.get("sensor", "gelsight"), meta.get("date"), meta.get("bake_bins"),
+                  (int(cells[0]), int(cells[1])), meta.get("colour_range", 128.0), meta.get("extra"),
+                  baked_table=baked)
         return cal
 
 
@@ -415,7 +419,7 @@ def make_model(method: str, **hyper: object) -> object:
 def calibrate_from_presses(press_dir: str | Path | PressSet, mm_per_px: float | tuple[float, float],
                            ball_radius_mm: float, method: str = "mlp", *, sensor: str = "gelsight",
                            fit: FitOptions = FitOptions(), bake_bins: int | None = 32,
-                           bake_cells: tuple[int, int] = (6, 8), **hyper: object) -> GelSightCalibration:
+                           bake_cells: tuple[int, int] = (6, 8), **hyper: Any) -> GelSightCalibration:
     """Fit a calibration from ball presses (folder or :class:`PressSet`).
 
     mm_per_px: scalar or (x, y) in mm per pixel; ball_radius_mm: the ball's radius. method: "lut"
@@ -424,7 +428,7 @@ def calibrate_from_presses(press_dir: str | Path | PressSet, mm_per_px: float | 
     evaluation (None: evaluate the model per pixel).
     """
     presses = press_dir if isinstance(press_dir, PressSet) else load_presses(press_dir)
-    sx, sy = (mm_per_px, mm_per_px) if np.isscalar(mm_per_px) else mm_per_px  # type: ignore[misc]
+    sx, sy = pitch_xy_mm(mm_per_px)
     if not (float(ball_radius_mm) > 0):
         raise ValueError(f"ball_radius_mm must be > 0, got {ball_radius_mm!r}")
     if not (float(sx) > 0 and float(sy) > 0):

@@ -8,13 +8,14 @@ in :class:`HeightMapper` and reused for every frame.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import cv2
 import numpy as np
 from scipy import fft as sfft
 
 from tactile_rig.core.errors import GradientOutOfRange
+from tactile_rig.core.geometry import pitch_xy_mm
 
 Solver = Literal["dst", "dct", "fc"]
 SOLVERS: tuple[str, ...] = ("dst", "dct", "fc")
@@ -89,9 +90,9 @@ class HeightMapper:
     """
 
     def __init__(self, shape: tuple[int, int], mm_per_px_x: float, mm_per_px_y: float | None = None,
-                 params: IntegrationParams | None = None, **knobs: object) -> None:
+                 params: IntegrationParams | None = None, **knobs: Any) -> None:
         if params is None:
-            params = IntegrationParams(**knobs)  # type: ignore[arg-type]
+            params = IntegrationParams(**knobs)
         elif knobs:
             raise ValueError("pass either params or individual knobs, not both")
         mm_per_px_y = mm_per_px_x if mm_per_px_y is None else mm_per_px_y
@@ -229,7 +230,7 @@ class HeightMapper:
 
 
 def height_map_mm(gx: np.ndarray, gy: np.ndarray, mm_per_px: float | tuple[float, float],
-                  method: str = "dct", mask: np.ndarray | None = None, **knobs: object) -> np.ndarray:
+                  method: str = "dct", mask: np.ndarray | None = None, **knobs: Any) -> np.ndarray:
     """One-shot height map in mm from slopes (builds a :class:`HeightMapper`; reuse one for video).
 
     mm_per_px: a scalar or (x, y) pitch in mm per pixel. method: "dst", "dct" or "fc". Valid input,
@@ -237,8 +238,8 @@ def height_map_mm(gx: np.ndarray, gy: np.ndarray, mm_per_px: float | tuple[float
     :class:`~tactile_rig.core.errors.GradientOutOfRange`).
     """
     _check_gradients(gx, gy)
-    sx, sy = (mm_per_px, mm_per_px) if np.isscalar(mm_per_px) else mm_per_px  # type: ignore[misc]
-    mapper = HeightMapper(gx.shape, float(sx), float(sy), solver=method, **knobs)
+    sx, sy = pitch_xy_mm(mm_per_px)
+    mapper = HeightMapper(gx.shape, sx, sy, solver=method, **knobs)
     return mapper.height_mm(gx, gy, mask=mask)
 
 

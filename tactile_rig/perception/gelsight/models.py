@@ -8,6 +8,7 @@ are the frame minus background in 0..255 units divided by 255 and u, v the pixel
 from __future__ import annotations
 
 import itertools
+from typing import Any
 
 import numpy as np
 
@@ -227,4 +228,4 @@ class MlpModel:
         return m
 
 
-MODELS = {"lut": LutModel, "poly": PolyModel, "mlp": MlpModel}
+MODELS: dict[str, Any] = {"lut": LutModel, "poly": PolyModel, "mlp": MlpModel}  # name -> model class (fit, from_arrays)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -74,7 +75,7 @@ def colour_coverage(presses: PressSet, bins: int = 16, colour_range: float = 128
 def cross_validate(presses: PressSet, mm_per_px: float, ball_radius_mm: float, method: str = "mlp",
                    folds: int = 5, integration: IntegrationParams | None = None,
                    contact: ContactParams | None = None, fit: FitOptions = FitOptions(),
-                   bake_bins: int | None = 32, **hyper: object) -> CalibrationReport:
+                   bake_bins: int | None = 32, **hyper: Any) -> CalibrationReport:
     """k-fold held-out errors: press i is in test fold i % folds; fit on the rest, measure on it."""
     n = len(presses.frames)
     if folds < 2 or folds > n:

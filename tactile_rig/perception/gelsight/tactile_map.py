@@ -141,7 +141,7 @@ class TactileMap:
             self._place(z, m_px)
             pose = self._touch_px_to_mm(m_px, z.shape)
             self.poses.append(invert_rigid(pose))
-            res = _result(True, m_px, self.total.shape, z.shape, (self.mm_per_px,) * 2, 1.0, 0, "root",  # type: ignore[arg-type]
+            res = _result(True, m_px, self.total.shape, z.shape, (self.mm_per_px,) * 2, 1.0, 0, "root",
                           None, 0, 1.0)
             res.matrix_mm = pose
             res.translation_mm = pose[:, 2].copy()
@@ -165,9 +165,9 @@ class TactileMap:
         ok = fit.ncc >= self.params.min_ncc and fit.overlap >= self.params.min_overlap and _pinned(fit, self.params)
         assert self.total is not None
         if not ok:
-            return _result(False, None, self.total.shape, z.shape, (self.mm_per_px,) * 2, 0.0, 0, "hint",  # type: ignore[arg-type]
+            return _result(False, None, self.total.shape, z.shape, (self.mm_per_px,) * 2, 0.0, 0, "hint",
                            "hint_not_confirmed", 0, fit.ncc)
-        return _result(True, fit.matrix_px, self.total.shape, z.shape, (self.mm_per_px,) * 2, 1.0, 0,  # type: ignore[arg-type]
+        return _result(True, fit.matrix_px, self.total.shape, z.shape, (self.mm_per_px,) * 2, 1.0, 0,
                        "hint", None, 0, fit.ncc)
 
     def _map_features(self) -> Features:

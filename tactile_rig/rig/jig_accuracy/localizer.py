@@ -97,6 +97,7 @@ class TouchLocalizer:
         if not rec.accepted:
             reason = res.reason or f"confidence {res.confidence:.3f} <= {self.min_map_confidence}"
             return TouchLocalization(None, float(res.confidence), res.method, reason, res)
+        assert res.matrix_mm is not None  # an accepted registration always carries its transform
         return TouchLocalization(pose_from_touch_matrix(res.matrix_mm), float(res.confidence), res.method, None, res)
 
     def localize(self, height_mm: np.ndarray) -> TouchLocalization:
@@ -106,6 +107,7 @@ class TouchLocalizer:
         res = self.map.localize(height_mm)
         if not res.ok:
             return TouchLocalization(None, float(res.confidence), res.method, res.reason, res)
+        assert res.matrix_mm is not None  # an accepted localization always carries its transform
         return TouchLocalization(pose_from_touch_matrix(res.matrix_mm), float(res.confidence), res.method, None, res)
 
     def save_map(self, path: str | Path) -> None:

@@ -30,7 +30,8 @@ def format_table(results: Sequence[PointResult], summary: dict[str, Any]) -> str
         lines.append(
             f"{r.index:>3} {r.sweep:<11} {r.commanded.theta_deg:>7.1f} {r.commanded.x_mm:>6.1f} "
             f"{r.commanded.y_mm:>6.1f} | {r.truth.theta_deg:>8.3f} {r.truth.x_mm:>7.3f} {r.truth.y_mm:>7.3f} | "
-            f"{_f(e and e.theta_deg, '8.3f'):>8} {_f(e and e.x_mm, '7.3f'):>7} {_f(e and e.y_mm, '7.3f'):>7} | "
+            f"{_f(e.theta_deg if e else None, '8.3f'):>8} {_f(e.x_mm if e else None, '7.3f'):>7} "
+            f"{_f(e.y_mm if e else None, '7.3f'):>7} | "
             f"{_f(r.rotation_error_deg, '6.3f'):>6} {_f(r.translation_error_mm, '6.3f'):>6} "
             f"{_f(r.confidence, '5.3f'):>5}" + ("" if r.ok else f"  refused: {r.reason}"))
     lines.append("")

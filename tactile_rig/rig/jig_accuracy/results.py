@@ -85,8 +85,8 @@ def summarize(results: Iterable[PointResult]) -> dict[str, Any]:
     ok = [r for r in res if r.ok]
     rot = [r.rotation_error_deg for r in ok if r.sweep == "rotation" and r.rotation_error_deg is not None]
     tra = [r.translation_error_mm for r in ok if r.sweep == "translation" and r.translation_error_mm is not None]
-    rot_mae, rot_std = _mae_std(rot)  # type: ignore[arg-type]
-    tra_mae, tra_std = _mae_std(tra)  # type: ignore[arg-type]
+    rot_mae, rot_std = _mae_std(rot)
+    tra_mae, tra_std = _mae_std(tra)
     rot_all = _mae_std([r.rotation_error_deg for r in ok])  # type: ignore[misc]
     tra_all = _mae_std([r.translation_error_mm for r in ok])  # type: ignore[misc]
     return {"type": "summary", "n_points": len(res), "n_localized": len(ok), "n_refused": len(res) - len(ok),

@@ -9,7 +9,7 @@ Devices (each its own process, real time):
 * ``scale``: the HX711 sketch's mock on a pty (``tactile-rig mock serve scale``), 57600 baud, 80 samples/s;
 * ``jig`` + ``camera_gelsight``: the GRBL mock on a pty and the GelSight camera rendering the object on
   its stage, served as MJPEG over HTTP (:mod:`.child` ``stage``: one process, one world);
-* ``camera_<name>`` for each recorded footage given (``cameras={"fingervision": "run.mcap#/camera/x"}``):
+* ``camera_<name>`` for each recorded footage given (``cameras={"fingervision": "run.mcap#/camera_x/image/compressed"}``):
   the footage played at its recorded rate as MJPEG over HTTP (:mod:`.child` ``camera``); the source
   ``"rendered"`` is a FingerVision video the rehearsal writes first to ``OUT/footage/<name>.avi``.
 

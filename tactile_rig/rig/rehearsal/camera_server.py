@@ -48,7 +48,8 @@ class CameraServer:
     @property
     def url(self) -> str:
         host, port = self._httpd.server_address[:2]
-        return f"http://{host}:{port}/stream.mjpg"
+        host_text = host.decode() if isinstance(host, bytes) else str(host)
+        return f"http://{host_text}:{port}/stream.mjpg"
 
     def start(self) -> "CameraServer":
         self._thread = threading.Thread(target=self._httpd.serve_forever, name="camera-http", daemon=True)

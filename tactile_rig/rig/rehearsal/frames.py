@@ -129,7 +129,7 @@ def write_fingervision_footage(path: str | Path, *, seconds: float = 8.0, fps: f
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     renderer = FingerVisionRenderer((240, 320), seed=seed)
-    writer = cv2.VideoWriter(str(out), cv2.VideoWriter_fourcc(*"MJPG"), float(fps), (320, 240))
+    writer = cv2.VideoWriter(str(out), cv2.VideoWriter.fourcc(*"MJPG"), float(fps), (320, 240))
     if not writer.isOpened():
         raise OSError(f"OpenCV cannot write an MJPG video to {out}")
     try:

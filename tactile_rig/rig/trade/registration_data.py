@@ -115,7 +115,8 @@ def retouch_set(part: str = "plate", *, rotations_deg: tuple[float, ...] = ROTAT
 
     def touch(pose: tuple[float, float, float], depth: float, blur: float, noise: float) -> Touch:
         r = render.GelSightRenderer(cal.background, MINI_MM_PER_PX, smoothing_mm=blur,
-                                    noise_sigma=tuple(float(v) * noise for v in render.TAXIM_NOISE_SIGMA),
+                                    noise_sigma=(render.TAXIM_NOISE_SIGMA[0] * noise, render.TAXIM_NOISE_SIGMA[1] * noise,
+                                                 render.TAXIM_NOISE_SIGMA[2] * noise),
                                     flicker_sigma=0.5, seed=int(rng.integers(2**31)))
         frame, _ = r.render_object(obj, depth, *pose)
         return Touch(rec.height_mm(frame), frame, pose, depth, blur)

@@ -241,7 +241,7 @@ class FingerVisionRenderer:
             raise ValueError(f"FvCard.offset_px={card.offset_px!r} must be finite")
         rows, cols = self.shape_px
         paper, ink = _card_layers(card)
-        m = np.float32([[1, 0, ox], [0, 1, oy]])
+        m = np.array([[1, 0, ox], [0, 1, oy]], dtype=np.float32)
         pa = cv2.warpAffine(paper, m, (cols, rows), flags=cv2.INTER_LINEAR, borderValue=0)[..., None] * np.float32(0.9)
         ia = cv2.warpAffine(ink, m, (cols, rows), flags=cv2.INTER_LINEAR, borderValue=0)[..., None] * np.float32(0.9)
         out = img.astype(np.float32)
@@ -305,7 +305,7 @@ class FingerVisionRendererModel:
                  px_per_n_shear: float = 4.0, deg_per_nmm: float = 0.05, full_load_n: float = 10.0,
                  noise_sigma: float = 2.0, light_gain: float = 1.0) -> None:
         self.world = world
-        self.renderer = FingerVisionRenderer(tuple(int(v) for v in shape_px), noise_sigma=noise_sigma, seed=rng)
+        self.renderer = FingerVisionRenderer((int(shape_px[0]), int(shape_px[1])), noise_sigma=noise_sigma, seed=rng)
         self.mm_per_px = check_range("mm_per_px", float(mm_per_px), 1e-4, 10.0, "mm/px")
         self.object_name, self.contact_name = object, contact
         self.px_per_n_shear, self.deg_per_nmm, self.full_load_n = px_per_n_shear, deg_per_nmm, full_load_n

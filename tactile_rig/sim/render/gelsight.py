@@ -191,7 +191,7 @@ class GelSightRenderer:
         lighting: LightingModel = TAXIM_LIGHTING,
         smoothing_mm: float = 0.6,
         max_protrusion_mm: float = 1.0,
-        noise_sigma: float | tuple[float, float, float] = TAXIM_NOISE_SIGMA,
+        noise_sigma: float | tuple[float, float, float] | list[float] = TAXIM_NOISE_SIGMA,
         flicker_sigma: float = 0.0,
         seed: int | np.random.Generator | None = 0,
     ) -> None:
@@ -484,11 +484,12 @@ class GelSightRendererModel:
     def __init__(self, world: Any, rng: np.random.Generator, *, background: str = "taxim",
                  shape_px: tuple[int, int] | list[int] | None = None, mm_per_px: float | None = None,
                  object: str = "object", stage: str = "stage", smoothing_mm: float = 0.6,  # noqa: A002
-                 max_protrusion_mm: float = 1.0, noise_sigma: float | list[float] = TAXIM_NOISE_SIGMA,
+                 max_protrusion_mm: float = 1.0,
+                 noise_sigma: float | tuple[float, float, float] | list[float] = TAXIM_NOISE_SIGMA,
                  flicker_sigma: float = 0.0) -> None:
         native = BACKGROUNDS.get(background)
         bg = load_background(background)
-        shape = tuple(int(v) for v in shape_px) if shape_px is not None else bg.shape[:2]
+        shape = (int(shape_px[0]), int(shape_px[1])) if shape_px is not None else (bg.shape[0], bg.shape[1])
         if mm_per_px is None:
             if native is None:
                 raise ValueError(f"gelsight_renderer: mm_per_px is required for background {background!r}")
