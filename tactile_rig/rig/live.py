@@ -24,7 +24,7 @@ import numpy as np
 
 from tactile_rig.core.clock import Clock, RealClock
 from tactile_rig.core.jsonable import to_jsonable
-from tactile_rig.rig.recording import SCHEMAS, camera_topic
+from tactile_rig.rig.recording import SCHEMAS, TopicWriter, camera_topic
 
 __all__ = ["DEFAULT_LIVE_PORT", "LiveServer", "Tee", "require_foxglove"]
 
@@ -58,14 +58,7 @@ def _encode(body: Mapping[str, Any]) -> bytes:
         return json.dumps(to_jsonable(dict(body)), separators=(",", ":"), allow_nan=False).encode()
 
 
-def _as_dict(obj: Any) -> dict[str, Any]:
-    if isinstance(obj, Mapping):
-        return dict(obj)
-    out = to_jsonable(obj)
-    return out if isinstance(out, dict) else {"value": out}
-
-
-class LiveServer:
+class LiveServer(TopicWriter):
     """A Foxglove WebSocket server on ``host:port`` (``port=0``: any free port; see :attr:`port`).
 
     ``clock`` gives each message's ``t_s`` (default: monotonic wall time); log times are Unix ns.
@@ -160,21 +153,6 @@ class LiveServer:
         msg = {"timestamp": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}, "frame_id": camera,
                "format": "png" if ext == ".png" else "jpeg", "data": base64.b64encode(buf.tobytes()).decode("ascii")}
         self.write(camera_topic(camera, compressed=True), msg, t_s=t, schema="foxglove.CompressedImage")
-
-    def write_perception(self, name: str, result: Any, *, t_s: float | None = None) -> None:
-        self.write(f"/perception/{name}", _as_dict(result), t_s=t_s, schema="tactile_rig.Perception")
-
-    def write_state(self, device: str, state: Any, *, t_s: float | None = None) -> None:
-        self.write(f"/state/{device}", _as_dict(state), t_s=t_s, schema="tactile_rig.DeviceState")
-
-    def write_command(self, device: str, command: str, *, t_s: float | None = None, **args: Any) -> None:
-        self.write(f"/command/{device}", {"command": command, **args}, t_s=t_s, schema="tactile_rig.Command")
-
-    def write_jig_pose(self, pose: Any, *, t_s: float | None = None, **extra: Any) -> None:
-        self.write("/jig/pose", {**_as_dict(pose), **extra}, t_s=t_s, schema="tactile_rig.JigPose")
-
-    def write_scale(self, force_n: float, *, t_s: float | None = None, **extra: Any) -> None:
-        self.write("/scale/force", {"force_n": float(force_n), **extra}, t_s=t_s, schema="tactile_rig.ScaleReading")
 
     def write_trace(self, name: str, trace: Any, *, t0_s: float = 0.0) -> int:
         """A controller's :class:`~tactile_rig.core.types.Trace`, one message per sample on

@@ -115,7 +115,37 @@ def _stamp(t_ns: int) -> dict[str, int]:
     return {"sec": max(0, t_ns) // 1_000_000_000, "nsec": max(0, t_ns) % 1_000_000_000}
 
 
-class Recorder:
+class TopicWriter:
+    """The typed topics a session publishes, shared by the recording and the live view (same topics,
+    same schemas): each ``write_*`` builds its message and hands it to ``self.write``."""
+
+    def write(self, topic: str, payload: Mapping[str, Any], *, t_s: float | None = None,
+              schema: str = "tactile_rig.Json") -> None:
+        raise NotImplementedError
+
+    def write_perception(self, name: str, result: Any, *, t_s: float | None = None) -> None:
+        """A perception result on ``/perception/<name>``."""
+        self.write(f"/perception/{name}", _as_dict(result), t_s=t_s, schema="tactile_rig.Perception")
+
+    def write_state(self, device: str, state: Any, *, t_s: float | None = None) -> None:
+        """A device's state on ``/state/<device>``."""
+        self.write(f"/state/{device}", _as_dict(state), t_s=t_s, schema="tactile_rig.DeviceState")
+
+    def write_command(self, device: str, command: str, *, t_s: float | None = None, **args: Any) -> None:
+        """A command sent to a device, on ``/command/<device>``."""
+        self.write(f"/command/{device}", {"command": command, **args}, t_s=t_s, schema="tactile_rig.Command")
+
+    def write_jig_pose(self, pose: Any, *, t_s: float | None = None, **extra: Any) -> None:
+        """The jig's pose (mm, deg) on ``/jig/pose``."""
+        self.write("/jig/pose", {**_as_dict(pose), **extra}, t_s=t_s, schema="tactile_rig.JigPose")
+
+    def write_scale(self, force_n: float, *, t_s: float | None = None, **extra: Any) -> None:
+        """A scale reading (N) on ``/scale/force``."""
+        self.write("/scale/force", {"force_n": float(force_n), **extra}, t_s=t_s,
+                   schema="tactile_rig.ScaleReading")
+
+
+class Recorder(TopicWriter):
     """Write one session to an MCAP file, incrementally.
 
     ``clock`` gives every message's time (default wall time). ``flush_interval_s`` bounds what a
@@ -250,22 +280,6 @@ class Recorder:
         body = json.dumps(head, separators=(",", ":"))[:-1].encode() + b',"data":"' + \
             base64.b64encode(img.tobytes()) + b'"}'
         self._add(topic, "foxglove.RawImage", body, t)
-
-    def write_perception(self, name: str, result: Any, *, t_s: float | None = None) -> None:
-        self.write(f"/perception/{name}", _as_dict(result), t_s=t_s, schema="tactile_rig.Perception")
-
-    def write_state(self, device: str, state: Any, *, t_s: float | None = None) -> None:
-        self.write(f"/state/{device}", _as_dict(state), t_s=t_s, schema="tactile_rig.DeviceState")
-
-    def write_command(self, device: str, command: str, *, t_s: float | None = None, **args: Any) -> None:
-        self.write(f"/command/{device}", {"command": command, **args}, t_s=t_s, schema="tactile_rig.Command")
-
-    def write_jig_pose(self, pose: Any, *, t_s: float | None = None, **extra: Any) -> None:
-        self.write("/jig/pose", {**_as_dict(pose), **extra}, t_s=t_s, schema="tactile_rig.JigPose")
-
-    def write_scale(self, force_n: float, *, t_s: float | None = None, **extra: Any) -> None:
-        self.write("/scale/force", {"force_n": float(force_n), **extra}, t_s=t_s,
-                   schema="tactile_rig.ScaleReading")
 
     # -- metadata and attachments -----------------------------------------------------------
     def add_metadata(self, name: str, values: Mapping[str, Any]) -> None:
