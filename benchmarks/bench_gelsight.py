@@ -24,7 +24,6 @@ from _output import add_save_args, parse_args, save_json  # noqa: E402  (benchma
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-from scipy import fft as sfft  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -32,8 +31,8 @@ sys.path.insert(0, str(ROOT))
 from tactile_rig.perception.gelsight import (  # noqa: E402
     ContactParams, IntegrationParams, Reconstructor, RegistrationParams, TactileMap, calibrate_from_presses,
     clamp_radius_px, load_presses, press_error, register, sphere_cap)
-from tactile_rig.perception.gelsight.calibration import pixel_features  # noqa: E402
 from tactile_rig.perception.gelsight.synthetic import jig_move, tile  # noqa: E402
+from tactile_rig.rig.trade.gelsight import gs_sdk_style_height  # noqa: E402
 
 PRESSES = ROOT / "tests" / "data" / "taxim_gelsight_ball" / "presses"
 MM = 0.1245
@@ -99,16 +98,7 @@ def calibration_table(quick: bool) -> list[dict]:
 # -- reconstruction speed at 320x240 ------------------------------------------------------------------
 def _gs_sdk_style(cal, frame: np.ndarray) -> np.ndarray:
     """Baseline: per-pixel MLP on BGRXY, then a DCT Poisson solve whose eigenvalues are built per frame."""
-    diff = frame.astype(np.float32) - cal.background.astype(np.float32)
-    g = cal.model.predict(pixel_features(diff)).reshape(frame.shape[0], frame.shape[1], 2).astype(np.float64)
-    gx, gy = g[..., 0] * cal.mm_per_px_x, g[..., 1] * cal.mm_per_px_y
-    f = np.gradient(gx, axis=1) + np.gradient(gy, axis=0)
-    h, w = f.shape
-    d = (2 * np.cos(np.pi * np.arange(h) / h) - 2)[:, None] + (2 * np.cos(np.pi * np.arange(w) / w) - 2)[None, :]
-    d[0, 0] = 1
-    t = sfft.dctn(f, type=2, norm="ortho") / d
-    t[0, 0] = 0
-    return sfft.idctn(t, type=2, norm="ortho")
+    return gs_sdk_style_height(cal.model, cal.background, (cal.mm_per_px_x, cal.mm_per_px_y), frame)
 
 
 def speed_table(quick: bool) -> list[dict]:

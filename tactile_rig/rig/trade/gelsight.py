@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 from scipy import fft as sfft
 
+from tactile_rig.core.geometry import pitch_xy_mm
 from tactile_rig.perception.gelsight import (
     ContactParams,
     GelSightCalibration,
@@ -140,12 +141,14 @@ def _interleaved(fns: list[Callable[[], Any]], calls: list[int], rounds: int) ->
     return best
 
 
-def gs_sdk_style_height(model: object, background: np.ndarray, mm_per_px: float, frame: np.ndarray) -> np.ndarray:
+def gs_sdk_style_height(model: object, background: np.ndarray, mm_per_px: float | tuple[float, float],
+                        frame: np.ndarray) -> np.ndarray:
     """Baseline: per-pixel MLP on (BGR, x, y), then a DCT Poisson solve whose eigenvalues are built
-    per frame (how gs_sdk's reconstruction is organised; re-implemented, not copied)."""
+    per frame (how gs_sdk's reconstruction is organised; re-implemented, not copied). Heights in mm."""
+    sx, sy = pitch_xy_mm(mm_per_px)
     diff = frame.astype(np.float32) - background.astype(np.float32)
     g = model.predict(pixel_features(diff)).reshape(frame.shape[0], frame.shape[1], 2).astype(np.float64)  # type: ignore[attr-defined]
-    gx, gy = g[..., 0] * mm_per_px, g[..., 1] * mm_per_px
+    gx, gy = g[..., 0] * sx, g[..., 1] * sy
     f = np.gradient(gx, axis=1) + np.gradient(gy, axis=0)
     h, w = f.shape
     d = (2 * np.cos(np.pi * np.arange(h) / h) - 2)[:, None] + (2 * np.cos(np.pi * np.arange(w) / w) - 2)[None, :]
