@@ -386,10 +386,7 @@ class DynamixelBus(Driver):
         """One validated exchange (bus lock held; no retry)."""
         def run() -> wire.StatusPacket:
             port = self._live_port()
-            self.stats.transactions += 1
-            if req.dxl_id in self._in_flight:
-                self._resync(port, req.dxl_id, what)
-            self._flush(port)
+            self._begin(port, [req.dxl_id], what)
             sent = self._send(port, req, what)
             return self._receive(port, req, sent, what)
         return self._guarded(what, run)
@@ -625,15 +622,20 @@ class DynamixelBus(Driver):
             out[i] = pkt.params
         return out
 
+    def _begin(self, port: UrlPortHandler, ids: list[int], what: str) -> None:
+        """Start a transaction: first settle any ID whose last answer never came (so a late status
+        cannot answer this request), then drop stale input."""
+        self.stats.transactions += 1
+        for i in ids:
+            if i in self._in_flight:
+                self._resync(port, i, what)
+        self._flush(port)
+
     def _group_read(self, instruction: int, params: bytes, reqs: list[tuple[int, int, int]], what: str
                     ) -> dict[int, bytes]:
         def run() -> dict[int, bytes]:
             port = self._live_port()
-            self.stats.transactions += 1
-            for i, _, _ in reqs:
-                if i in self._in_flight:
-                    self._resync(port, i, what)
-            self._flush(port)
+            self._begin(port, [i for i, _, _ in reqs], what)
             sent = self._send(port, wire.Request(self.protocol, wire.BROADCAST_ID, instruction, params), what)
             return self._group_receive(port, reqs, sent, what)
 
@@ -684,11 +686,7 @@ class DynamixelBus(Driver):
 
         def run() -> dict[int, bytes]:
             port = self._live_port()
-            self.stats.transactions += 1
-            for i, _, _ in reqs:
-                if i in self._in_flight:
-                    self._resync(port, i, what)
-            self._flush(port)
+            self._begin(port, [i for i, _, _ in reqs], what)
             sent = self._send(port, req, what)
             try:
                 pkt = self._receive(port, req, sent, what, exact=True)
