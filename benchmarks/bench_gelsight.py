@@ -33,6 +33,7 @@ from tactile_rig.perception.gelsight import (  # noqa: E402
     clamp_radius_px, load_presses, press_error, register, sphere_cap)
 from tactile_rig.perception.gelsight.synthetic import jig_move, tile  # noqa: E402
 from tactile_rig.rig.trade.gelsight import gs_sdk_style_height  # noqa: E402
+from tactile_rig.rig.trade.registration import brisk_baseline_px  # noqa: E402
 
 PRESSES = ROOT / "tests" / "data" / "taxim_gelsight_ball" / "presses"
 MM = 0.1245
@@ -130,29 +131,6 @@ def speed_table(quick: bool) -> list[dict]:
 
 
 # -- registration -------------------------------------------------------------------------------------
-def _baseline_brisk(a: np.ndarray, b: np.ndarray):
-    """Off-the-shelf: BRISK (default threshold) on min-max 8-bit heights, cross-checked matches,
-    OpenCV RANSAC partial affine; returns the B->A 2x3 px matrix or None."""
-    def u8(z):
-        z = np.nan_to_num(z)  # jig_move marks B's pixels outside A's frame NaN
-        z = z - z.min()
-        return (255 * z / max(float(z.max()), 1e-12)).astype(np.uint8)
-
-    make = cv2.BRISK_create if hasattr(cv2, "BRISK_create") else cv2.xfeatures2d.BRISK_create
-    det = _baseline_brisk.det = getattr(_baseline_brisk, "det", None) or make()
-    ka, da = det.detectAndCompute(u8(a), None)
-    kb, db = det.detectAndCompute(u8(b), None)
-    if da is None or db is None or len(ka) < 2 or len(kb) < 2:
-        return None
-    ms = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(db, da)
-    if len(ms) < 3:
-        return None
-    pb = np.float32([kb[m.queryIdx].pt for m in ms])
-    pa = np.float32([ka[m.trainIdx].pt for m in ms])
-    m, _ = cv2.estimateAffinePartial2D(pb, pa, method=cv2.RANSAC, ransacReprojThreshold=3.0)
-    return m
-
-
 def _truth_px(truth_mm: np.ndarray, shape) -> np.ndarray:
     h, w = shape
     c = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
@@ -203,7 +181,7 @@ def registration_speed(a: np.ndarray, quick: bool) -> list[dict]:
     rows.append({"config": "default, TactileMap.localize against a stored map (720x960 canvas), best of 5 batches",
                  "ms": dt * 1e3, "per_s": 1.0 / dt})
     print(f"  reg stored map: {dt * 1e3:.2f} ms ({1 / dt:.0f}/s)", flush=True)
-    dt = _timeit(lambda: _baseline_brisk(a, b), 50 if quick else 200)
+    dt = _timeit(lambda: brisk_baseline_px(a, b), 50 if quick else 200)
     rows.append({"config": "BASELINE BRISK + cv2 RANSAC, best of 5 batches", "ms": dt * 1e3, "per_s": 1.0 / dt})
     print(f"  reg baseline: {dt * 1e3:.2f} ms ({1 / dt:.0f}/s)", flush=True)
     return rows
@@ -253,7 +231,7 @@ def registration_table(quick: bool) -> tuple[list[dict], list[dict]]:
         a = surfaces[s]
         b, truth = jig_move(a, r, sh, MM)
         t = time.perf_counter()
-        m = _baseline_brisk(a, b)
+        m = brisk_baseline_px(a, b)
         times.append(time.perf_counter() - t)
         e = _errors(m, truth, a.shape) if m is not None else (np.inf, np.inf)
         if not (e[0] <= 1.0 and e[1] <= 0.1):
@@ -284,7 +262,7 @@ def registration_table(quick: bool) -> tuple[list[dict], list[dict]]:
             else:
                 e = _errors(res.matrix_px, truth, z.shape)
                 ours["right" if e[0] <= 1 and e[1] <= 0.1 else "wrong"] += 1
-            m = _baseline_brisk(z, b)
+            m = brisk_baseline_px(z, b)
             if m is None:
                 base["no_answer"] += 1
             else:

@@ -300,17 +300,21 @@ def loads_json(data: bytes | str, source: str | Path, what: str = "JSON", *, max
     p = Path(str(source))
     if len(raw) > max_bytes:
         raise BadFile(p, f"{what} is {len(raw)} bytes", f"at most {max_bytes} bytes")
-    depth = json_depth(raw)
-    if depth > max_depth:
-        raise BadFile(p, f"{what} nests {depth} levels deep", f"at most {max_depth} levels")
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise BadFile(p, f"{what} is not UTF-8 text (byte {exc.start})", "UTF-8 JSON") from None
+    text = _text(raw, json_depth(raw), p, what, max_depth, "UTF-8 JSON")
     try:
         return json.loads(text, parse_constant=None if allow_nan else _refuse_constant)
     except (ValueError, RecursionError) as exc:
         raise BadFile(p, f"{what} is not valid JSON ({str(exc)[:160]})", "a JSON document") from None
+
+
+def _text(raw: bytes, depth: int, p: Path, what: str, max_depth: int, expected: str) -> str:
+    """The bytes of a nested text format as text, once its nesting ``depth`` is within ``max_depth``."""
+    if depth > max_depth:
+        raise BadFile(p, f"{what} nests {depth} levels deep", f"at most {max_depth} levels")
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise BadFile(p, f"{what} is not UTF-8 text (byte {exc.start})", expected) from None
 
 
 def load_json(path: str | Path, what: str = "JSON file", *, max_depth: int = MAX_JSON_DEPTH,
@@ -335,13 +339,7 @@ def load_toml(path: str | Path, what: str = "TOML file", *, max_depth: int = MAX
 
     p = check_file(path, what, max_bytes=max_bytes, allow_empty=True)
     raw = _read_bytes(p, what)
-    depth = _nesting(raw, _TOML_STRING)
-    if depth > max_depth:
-        raise BadFile(p, f"{what} nests {depth} levels deep", f"at most {max_depth} levels")
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise BadFile(p, f"{what} is not UTF-8 text (byte {exc.start})", "a UTF-8 TOML file") from None
+    text = _text(raw, _nesting(raw, _TOML_STRING), p, what, max_depth, "a UTF-8 TOML file")
     try:
         return tomllib.loads(text), text
     except (tomllib.TOMLDecodeError, RecursionError) as exc:

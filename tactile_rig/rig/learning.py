@@ -30,7 +30,7 @@ import json
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Sequence, TypeVar
 
 import numpy as np
 
@@ -175,22 +175,24 @@ def model_json_path(path: str | Path, name: str) -> Path:
 def load_force_map(path: str | Path) -> ForceMapModel:
     """The force map a bench names (``calib/force_map``, ``.../force_map.json`` or ``.npz``; the
     stable name reads the newest version). Raises CalibrationError naming the file and the command."""
-    p = _model_path(path, "force_map")
-    try:
-        model = ForceMapModel.load(p)
-    except CalibrationError as exc:
-        raise CalibrationError(f"{exc}; make it with: tactile-rig calibrate force-map", device="force-map") from None
-    model.meta.setdefault("path", str(_paths(p)[1]))
-    return model
+    return _load_model(ForceMapModel, path, "force_map", "force-map")
 
 
 def load_substance_model(path: str | Path) -> SubstanceModel:
     """The substance classifier a bench names (folder, ``.json``, ``.npz`` or stem)."""
-    p = _model_path(path, "substance")
+    return _load_model(SubstanceModel, path, "substance", "substance")
+
+
+_Model = TypeVar("_Model", "ForceMapModel", "SubstanceModel")
+
+
+def _load_model(cls: type[_Model], path: str | Path, name: str, command: str) -> _Model:
+    """``cls.load`` of what ``path`` names, the error naming the command that makes the file."""
+    p = _model_path(path, name)
     try:
-        model = SubstanceModel.load(p)
+        model = cls.load(p)
     except CalibrationError as exc:
-        raise CalibrationError(f"{exc}; make it with: tactile-rig calibrate substance", device="substance") from None
+        raise CalibrationError(f"{exc}; make it with: tactile-rig calibrate {command}", device=command) from None
     model.meta.setdefault("path", str(_paths(p)[1]))
     return model
 

@@ -68,8 +68,9 @@ def settings() -> list[dict[str, Any]]:
 _BRISK: dict[str, Any] = {}
 
 
-def _baseline(a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-    """Off-the-shelf: BRISK on min-max normalised maps, cross-checked matches, partial-affine RANSAC."""
+def brisk_baseline_px(a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+    """Off-the-shelf registration of height map B into A (mm in, 2x3 px matrix out, None when it finds
+    nothing): BRISK on min-max 8-bit maps, cross-checked matches, OpenCV's partial-affine RANSAC."""
     def u8(z: np.ndarray) -> np.ndarray:
         z = np.nan_to_num(z.astype(np.float32))
         z = z - z.min()
@@ -97,7 +98,7 @@ def _score_baseline(data: RetouchSet) -> Score:
     shape = data.a.height_mm.shape
     c = np.array([(shape[1] - 1) / 2.0, (shape[0] - 1) / 2.0])
     for t, truth in zip(data.touches, data.truth_px):
-        m = _baseline(data.a.height_mm, t.height_mm)
+        m = brisk_baseline_px(data.a.height_mm, t.height_mm)
         if m is None:
             sc.refused += 1
             continue
@@ -152,7 +153,7 @@ def measure(*, quick: bool, seed: int = 0) -> TradeTable:
         s = _score_baseline(d)
         base.right, base.wrong, base.refused = base.right + s.right, base.wrong + s.wrong, base.refused + s.refused
     a, b = sets[0].a.height_mm, sets[0].touches[len(sets[0].touches) // 2].height_mm
-    timers.append(lambda: _baseline(a, b))
+    timers.append(lambda: brisk_baseline_px(a, b))
     n_calls = 4 if quick else 10
     per_s = interleaved_best_s(timers, [n_calls] * len(timers), rounds=5 if quick else 9)
     rows: list[TradeRow] = []
