@@ -34,13 +34,15 @@ F = TypeVar("F", bound=Callable[..., Any])
 def locked(method: F) -> F:
     """Run ``method`` holding the driver's call lock (re-entrant: a locked method may call another).
 
-    Around the call the driver's hooks run: ``_before_call()`` (a driver whose port vanished fails
-    fast or reconnects there) and, when the call raises :class:`NotConnected`, ``_on_not_connected``
+    A closed driver refuses the call with :class:`NotConnected` (nothing it buffered is handed out after
+    ``close()``). Around the call the driver's hooks run: ``_before_call()`` (a driver whose port vanished
+    fails fast or reconnects there) and, when the call raises :class:`NotConnected`, ``_on_not_connected``
     (the port is gone: release it and start the reconnect backoff)."""
 
     @functools.wraps(method)
     def wrapper(self: "Driver", *args: Any, **kwargs: Any) -> Any:
         with self.call_lock:
+            self.require_open()
             self._before_call()
             try:
                 return method(self, *args, **kwargs)
