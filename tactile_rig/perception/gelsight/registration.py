@@ -114,7 +114,7 @@ class RegistrationParams:
     orb_scale: float = 1.2
     orb_fast_threshold: int = 5
     detect_scale: float | None = None
-    detect_short_px: int = 96
+    detect_short_px: int = 120
     band_px: tuple[float, float] = (0.0, 4.0)
     ransac_iters: int = 256
     inlier_px: float = 4.0
