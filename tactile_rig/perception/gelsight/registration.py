@@ -110,7 +110,7 @@ class RegistrationParams:
     brisk_threshold: int = 20
     brisk_octaves: int = 3
     orb_features: int = 300
-    orb_levels: int = 8
+    orb_levels: int = 6
     orb_scale: float = 1.2
     orb_fast_threshold: int = 5
     detect_scale: float | None = None
@@ -668,7 +668,8 @@ def _gauss_newton(zb_img: np.ndarray, x: np.ndarray, y: np.ndarray, za: np.ndarr
         if gain_fit:
             # A re-touch pressed deeper shows its relief a little higher: a bounded height gain.
             gain = float(np.clip(gain + d[-1], 0.5, 2.0))
-        if last < CONVERGED_STEP_PX / 25.0:  # a thousandth of a pixel more is not worth an iteration
+        # The shortcut's steps only bring the pose near the fixed point that B's own slopes refine.
+        if last < (CONVERGED_STEP_PX / 25.0 if b_slopes else CONVERGED_STEP_PX / 5.0):
             break
     return _GNState(float(th), t, gain, coef, last)
 
