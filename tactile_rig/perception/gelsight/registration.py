@@ -285,7 +285,6 @@ class Features:
     smooth: np.ndarray | None = None
     sample_xy: np.ndarray | None = None
     sample_z: np.ndarray | None = None
-    sample_grad: np.ndarray | None = None
     height: np.ndarray | None = None
     ptp_mm: float = float("nan")
     valid: np.ndarray | None = None
@@ -319,7 +318,7 @@ def extract_features(height_mm: np.ndarray, params: RegistrationParams = Registr
         # A high-pass bends the heights within about two sigmas of a coverage edge (a tactile map's):
         # samples keep that far inside it.
         edge = max(3, int(round(2.0 * params.dense_highpass_px)))
-        feats.sample_xy, feats.sample_z, feats.sample_grad = _dense_samples(smooth, params.dense_samples, valid, edge)
+        feats.sample_xy, feats.sample_z = _dense_samples(smooth, params.dense_samples, valid, edge)
     k = detect_scale(params, z.shape) if scale is None else float(scale)
     small = z if k == 1.0 else cv2.resize(z, None, fx=k, fy=k, interpolation=cv2.INTER_AREA)
     if valid is not None and k != 1.0:
@@ -505,16 +504,16 @@ def _upper_quartile(x: np.ndarray) -> float:
 
 
 def _dense_samples(smooth: np.ndarray, count: int, valid: np.ndarray | None = None, edge_px: int = 3
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """Pixels of A that constrain alignment: the steepest quarter of every other pixel of every other
     row (DENSE_MARGIN_PX from the edge and inside ``valid`` shrunk by ``edge_px``), thinned to at most
     ``count`` on a regular stride (deterministic). The half-density grid finds the same structure at
     a quarter of the cost; the polish samples B bilinearly wherever A's samples land. Returns the
-    samples (N, 2) px, A's heights there (N,) and A's slopes there (N, 2), per px."""
+    samples (N, 2) px and A's heights there (N,)."""
     h, w = smooth.shape
     ys0, xs0 = 2 * np.arange(1, (h - 1) // 2), 2 * np.arange(1, (w - 1) // 2)  # even rows/columns, not the edge
     if len(ys0) < 2 or len(xs0) < 2:
-        return np.zeros((0, 2), np.float32), np.zeros(0), np.zeros((0, 2))
+        return np.zeros((0, 2), np.float32), np.zeros(0)
     r0, r1, c0, c1 = ys0[0], ys0[-1] + 1, xs0[0], xs0[-1] + 1
     # Central differences on the even grid (as _grad, whose slopes are half the neighbour difference).
     gx = 0.5 * (smooth[r0:r1:2, c0 + 1:c1 + 1:2] - smooth[r0:r1:2, c0 - 1:c1 - 1:2])
@@ -530,14 +529,12 @@ def _dense_samples(smooth: np.ndarray, count: int, valid: np.ndarray | None = No
     thr = _upper_quartile(mag[::2, ::2])  # a sparse grid estimates the quartile well enough
     pts = cv2.findNonZero((mag > max(float(thr), 1e-10)).view(np.uint8))  # row-major, as np.nonzero
     if pts is None:
-        return np.zeros((0, 2), np.float32), np.zeros(0), np.zeros((0, 2))
+        return np.zeros((0, 2), np.float32), np.zeros(0)
     pts = pts.reshape(-1, 2)  # (N, 1, 2) on OpenCV 4, (N, 2) on 5
     if len(pts) > count:
         pts = pts[np.linspace(0, len(pts) - 1, count).astype(np.int64)]
-    gi, gj = pts[:, 1], pts[:, 0]
-    xs, ys = xs0[gj], ys0[gi]
-    grad = np.stack([gx[gi, gj], gy[gi, gj]], 1).astype(np.float64)
-    return np.stack([xs, ys], 1).astype(np.float32), smooth[ys, xs].astype(np.float64), grad
+    xs, ys = xs0[pts[:, 0]], ys0[pts[:, 1]]
+    return np.stack([xs, ys], 1).astype(np.float32), smooth[ys, xs].astype(np.float64)
 
 
 def _grad(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -624,15 +621,11 @@ class _GNState:
     last_step_px: float = float("inf")
 
 
-def _gauss_newton(zb_img: np.ndarray, x: np.ndarray, y: np.ndarray, za: np.ndarray, ga: np.ndarray,
-                  basis: np.ndarray, st: _GNState, iters: int, gain_fit: bool, b_slopes: bool = False) -> _GNState:
+def _gauss_newton(zb_img: np.ndarray, x: np.ndarray, y: np.ndarray, za: np.ndarray, basis: np.ndarray,
+                  st: _GNState, iters: int, gain_fit: bool) -> _GNState:
     """Gauss–Newton iterations of the B->A pose (A px -> B px as rotation ``th`` and translation
-    ``t``), height gain and bias surface, on A's samples (x, y), heights ``za`` and slopes ``ga``
-    against B's heights ``zb_img``. B's slopes are taken as A's turned into B (gain x grad B at T(x)
-    = R grad A(x) where the touches match: the inverse-compositional shortcut), so B needs no slope
-    images and each step samples one channel; its fixed point is only near the least-squares one, so
-    the last steps run with ``b_slopes``: B's own slopes, central differences of bilinear samples
-    (the same numbers as sampling a central-difference image)."""
+    ``t``), height gain and bias surface, on A's samples (x, y) and heights ``za`` against B's heights
+    ``zb_img`` (B's slopes from bilinear samples 1 px either side: no slope images of B)."""
     h, w = zb_img.shape[:2]
     nb = basis.shape[1]
     th, t, gain, coef = st.th, st.t.copy(), st.gain, st.coef.copy()
@@ -647,7 +640,7 @@ def _gauss_newton(zb_img: np.ndarray, x: np.ndarray, y: np.ndarray, za: np.ndarr
         frozen = got[0]
         sel, u, v, zb, _n = got
         zo, bas = za[sel], basis[sel]
-        gbx, gby = _b_slopes(zb_img, u, v, gain) if b_slopes else _turned(ga[sel], th)
+        gbx, gby = _b_slopes(zb_img, u, v, gain)
         npar = 3 + nb + (1 if gain_fit else 0)
         j = np.empty((len(zb), npar))
         # d(u, v)/d(theta) = (-(v - t_y), u - t_x): no second rotation of the samples.
@@ -670,25 +663,19 @@ def _gauss_newton(zb_img: np.ndarray, x: np.ndarray, y: np.ndarray, za: np.ndarr
         if gain_fit:
             # A re-touch pressed deeper shows its relief a little higher: a bounded height gain.
             gain = float(np.clip(gain + d[-1], 0.5, 2.0))
-        # The shortcut's steps only bring the pose near the fixed point that B's own slopes refine.
-        if last < (CONVERGED_STEP_PX / 25.0 if b_slopes else CONVERGED_STEP_PX / 5.0):
+        if last < CONVERGED_STEP_PX / 25.0:  # a thousandth of a pixel more is not worth an iteration
             break
     return _GNState(float(th), t, gain, coef, last)
 
 
 def _b_slopes(zb_img: np.ndarray, u: np.ndarray, v: np.ndarray, gain: float) -> tuple[np.ndarray, np.ndarray]:
-    """gain x B's slopes (x, y) at (u, v): half the difference of bilinear samples 1 px either side."""
+    """gain x B's slopes (x, y) at (u, v): half the difference of bilinear samples 1 px either side
+    (the same numbers as sampling a central-difference image, in one remap of 4N points)."""
     n = len(u)
     uu = np.concatenate([u + 1.0, u - 1.0, u, u])
     vv = np.concatenate([v, v, v + 1.0, v - 1.0])
     z4 = _sample(zb_img, uu, vv)[:, 0]
     return 0.5 * gain * (z4[:n] - z4[n:2 * n]), 0.5 * gain * (z4[2 * n:3 * n] - z4[3 * n:])
-
-
-def _turned(ga: np.ndarray, th: float) -> tuple[np.ndarray, np.ndarray]:
-    """A's slopes (N, 2) turned by ``th`` into B's frame: (x, y) components."""
-    c, s_ = np.cos(th), np.sin(th)
-    return c * ga[:, 0] - s_ * ga[:, 1], s_ * ga[:, 0] + c * ga[:, 1]
 
 
 def _gather(zb_img: np.ndarray, x: np.ndarray, y: np.ndarray, th: float, t: np.ndarray, w: int, h: int,
@@ -748,8 +735,8 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
     blurred by COARSE_SIGMA_PX first); a fit that still wanders is returned at the start pose with
     ``wandered=True`` and must not be accepted. ``converged`` says the last step moved the samples
     by less than CONVERGED_STEP_PX."""
-    xy, za, ga = fa.sample_xy, fa.sample_z, fa.sample_grad
-    if xy is None or za is None or ga is None or len(xy) < 8:
+    xy, za = fa.sample_xy, fa.sample_z
+    if xy is None or za is None or len(xy) < 8:
         return DenseFit(matrix_px)
     h, w = smooth_b.shape
     zgb = _zgb(smooth_b, valid_b)
@@ -760,11 +747,11 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
                    np.zeros(basis.shape[1]))
     start = (st0.th, st0.t.copy())
     cx, cy = float(x.mean()), float(y.mean())
-    st = _gauss_newton(zgb, x, y, za, ga, basis, st0, iters, gain_fit)
+    st = _gauss_newton(zgb, x, y, za, basis, st0, iters, gain_fit)
     for _ in range(2):  # a start a few degrees off needs more than ``iters`` steps to settle
         if st.last_step_px < CONVERGED_STEP_PX or _wandered(st, start, cx, cy):
             break
-        st = _gauss_newton(zgb, x, y, za, ga, basis, st, iters, gain_fit)
+        st = _gauss_newton(zgb, x, y, za, basis, st, iters, gain_fit)
     wandered = _wandered(st, start, cx, cy)
     if wandered and coarse_retry and iters > 0 and fa.smooth is not None:
         # Coarse to fine: blurred heights have a basin of several px; A's samples keep their places
@@ -772,15 +759,10 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
         ia, ja = xy[:, 1].astype(np.intp), xy[:, 0].astype(np.intp)
         blur_a = cv2.GaussianBlur(fa.smooth, (0, 0), COARSE_SIGMA_PX)
         coarse_a = blur_a[ia, ja].astype(np.float64)
-        coarse_ga = np.stack([g[ia, ja] for g in _grad(blur_a)], 1).astype(np.float64)
         coarse_b = _zgb(cv2.GaussianBlur(smooth_b, (0, 0), COARSE_SIGMA_PX), valid_b)
-        st = _gauss_newton(coarse_b, x, y, coarse_a, coarse_ga, basis, st0, 2 * iters, gain_fit)
+        st = _gauss_newton(coarse_b, x, y, coarse_a, basis, st0, 2 * iters, gain_fit)
         if not _wandered(st, start, cx, cy):
-            st = _gauss_newton(zgb, x, y, za, ga, basis, st, iters, gain_fit)
-        wandered = _wandered(st, start, cx, cy)
-    if not wandered and iters > 0:
-        # The last steps with B's own slopes: the least-squares fixed point, not the shortcut's.
-        st = _gauss_newton(zgb, x, y, za, ga, basis, st, 3, gain_fit, b_slopes=True)
+            st = _gauss_newton(zgb, x, y, za, basis, st, iters, gain_fit)
         wandered = _wandered(st, start, cx, cy)
     if wandered:
         st = _GNState(start[0], start[1].copy(), 1.0, np.zeros(basis.shape[1]))
