@@ -175,6 +175,24 @@ def training_samples(presses: PressSet, mm_per_px: float, ball_radius_mm: float,
     return np.concatenate(feats), np.concatenate(slopes).astype(np.float32)
 
 
+@dataclass(frozen=True)
+class PackedTable:
+    """A baked table laid out for one gather per pixel (see :meth:`GelSightCalibration.packed_table`).
+
+    A pixel's key is ``(qb << 2 bits) | (qg << bits) | qr`` XOR ``zero_key``, with ``q = s >> shift``
+    of the saturated signed difference byte ``s = clip(frame - background + 128, 0, 255)`` per channel;
+    ``table[cell_offset + key]`` is ``gx + 1j * gy`` (scaled). Key 0 is a zero difference: slope 0.
+    ``peak_slope`` is the largest unscaled |slope| in the table (``inf`` if any entry is not finite).
+    """
+
+    shift: int
+    bits: int
+    zero_key: int
+    table: np.ndarray
+    cell_offset: np.ndarray
+    peak_slope: float
+
+
 class GelSightCalibration:
     """A fitted colour(+position) -> slope model with its background frame and scale.
 
@@ -219,6 +237,8 @@ class GelSightCalibration:
         self._g0: np.ndarray | None = None
         self._raw_table: np.ndarray | None = None
         self._table: np.ndarray | None = None
+        self._packed_shift: int | None = None
+        self._packed: dict[tuple[float, float], PackedTable] = {}
         if isinstance(self.model, LutModel):
             self._setup_table(self.model.table.reshape(-1, 2), self.model.bins, self.model.colour_range,
                               np.zeros(h * w, np.int64))
@@ -248,6 +268,44 @@ class GelSightCalibration:
         self._lut_g = (idx * bins).astype(np.int32)
         self._lut_r = idx.astype(np.int32)
         self._cell_offset = cell_offset.reshape(self.shape).astype(np.int32)
+        # The bin of a difference d is a shift of the saturated byte d + 128 when the bins are a power
+        # of two over +-128 (the default 32 bins): the fast path's precondition, checked on all 511 d.
+        self._packed_shift = None
+        self._packed = {}
+        if 2 <= bins <= 256 and bins & (bins - 1) == 0:
+            shift = 9 - bins.bit_length()
+            if np.array_equal(idx, np.clip(d + 128, 0, 255).astype(np.int32) >> shift):
+                self._packed_shift = shift
+
+    def packed_table(self, scale_x: float = 1.0, scale_y: float = 1.0) -> PackedTable | None:
+        """The table laid out for one gather per pixel (None when the bins do not allow it).
+
+        scale_x, scale_y: factors applied to gx, gy in float32 (e.g. mm per pixel: the integration's
+        step). Built once per scale and cached: about 12 MB and 20 ms for the default 32 bins x 48 cells.
+        """
+        if self._packed_shift is None or self._table is None:
+            return None
+        key = (float(scale_x), float(scale_y))
+        hit = self._packed.get(key)
+        if hit is not None:
+            return hit
+        bins = self._bins
+        b3 = bins ** 3
+        zero = (bins // 2) * (bins * bins + bins + 1)  # the key of a zero difference in every channel
+        # Entry k of a cell holds the slope of key k ^ zero, so that a zero difference is key 0 and a
+        # masked pixel is an AND with 0 away (its slope, the background's, is 0 after _setup_table).
+        perm = np.arange(b3) ^ zero
+        t3 = self._table.reshape(-1, b3, 2)[:, perm]
+        packed = np.empty(t3.shape[:2], np.complex64)
+        packed.real = t3[..., 0] * np.float32(scale_x)
+        packed.imag = t3[..., 1] * np.float32(scale_y)
+        peak = float(np.abs(self._table).max()) if self._table.size else 0.0
+        if not np.isfinite(self._table).all():
+            peak = float("inf")
+        hit = PackedTable(shift=self._packed_shift, bits=bins.bit_length() - 1, zero_key=zero,
+                          table=packed.ravel(), cell_offset=self._cell_offset, peak_slope=peak)
+        self._packed = {key: hit}  # one scale in use at a time: keep one
+        return hit
 
     def _bake(self, bins: int) -> None:
         h, w = self.shape
