@@ -67,8 +67,7 @@ SETTINGS = [
 @pytest.mark.parametrize("model,integration,contact", SETTINGS)
 def test_packed_path_gives_the_plain_heights_on_presses(cals, presses, model, integration, contact) -> None:
     rec = Reconstructor(cals[model], integration, contact)
-    m = rec.mapper
-    assert rec.calibration.packed_table(m.mm_per_px_x, m.mm_per_px_y) is not None  # the fast path applies
+    assert rec.calibration.packed_table() is not None  # the fast path applies
     for frame in presses.frames:
         z = rec.height_mm(frame)
         ref = plain_height(rec, frame)
@@ -115,3 +114,16 @@ def test_non_contiguous_frame_reads_the_same(cals, presses) -> None:
     wide = cv2.copyMakeBorder(frame, 0, 0, 0, 7, cv2.BORDER_CONSTANT)[:, :frame.shape[1]]
     assert not wide.flags.c_contiguous
     np.testing.assert_array_equal(rec.height_mm(wide), rec.height_mm(frame))
+
+
+@pytest.mark.parametrize("old_bytes", [0, 10, 400_000])
+def test_height_files_overwrite_old_ones_of_any_length(tmp_path, old_bytes) -> None:
+    from tactile_rig.cli.gelsight import _npy_writer
+
+    z = np.random.default_rng(1).normal(size=(24, 32)).astype(np.float32)
+    target = tmp_path / "z.npy"
+    if old_bytes:
+        target.write_bytes(b"\xab" * old_bytes)
+    _npy_writer(z.shape, np.float32)(str(target), z)
+    np.save(tmp_path / "ref.npy", z)
+    assert target.read_bytes() == (tmp_path / "ref.npy").read_bytes()

@@ -80,7 +80,7 @@ class Reconstructor:
         thr = self.contact.colour_threshold
         if m._k != 1 or (thr is not None and not thr < 127):
             return None  # downsampled slopes are scaled after resizing; a threshold >= 127 needs |d| > 127
-        packed = self.calibration.packed_table(float(m._sx), float(m._sy))
+        packed = self.calibration.packed_table()
         if packed is None or not packed.peak_slope <= self.integration.max_slope:
             return None
         return packed
@@ -171,10 +171,17 @@ class Reconstructor:
         key = np.left_shift(np.right_shift(b, sh), 2 * nb, dtype=np.uint16)
         key |= np.left_shift(np.right_shift(g, sh), nb, dtype=np.uint16)
         key |= np.right_shift(r, sh)
-        key ^= np.uint16(p.zero_key)
-        if mask is not None:
-            key &= cv2.merge((mask, mask)).view(np.uint16).reshape(h, w)  # 0xFFFF in contact, else key 0
+        if mask is not None:  # outside the contact the key of a zero difference (slope 0)
+            zero = np.uint16(p.zero_key)
+            key ^= zero
+            key &= cv2.merge((mask, mask)).view(np.uint16).reshape(h, w)  # 0xFFFF in contact, else 0
+            key ^= zero
         slopes = np.take(p.table, np.add(key, p.cell_offset))
-        # Contiguous copies: the solver's differences run faster on them than on the strided views.
-        z = self.mapper.integrate_scaled(np.ascontiguousarray(slopes.real), np.ascontiguousarray(slopes.imag))
+        # Contiguous copies (the solver's differences run faster on them than on strided views),
+        # scaled to mm per pixel as the checked path does.
+        px = np.ascontiguousarray(slopes.real)
+        px *= self.mapper._sx
+        py = np.ascontiguousarray(slopes.imag)
+        py *= self.mapper._sy
+        z = self.mapper.integrate_scaled(px, py)
         return self._bounded(z)
