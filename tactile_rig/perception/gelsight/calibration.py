@@ -12,7 +12,7 @@ import datetime as _dt
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import cv2
 import numpy as np
@@ -424,19 +424,28 @@ class GelSightCalibration:
             raise CalibrationError(f"calibration {base} needs both {jpath.name} and {npath.name}",
                                    device="gelsight.calibration")
         meta = json.loads(jpath.read_text())
+        with np.load(npath, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+        return cls.from_saved(meta, arrays, str(jpath))
+
+    @classmethod
+    def from_saved(cls, meta: Mapping[str, Any], arrays: Mapping[str, np.ndarray],
+                   source: str = "calibration") -> "GelSightCalibration":
+        """A calibration from what :meth:`save` wrote, already read by the caller: the JSON metadata
+        and the npz's arrays by name (``background``, ``model_*``, ``baked_table``). ``source`` names
+        the file in messages. Raises CalibrationError (a checked loader reads the files once)."""
         if meta.get("format") != "tactile_rig.gelsight.calibration":
-            raise CalibrationError(f"{jpath} is not a GelSight calibration", device="gelsight.calibration")
+            raise CalibrationError(f"{source} is not a GelSight calibration", device="gelsight.calibration")
         if meta.get("version") != FORMAT_VERSION:
-            raise CalibrationError(f"{jpath}: calibration format version {meta.get('version')!r}, "
+            raise CalibrationError(f"{source}: calibration format version {meta.get('version')!r}, "
                                    f"this code reads version {FORMAT_VERSION}", device="gelsight.calibration")
         kind = meta.get("model")
         if kind not in MODELS:
-            raise CalibrationError(f"{jpath}: unknown model {kind!r}", device="gelsight.calibration")
-        with np.load(npath, allow_pickle=False) as data:
-            arrays = {k[len("model_"):]: data[k] for k in data.files if k.startswith("model_")}
-            background = data["background"]
-            baked = data["baked_table"].astype(np.float32, copy=False) if "baked_table" in data.files else None
-        model = MODELS[kind].from_arrays(arrays)
+            raise CalibrationError(f"{source}: unknown model {kind!r}", device="gelsight.calibration")
+        model_arrays = {k[len("model_"):]: v for k, v in arrays.items() if k.startswith("model_")}
+        background = arrays["background"]
+        baked = arrays["baked_table"].astype(np.float32, copy=False) if "baked_table" in arrays else None
+        model = MODELS[kind].from_arrays(model_arrays)
         cells = tuple(meta.get("bake_cells", (6, 8)))
         cal = cls(model, background, meta["mm_per_px_x"], meta["mm_per_px_y"], meta["ball_radius_mm"],
                   meta.get("sensor", "gelsight"), meta.get("date"), meta.get("bake_bins"),
