@@ -354,7 +354,7 @@ def _png_chunks(data: bytes | memoryview) -> tuple[str | None, list[tuple[bytes,
     mv = memoryview(data)
     n_bytes = len(mv)
     unpack = struct.unpack_from
-    crc32 = zlib.crc32
+    crc32 = _crc32()
     chunks: list[tuple[bytes, memoryview]] = []
     pos = 8
     n = 0
@@ -387,6 +387,20 @@ _PNG_PLAIN_CHUNKS = frozenset({b"IHDR", b"IDAT", b"IEND", b"tEXt", b"zTXt", b"iT
 _PNG_MAX_INTEGRAL_PX = (2**31 - 1) // 255  # the int32 running sums of every pixel stay exact
 _png_work = threading.local()
 _decompressobj: Callable[[], Any] | None = None
+_crc: Callable[..., int] | None = None
+
+
+def _crc32() -> Callable[..., int]:
+    """zlib's CRC-32, or ISA-L's if the ``fast`` extra is installed (the same value, ~6x faster)."""
+    global _crc
+    if _crc is None:
+        try:
+            from isal import isal_zlib  # optional extra
+
+            _crc = isal_zlib.crc32
+        except ImportError:
+            _crc = zlib.crc32
+    return _crc
 
 
 def _inflater() -> Any:
