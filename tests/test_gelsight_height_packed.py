@@ -127,3 +127,22 @@ def test_height_files_overwrite_old_ones_of_any_length(tmp_path, old_bytes) -> N
     _npy_writer(z.shape, np.float32)(str(target), z)
     np.save(tmp_path / "ref.npy", z)
     assert target.read_bytes() == (tmp_path / "ref.npy").read_bytes()
+
+
+def test_cli_folder_heights_are_the_pipeline_on_opencvs_pixels(tmp_path, capsys, cals, presses) -> None:
+    from tactile_rig.cli import main
+
+    cal = cals["mlp"]
+    cal.save(tmp_path / "cal")
+    imgs = []
+    for i in (0, 7, 19):  # written by OpenCV's default PNG writer: decoded by read_image itself
+        p = tmp_path / f"f{i}.png"
+        cv2.imwrite(str(p), presses.frames[i])
+        imgs.append(p)
+    assert main(["gelsight", "height", str(tmp_path / "cal"), *map(str, imgs), "-o", str(tmp_path / "hs")]) == 0
+    rec = Reconstructor(cal)
+    for p in imgs:
+        z = np.load(tmp_path / "hs" / (p.stem + ".npy"))
+        assert z.dtype == np.float32
+        np.testing.assert_array_equal(z, rec.height_mm(cv2.imread(str(p))))
+    capsys.readouterr()
