@@ -31,6 +31,7 @@ def presses():
 @pytest.fixture(scope="module")
 def cals(presses):
     return {"lut": calibrate_from_presses(presses, MM, 2.0, "lut", bins=32),
+            "lut20": calibrate_from_presses(presses, MM, 2.0, "lut", bins=20),  # bins no shift can make
             "mlp": calibrate_from_presses(presses, MM, 2.0, "mlp")}
 
 
@@ -61,16 +62,26 @@ SETTINGS = [
     ("mlp", IntegrationParams(), ContactParams(colour_threshold=None)),
     ("mlp", IntegrationParams(solver="dst"), ContactParams(colour_threshold=4.5, dilate_px=0)),
     ("lut", IntegrationParams(solver="fc"), ContactParams(colour_threshold=30.0, dilate_px=4)),
+    # The checked path: bins that are not a power of two, a threshold the saturated byte cannot
+    # read, downsampling, a max_slope below the table's slopes.
+    ("lut20", IntegrationParams(), ContactParams()),
+    ("mlp", IntegrationParams(), ContactParams(colour_threshold=130.0)),
+    ("mlp", IntegrationParams(downsample=2), ContactParams()),
+    ("mlp", IntegrationParams(max_slope=0.05), ContactParams()),
 ]
 
 
 @pytest.mark.parametrize("model,integration,contact", SETTINGS)
 def test_packed_path_gives_the_plain_heights_on_presses(cals, presses, model, integration, contact) -> None:
     rec = Reconstructor(cals[model], integration, contact)
-    assert rec.calibration.packed_table() is not None  # the fast path applies
+    assert (rec.calibration.packed_table() is not None) == (model != "lut20")
     for frame in presses.frames:
+        ref = outcome(plain_height, rec, frame)
+        if isinstance(ref, tuple):  # a refusal (slopes beyond a small max_slope): the same one
+            got = outcome(rec.height_mm, frame)
+            assert isinstance(got, tuple) and got[0] is ref[0] and got[1] == pytest.approx(ref[1])
+            continue
         z = rec.height_mm(frame)
-        ref = plain_height(rec, frame)
         assert z.dtype == np.float32 and z.shape == frame.shape[:2]
         assert np.abs(z - ref).max() <= 1e-6  # mm; float32 rounding at most
 
