@@ -32,6 +32,7 @@ def presses():
 def cals(presses):
     return {"lut": calibrate_from_presses(presses, MM, 2.0, "lut", bins=32),
             "lut20": calibrate_from_presses(presses, MM, 2.0, "lut", bins=20),  # bins no shift can make
+            "lut64": calibrate_from_presses(presses, MM, 2.0, "lut", bins=64),  # keys beyond 16 bits
             "mlp": calibrate_from_presses(presses, MM, 2.0, "mlp")}
 
 
@@ -62,6 +63,7 @@ SETTINGS = [
     ("mlp", IntegrationParams(), ContactParams(colour_threshold=None)),
     ("mlp", IntegrationParams(solver="dst"), ContactParams(colour_threshold=4.5, dilate_px=0)),
     ("lut", IntegrationParams(solver="fc"), ContactParams(colour_threshold=30.0, dilate_px=4)),
+    ("lut64", IntegrationParams(), ContactParams()),
     # The checked path: bins that are not a power of two, a threshold the saturated byte cannot
     # read, downsampling, a max_slope below the table's slopes.
     ("lut20", IntegrationParams(), ContactParams()),

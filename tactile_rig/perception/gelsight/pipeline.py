@@ -70,7 +70,7 @@ class Reconstructor:
             self._border_u8[b:h - b, b:w - b] = 255
 
     def _packed_table(self) -> PackedTable | None:
-        """The calibration's table scaled to mm per pixel, when the fast path gives the same heights.
+        """The calibration's packed table, when the fast path gives the same heights (else None).
 
         Every slope of a frame is then an entry of this table: when all entries are finite and within
         ``max_slope`` (checked here, once), no frame can carry a slope the integration would refuse,
@@ -168,13 +168,15 @@ class Reconstructor:
         if self._border_u8 is not None:
             mask = self._border_u8 if mask is None else cv2.bitwise_and(mask, self._border_u8)
         sh, nb = p.shift, p.bits
-        key = np.left_shift(np.right_shift(b, sh), 2 * nb, dtype=np.uint16)
-        key |= np.left_shift(np.right_shift(g, sh), nb, dtype=np.uint16)
+        wide = 3 * nb > 16  # more than 32 bins: 32-bit keys
+        kd = np.uint32 if wide else np.uint16
+        key = np.left_shift(np.right_shift(b, sh), 2 * nb, dtype=kd)
+        key |= np.left_shift(np.right_shift(g, sh), nb, dtype=kd)
         key |= np.right_shift(r, sh)
         if mask is not None:  # outside the contact the key of a zero difference (slope 0)
-            zero = np.uint16(p.zero_key)
+            zero = kd(p.zero_key)
             key ^= zero
-            key &= cv2.merge((mask, mask)).view(np.uint16).reshape(h, w)  # 0xFFFF in contact, else 0
+            key &= cv2.merge((mask,) * (4 if wide else 2)).view(kd).reshape(h, w)  # all ones in contact, else 0
             key ^= zero
         slopes = np.take(p.table, np.add(key, p.cell_offset))
         # Contiguous copies (the solver's differences run faster on them than on strided views),
