@@ -588,22 +588,31 @@ def check_image_dims(path: str | Path, what: str, w: int, h: int, max_side_px: i
 def _checked_image(p: Path, what: str, max_side_px: int, max_pixels: int,
                    png: list | None = None) -> tuple[int, int, str, bytes]:
     """Size, format and bytes of an image whose header is bounded and whose structure is intact.
-    A PNG is read once (its size is bounded by :func:`check_file` first) and its header parsed from
-    the bytes; ``png`` (a list) receives its CRC-checked chunks."""
+    A PNG is opened once: its header's width x height is bounded, then the rest is read from the same
+    handle; ``png`` (a list) receives its CRC-checked chunks."""
     p = check_file(p, what)
-    raw = _read_bytes(p, what)
-    if raw.startswith(b"\x89PNG\r\n\x1a\n"):
-        size = _png_size(raw[:32])
-        if size is None:
-            raise BadFile(p, f"{what} has a truncated or malformed PNG header", "a complete PNG image")
-        w, h, fmt = size[0], size[1], "PNG"
-        check_image_dims(p, what, w, h, max_side_px, max_pixels)
+    raw = b""
+    dims: tuple[int, int] | None = None
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(32)
+            if head.startswith(b"\x89PNG\r\n\x1a\n"):
+                dims = _png_size(head)
+                if dims is None:
+                    raise BadFile(p, f"{what} has a truncated or malformed PNG header", "a complete PNG image")
+                check_image_dims(p, what, dims[0], dims[1], max_side_px, max_pixels)
+                raw = head + fh.read()
+    except OSError as exc:
+        raise BadFile(p, f"{what} cannot be read ({exc.strerror or exc})", "a readable file") from None
+    if dims is not None:
+        w, h, fmt = dims[0], dims[1], "PNG"
         problem, chunks = _png_chunks(raw)
         if png is not None:
             png[:] = chunks
     else:
         w, h, fmt = image_size(p, what)
         check_image_dims(p, what, w, h, max_side_px, max_pixels)
+        raw = _read_bytes(p, what)
         problem = jpeg_problem(raw) if fmt == "JPEG" else None
     if problem:
         raise BadFile(p, f"{what} is a damaged {fmt}: {problem}", f"an intact {fmt} image")
