@@ -100,8 +100,8 @@ def test_rendering_follows_the_documented_formula(band, masked) -> None:
 
 
 def test_flat_reference_has_no_dense_samples() -> None:
-    xy, zs = _dense_samples(np.zeros((40, 50), np.float32), 100)
-    assert xy.shape == (0, 2) and zs.shape == (0,)
+    xy, zs, grad = _dense_samples(np.zeros((40, 50), np.float32), 100)
+    assert xy.shape == (0, 2) and zs.shape == (0,) and grad.shape == (0, 2)
 
 
 @pytest.fixture(scope="module")

@@ -90,14 +90,17 @@ class RegistrationParams:
     ``detect_short_px``; band_px: (fine, coarse) Gaussian sigmas of the band-pass rendering;
     ransac_iters: two-pair samples; inlier_px: RANSAC residual threshold; min_inliers: fewer is a
     refusal of the keypoint answer; min_confidence: the paper's c below this is refused (the tactile
-    map accepts at 0.98); min_ncc: the dense check on the overlap; dense_fallback: try Fourier–Mellin
+    map accepts at 0.98); min_ncc: the dense check, normalised correlation of the two touches' heights
+    on A's samples after the polish (of the high-passed heights when dense_highpass_px > 0: a wrong
+    pose reads ~0 there, a right one 0.7-0.99); dense_fallback: try Fourier–Mellin
     when keypoints fail; refine: Gauss–Newton polish on dense_samples steep pixels (sub-pixel);
     max_sigma_rot_deg / max_sigma_px: refuse when the dense fit cannot pin rotation/translation
     (1-sigma from the Gauss-Newton information and the residual); min_rotation_pinning: refuse
     rotation-symmetric content (rotation information over translation information x radius^2: a
     lone smooth dome reads 0.01-0.02, one real press with gel texture 0.14-0.2, texture ~1);
     dense_highpass_px: the polish compares heights minus their low-pass of this sigma (0: plain
-    heights), which removes the press-depth and gel-blur differences of independent re-touches;
+    heights), which removes the press-depth and integration differences of independent re-touches
+    (on plain heights they biased the plate's re-touches by up to 2.3 px, with 6 px at most 1.4);
     dense_gain: the polish also fits a height gain between the touches (a deeper press);
     dense_bias_order: the height difference between the touches the polish allows: 0 a constant, 1 a
     plane, 2 a quadratic surface (the bowl of a deeper press).
@@ -107,17 +110,17 @@ class RegistrationParams:
     brisk_threshold: int = 20
     brisk_octaves: int = 3
     orb_features: int = 300
-    orb_levels: int = 8
+    orb_levels: int = 6
     orb_scale: float = 1.2
     orb_fast_threshold: int = 5
     detect_scale: float | None = None
-    detect_short_px: int = 160
+    detect_short_px: int = 120
     band_px: tuple[float, float] = (0.0, 4.0)
     ransac_iters: int = 256
     inlier_px: float = 4.0
     min_inliers: int = 8
     min_confidence: float = 0.9
-    min_ncc: float = 0.9
+    min_ncc: float = 0.6
     min_overlap: float = 0.2
     dense_fallback: bool = True
     refine: bool = True
@@ -126,7 +129,7 @@ class RegistrationParams:
     max_sigma_rot_deg: float = 0.25
     max_sigma_px: float = 0.25
     min_rotation_pinning: float = 0.05
-    dense_highpass_px: float = 0.0
+    dense_highpass_px: float = 6.0
     dense_gain: bool = True
     dense_bias_order: int = 2
     seed: int = 0
@@ -222,6 +225,30 @@ def _lowpass(z: np.ndarray, sigma_px: float, valid: np.ndarray | None) -> np.nda
     return num / np.maximum(den, 1e-3)
 
 
+def _lowpass_coarse(z: np.ndarray, sigma_px: float, valid: np.ndarray | None) -> np.ndarray:
+    """:func:`_lowpass` computed on the map area-reduced by up to 4 (to a sigma of >= 1.5 px there)
+    and brought back by bilinear resize: a wide low-pass at a fraction of the full-size cost."""
+    f = int(np.clip(sigma_px // 1.5, 1, 4))
+    if f == 1 or min(z.shape) < 8 * f:
+        w = None if valid is None else valid.astype(np.float32)
+        num = cv2.GaussianBlur(z if w is None else z * w, (0, 0), sigma_px, borderType=cv2.BORDER_REPLICATE)
+        if w is None:
+            return num
+        return num / np.maximum(cv2.GaussianBlur(w, (0, 0), sigma_px, borderType=cv2.BORDER_REPLICATE), 1e-3)
+    size = (max(1, z.shape[1] // f), max(1, z.shape[0] // f))
+    small = cv2.resize(z, size, interpolation=cv2.INTER_AREA)
+    v_small = None if valid is None else cv2.resize(valid.astype(np.float32), size, interpolation=cv2.INTER_AREA)
+    # A true Gaussian (isotropic): a box blur's square kernel gives a lone dome's high-pass a
+    # four-fold pattern that pins rotation where nothing does.
+    sig = sigma_px / f
+    if v_small is None:
+        low = cv2.GaussianBlur(small, (0, 0), sig, borderType=cv2.BORDER_REPLICATE)
+    else:
+        low = (cv2.GaussianBlur(small * v_small, (0, 0), sig, borderType=cv2.BORDER_REPLICATE)
+               / np.maximum(cv2.GaussianBlur(v_small, (0, 0), sig, borderType=cv2.BORDER_REPLICATE), 1e-3))
+    return cv2.resize(low, (z.shape[1], z.shape[0]), interpolation=cv2.INTER_LINEAR)
+
+
 def render_u8(height_mm: np.ndarray, band_px: tuple[float, float] = (0.0, 4.0),
               valid: np.ndarray | None = None) -> np.ndarray:
     """8-bit image for keypoints: band-passed height (difference of blurs) plus a little of the
@@ -258,6 +285,7 @@ class Features:
     smooth: np.ndarray | None = None
     sample_xy: np.ndarray | None = None
     sample_z: np.ndarray | None = None
+    sample_grad: np.ndarray | None = None
     height: np.ndarray | None = None
     ptp_mm: float = float("nan")
     valid: np.ndarray | None = None
@@ -284,11 +312,14 @@ def extract_features(height_mm: np.ndarray, params: RegistrationParams = Registr
         # The dense polish compares high-passed heights: an independent re-touch pressed deeper or
         # through a softer gel differs from the map mostly at low spatial frequencies (the bowl of
         # the press, the integrator's offsets), which would bias the alignment by pixels.
-        smooth = cv2.subtract(smooth, _lowpass(z, params.dense_highpass_px, valid))
+        smooth = cv2.subtract(smooth, _lowpass_coarse(z, params.dense_highpass_px, valid))
     # The checked map and its range ride along, so register() need not re-check a cached reference.
     feats = Features(smooth=smooth, height=z, ptp_mm=_ptp(z), valid=valid)
     if dense:
-        feats.sample_xy, feats.sample_z = _dense_samples(smooth, params.dense_samples, valid)
+        # A high-pass bends the heights within about two sigmas of a coverage edge (a tactile map's):
+        # samples keep that far inside it.
+        edge = max(3, int(round(2.0 * params.dense_highpass_px)))
+        feats.sample_xy, feats.sample_z, feats.sample_grad = _dense_samples(smooth, params.dense_samples, valid, edge)
     k = detect_scale(params, z.shape) if scale is None else float(scale)
     small = z if k == 1.0 else cv2.resize(z, None, fx=k, fy=k, interpolation=cv2.INTER_AREA)
     if valid is not None and k != 1.0:
@@ -471,26 +502,40 @@ def _upper_quartile(x: np.ndarray) -> float:
     return float(part[lo] + (part[hi] - part[lo]) * (pos - lo))
 
 
-def _dense_samples(smooth: np.ndarray, count: int, valid: np.ndarray | None = None
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels of A that constrain alignment: the steepest quarter (2 px from the edge and inside
-    ``valid`` shrunk by 3 px), thinned to at most ``count`` on a regular stride (deterministic)."""
-    gx, gy = _grad(smooth)
-    mag = gx * gx + gy * gy
-    mag[:2, :] = mag[-2:, :] = 0
-    mag[:, :2] = mag[:, -2:] = 0
+def _dense_samples(smooth: np.ndarray, count: int, valid: np.ndarray | None = None, edge_px: int = 3
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pixels of A that constrain alignment: the steepest quarter of every other pixel of every other
+    row (DENSE_MARGIN_PX from the edge and inside ``valid`` shrunk by ``edge_px``), thinned to at most
+    ``count`` on a regular stride (deterministic). The half-density grid finds the same structure at
+    a quarter of the cost; the polish samples B bilinearly wherever A's samples land. Returns the
+    samples (N, 2) px, A's heights there (N,) and A's slopes there (N, 2), per px."""
+    h, w = smooth.shape
+    ys0, xs0 = 2 * np.arange(1, (h - 1) // 2), 2 * np.arange(1, (w - 1) // 2)  # even rows/columns, not the edge
+    if len(ys0) < 2 or len(xs0) < 2:
+        return np.zeros((0, 2), np.float32), np.zeros(0), np.zeros((0, 2))
+    r0, r1, c0, c1 = ys0[0], ys0[-1] + 1, xs0[0], xs0[-1] + 1
+    # Central differences on the even grid (as _grad, whose slopes are half the neighbour difference).
+    gx = 0.5 * (smooth[r0:r1:2, c0 + 1:c1 + 1:2] - smooth[r0:r1:2, c0 - 1:c1 - 1:2])
+    gy = 0.5 * (smooth[r0 + 1:r1 + 1:2, c0:c1:2] - smooth[r0 - 1:r1 - 1:2, c0:c1:2])
+    mag = cv2.magnitude(gx, gy)  # the slope's size: its quartile selects the same pixels as its square's
+    m = max(2, min(DENSE_MARGIN_PX, min(h, w) // 4))
+    mag[(ys0 < m) | (ys0 >= h - m), :] = 0
+    mag[:, (xs0 < m) | (xs0 >= w - m)] = 0
     if valid is not None:
-        mag[cv2.erode(valid.astype(np.uint8), np.ones((7, 7), np.uint8)) == 0] = 0
-    thr = _upper_quartile(mag[::3, ::3])  # a sparse grid estimates the quartile well enough
-    pts = cv2.findNonZero((mag > max(float(thr), 1e-20)).view(np.uint8))  # row-major, as np.nonzero
+        k = 2 * edge_px + 1
+        inner = cv2.erode(valid.astype(np.uint8), np.ones((k, k), np.uint8))
+        mag[inner[r0:r1:2, c0:c1:2] == 0] = 0
+    thr = _upper_quartile(mag[::2, ::2])  # a sparse grid estimates the quartile well enough
+    pts = cv2.findNonZero((mag > max(float(thr), 1e-10)).view(np.uint8))  # row-major, as np.nonzero
     if pts is None:
-        return np.zeros((0, 2), np.float32), np.zeros(0)
+        return np.zeros((0, 2), np.float32), np.zeros(0), np.zeros((0, 2))
     pts = pts.reshape(-1, 2)  # (N, 1, 2) on OpenCV 4, (N, 2) on 5
-    xs, ys = pts[:, 0], pts[:, 1]
-    if len(xs) > count:
-        sel = np.linspace(0, len(xs) - 1, count).astype(np.int64)
-        ys, xs = ys[sel], xs[sel]
-    return np.stack([xs, ys], 1).astype(np.float32), smooth[ys, xs].astype(np.float64)
+    if len(pts) > count:
+        pts = pts[np.linspace(0, len(pts) - 1, count).astype(np.int64)]
+    gi, gj = pts[:, 1], pts[:, 0]
+    xs, ys = xs0[gj], ys0[gi]
+    grad = np.stack([gx[gi, gj], gy[gi, gj]], 1).astype(np.float64)
+    return np.stack([xs, ys], 1).astype(np.float32), smooth[ys, xs].astype(np.float64), grad
 
 
 def _grad(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -508,8 +553,8 @@ def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return out.reshape(len(x), -1).astype(np.float64)
 
 
-def _inside(u: np.ndarray, v: np.ndarray, w: int, h: int) -> tuple[np.ndarray, int]:
-    ok = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
+def _inside(u: np.ndarray, v: np.ndarray, w: int, h: int, margin: float = 0.0) -> tuple[np.ndarray, int]:
+    ok = (u >= margin) & (u <= w - 1 - margin) & (v >= margin) & (v <= h - 1 - margin)
     return ok, int(np.count_nonzero(ok))
 
 
@@ -517,7 +562,9 @@ def _inside(u: np.ndarray, v: np.ndarray, w: int, h: int) -> tuple[np.ndarray, i
 class DenseFit:
     """Result of :func:`dense_refine`: B->A matrix (px), NCC and overlap on A's samples, and the
     1-sigma uncertainty of rotation (deg) and translation (px) from the Gauss–Newton information
-    (residual variance floored at ``noise_mm``): large when the content is rotation-symmetric/flat."""
+    (residual variance floored at ``noise_mm``): large when the content is rotation-symmetric/flat;
+    ``wandered``: the polish left its basin and the matrix is the unpolished start (never accept it);
+    ``converged``: its last step was below CONVERGED_STEP_PX."""
 
     matrix_px: np.ndarray
     ncc: float = 0.0
@@ -525,6 +572,8 @@ class DenseFit:
     sigma_rot_deg: float = float("inf")
     sigma_px: float = float("inf")
     rotation_pinning: float = 0.0
+    wandered: bool = False
+    converged: bool = False
 
 
 def _bias_basis(x: np.ndarray, y: np.ndarray, order: int) -> np.ndarray:
@@ -539,62 +588,69 @@ def _bias_basis(x: np.ndarray, y: np.ndarray, order: int) -> np.ndarray:
     return np.stack(cols, 1)
 
 
-def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, iters: int = 5,
-                 noise_mm: float = 2e-3, gain_fit: bool = False, valid_b: np.ndarray | None = None,
-                 bias_order: int = 0) -> DenseFit:
-    """Gauss–Newton polish of a B->A rigid transform on A's steep pixels: rotation, translation,
-    a height offset between the touches (with ``bias_order`` 1 or 2 a plane or quadratic surface in
-    A's frame: the tilt or bowl by which an independent re-touch differs) and, with ``gain_fit``, a
-    height gain in [0.5, 2]. Samples landing outside B or on its unknown pixels are left out."""
-    xy, za = fa.sample_xy, fa.sample_z
-    if xy is None or za is None or len(xy) < 8:
-        return DenseFit(matrix_px)
-    h, w = smooth_b.shape
-    # Height and both slopes of B in one 3-channel image: one remap per iteration instead of three.
-    zgb = cv2.merge([smooth_b, *_grad(smooth_b)])
-    if valid_b is not None:
-        zgb = cv2.merge([smooth_b, *_grad(smooth_b), valid_b.astype(np.float32)])
-    inv = cv2.invertAffineTransform(matrix_px)  # A px -> B px
-    th = float(np.arctan2(inv[1, 0], inv[0, 0]))
-    t = inv[:, 2].astype(np.float64).copy()
-    gain = 1.0
-    x, y = xy[:, 0].astype(np.float64), xy[:, 1].astype(np.float64)
-    basis = _bias_basis(x, y, int(bias_order))
+# A polish that moves further than this from its starting pose has wandered (flat content, or a
+# start outside the fine basin): the coarse-to-fine retry starts over, and a wandered fit is never
+# accepted.
+WANDER_DEG = 4.0
+WANDER_PX = 5.0
+# Gaussian sigma (px) of the coarse stage of the retry: widens the basin of the polish to several px.
+COARSE_SIGMA_PX = 3.0
+# The polish has converged when its last step moves the samples by less than this (px; rotation
+# counted at a 100 px lever).
+CONVERGED_STEP_PX = 0.05
+# A's samples are taken this far (px) inside its border.
+DENSE_MARGIN_PX = 2
+# Samples that land within this many px of B's border are left out of the polish: a high-pass (and
+# the Poisson integration) distorts heights next to a border, and a re-touch shifted by a few mm puts
+# B's border over A's interior, where that distortion pulled the fit by 2-4 px.
+B_MARGIN_PX = 8.0
+
+
+def _zgb(smooth_b: np.ndarray, valid_b: np.ndarray | None) -> np.ndarray:
+    """B's heights (and its known mask as a second channel): what the polish samples per step."""
+    if valid_b is None:
+        return smooth_b
+    return cv2.merge([smooth_b, valid_b.astype(np.float32)])
+
+
+@dataclass
+class _GNState:
+    th: float
+    t: np.ndarray
+    gain: float
+    coef: np.ndarray
+    last_step_px: float = float("inf")
+
+
+def _gauss_newton(zb_img: np.ndarray, x: np.ndarray, y: np.ndarray, za: np.ndarray, ga: np.ndarray,
+                  basis: np.ndarray, st: _GNState, iters: int, gain_fit: bool, b_slopes: bool = False) -> _GNState:
+    """Gauss–Newton iterations of the B->A pose (A px -> B px as rotation ``th`` and translation
+    ``t``), height gain and bias surface, on A's samples (x, y), heights ``za`` and slopes ``ga``
+    against B's heights ``zb_img``. B's slopes are taken as A's turned into B (gain x grad B at T(x)
+    = R grad A(x) where the touches match: the inverse-compositional shortcut), so B needs no slope
+    images and each step samples one channel; its fixed point is only near the least-squares one, so
+    the last steps run with ``b_slopes``: B's own slopes, central differences of bilinear samples
+    (the same numbers as sampling a central-difference image)."""
+    h, w = zb_img.shape[:2]
     nb = basis.shape[1]
-    coef = np.zeros(nb)
-    start = (th, t.copy())
-
-    def gather(th: float, t: np.ndarray):
-        c, s_ = np.cos(th), np.sin(th)
-        u = c * x - s_ * y + t[0]
-        v = s_ * x + c * y + t[1]
-        ok, n_ok = _inside(u, v, w, h)
-        if n_ok < 8:
-            return None
-        idx = np.flatnonzero(ok) if n_ok < len(x) else None
-        if idx is not None:
-            u, v = u[idx], v[idx]
-        zb, bx, by, *vb = _sample(zgb, u, v).T
-        if vb:
-            keep = vb[0] > 0.999
-            if keep.sum() < 8:
-                return None
-            idx = np.flatnonzero(keep) if idx is None else idx[keep]
-            zb, bx, by, u, v = zb[keep], bx[keep], by[keep], u[keep], v[keep]
-        sel = slice(None) if idx is None else idx
-        return sel, u, v, zb, bx, by, n_ok
-
-    for _ in range(iters):
-        got = gather(th, t)
+    th, t, gain, coef = st.th, st.t.copy(), st.gain, st.coef.copy()
+    last = float("inf")
+    frozen = None
+    for k in range(iters):
+        # After two steps the samples in play are frozen: samples crossing B's margin or coverage
+        # edge at every step would otherwise keep the fit cycling by a fraction of a pixel.
+        got = _gather(zb_img, x, y, th, t, w, h, frozen if k >= 2 else None)
         if got is None:
             break
-        sel, u, v, zb, bx, by, _n = got
+        frozen = got[0]
+        sel, u, v, zb, _n = got
         zo, bas = za[sel], basis[sel]
+        gbx, gby = _b_slopes(zb_img, u, v, gain) if b_slopes else _turned(ga[sel], th)
         npar = 3 + nb + (1 if gain_fit else 0)
         j = np.empty((len(zb), npar))
         # d(u, v)/d(theta) = (-(v - t_y), u - t_x): no second rotation of the samples.
-        j[:, 0] = gain * (by * (u - t[0]) - bx * (v - t[1]))
-        j[:, 1], j[:, 2] = gain * bx, gain * by
+        j[:, 0] = gby * (u - t[0]) - gbx * (v - t[1])
+        j[:, 1], j[:, 2] = gbx, gby
         j[:, 3:3 + nb] = bas
         if gain_fit:
             j[:, -1] = zb
@@ -608,24 +664,137 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
         th += d[0]
         t += d[1:3]
         coef += d[3:3 + nb]
+        last = float(abs(d[0]) * 100.0 + np.hypot(d[1], d[2]))
         if gain_fit:
             # A re-touch pressed deeper shows its relief a little higher: a bounded height gain.
             gain = float(np.clip(gain + d[-1], 0.5, 2.0))
-        if abs(d[0]) < 1e-6 and abs(d[1]) + abs(d[2]) < 1e-4:
+        # The shortcut's steps only bring the pose near the fixed point that B's own slopes refine.
+        if last < (CONVERGED_STEP_PX / 25.0 if b_slopes else CONVERGED_STEP_PX / 5.0):
             break
-    # GN can wander on flat content: a large move away from the coarse answer is not trusted.
-    if abs(th - start[0]) > np.radians(6.0) or np.abs(t - start[1]).max() > 8.0 or not np.isfinite(th):
-        th, t = start
+    return _GNState(float(th), t, gain, coef, last)
+
+
+def _b_slopes(zb_img: np.ndarray, u: np.ndarray, v: np.ndarray, gain: float) -> tuple[np.ndarray, np.ndarray]:
+    """gain x B's slopes (x, y) at (u, v): half the difference of bilinear samples 1 px either side."""
+    n = len(u)
+    uu = np.concatenate([u + 1.0, u - 1.0, u, u])
+    vv = np.concatenate([v, v, v + 1.0, v - 1.0])
+    z4 = _sample(zb_img, uu, vv)[:, 0]
+    return 0.5 * gain * (z4[:n] - z4[n:2 * n]), 0.5 * gain * (z4[2 * n:3 * n] - z4[3 * n:])
+
+
+def _turned(ga: np.ndarray, th: float) -> tuple[np.ndarray, np.ndarray]:
+    """A's slopes (N, 2) turned by ``th`` into B's frame: (x, y) components."""
+    c, s_ = np.cos(th), np.sin(th)
+    return c * ga[:, 0] - s_ * ga[:, 1], s_ * ga[:, 0] + c * ga[:, 1]
+
+
+def _gather(zb_img: np.ndarray, x: np.ndarray, y: np.ndarray, th: float, t: np.ndarray, w: int, h: int,
+            only: np.ndarray | slice | None = None):
+    """A's samples moved into B by (th, t) and B's heights there, dropping samples within
+    B_MARGIN_PX of B's border or on its unknown pixels: (selection, u, v, zb, n inside) or None below
+    8 samples. only: a previous selection to keep as it is (no inside or known test)."""
+    c, s_ = np.cos(th), np.sin(th)
+    if only is not None:
+        xs, ys = x[only], y[only]
+        u = c * xs - s_ * ys + t[0]
+        v = s_ * xs + c * ys + t[1]
+        return only, u, v, _sample(zb_img, u, v)[:, 0], len(u)
+    u = c * x - s_ * y + t[0]
+    v = s_ * x + c * y + t[1]
+    ok, n_ok = _inside(u, v, w, h, B_MARGIN_PX)
+    if n_ok < 8:
+        return None
+    idx = np.flatnonzero(ok) if n_ok < len(x) else None
+    if idx is not None:
+        u, v = u[idx], v[idx]
+    smp = _sample(zb_img, u, v)
+    zb = smp[:, 0]
+    if smp.shape[1] > 1:
+        keep = smp[:, 1] > 0.999
+        if keep.sum() < 8:
+            return None
+        idx = np.flatnonzero(keep) if idx is None else idx[keep]
+        zb, u, v = zb[keep], u[keep], v[keep]
+    sel = slice(None) if idx is None else idx
+    return sel, u, v, zb, n_ok
+
+
+def _wandered(st: _GNState, start: tuple[float, np.ndarray], cx: float, cy: float) -> bool:
+    """The polish moved A's sample centroid (cx, cy) by more than WANDER_PX, or turned by more than
+    WANDER_DEG, from the start (the centroid, not the pixel origin: a small turn about a far origin
+    is a large translation there)."""
+    if not np.isfinite(st.th) or not np.all(np.isfinite(st.t)):
+        return True
+    if abs(st.th - start[0]) > np.radians(WANDER_DEG):
+        return True
+    moved = [np.cos(th) * cx - np.sin(th) * cy + t[0] for th, t in ((st.th, st.t), start)], \
+        [np.sin(th) * cx + np.cos(th) * cy + t[1] for th, t in ((st.th, st.t), start)]
+    return float(np.hypot(moved[0][0] - moved[0][1], moved[1][0] - moved[1][1])) > WANDER_PX
+
+
+def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, iters: int = 5,
+                 noise_mm: float = 2e-3, gain_fit: bool = False, valid_b: np.ndarray | None = None,
+                 bias_order: int = 0, coarse_retry: bool = True) -> DenseFit:
+    """Gauss–Newton polish of a B->A rigid transform on A's steep pixels: rotation, translation,
+    a height offset between the touches (with ``bias_order`` 1 or 2 a plane or quadratic surface in
+    A's frame: the tilt or bowl by which an independent re-touch differs) and, with ``gain_fit``, a
+    height gain in [0.5, 2]. Samples landing outside B or on its unknown pixels are left out.
+
+    A polish that wanders (moves more than WANDER_DEG / WANDER_PX from the start: the start was
+    outside the basin of the fine heights) is retried coarse to fine with ``coarse_retry`` (heights
+    blurred by COARSE_SIGMA_PX first); a fit that still wanders is returned at the start pose with
+    ``wandered=True`` and must not be accepted. ``converged`` says the last step moved the samples
+    by less than CONVERGED_STEP_PX."""
+    xy, za, ga = fa.sample_xy, fa.sample_z, fa.sample_grad
+    if xy is None or za is None or ga is None or len(xy) < 8:
+        return DenseFit(matrix_px)
+    h, w = smooth_b.shape
+    zgb = _zgb(smooth_b, valid_b)
+    inv = cv2.invertAffineTransform(matrix_px)  # A px -> B px
+    x, y = xy[:, 0].astype(np.float64), xy[:, 1].astype(np.float64)
+    basis = _bias_basis(x, y, int(bias_order))
+    st0 = _GNState(float(np.arctan2(inv[1, 0], inv[0, 0])), inv[:, 2].astype(np.float64).copy(), 1.0,
+                   np.zeros(basis.shape[1]))
+    start = (st0.th, st0.t.copy())
+    cx, cy = float(x.mean()), float(y.mean())
+    st = _gauss_newton(zgb, x, y, za, ga, basis, st0, iters, gain_fit)
+    for _ in range(2):  # a start a few degrees off needs more than ``iters`` steps to settle
+        if st.last_step_px < CONVERGED_STEP_PX or _wandered(st, start, cx, cy):
+            break
+        st = _gauss_newton(zgb, x, y, za, ga, basis, st, iters, gain_fit)
+    wandered = _wandered(st, start, cx, cy)
+    if wandered and coarse_retry and iters > 0 and fa.smooth is not None:
+        # Coarse to fine: blurred heights have a basin of several px; A's samples keep their places
+        # and read A's blurred heights there.
+        ia, ja = xy[:, 1].astype(np.intp), xy[:, 0].astype(np.intp)
+        blur_a = cv2.GaussianBlur(fa.smooth, (0, 0), COARSE_SIGMA_PX)
+        coarse_a = blur_a[ia, ja].astype(np.float64)
+        coarse_ga = np.stack([g[ia, ja] for g in _grad(blur_a)], 1).astype(np.float64)
+        coarse_b = _zgb(cv2.GaussianBlur(smooth_b, (0, 0), COARSE_SIGMA_PX), valid_b)
+        st = _gauss_newton(coarse_b, x, y, coarse_a, coarse_ga, basis, st0, 2 * iters, gain_fit)
+        if not _wandered(st, start, cx, cy):
+            st = _gauss_newton(zgb, x, y, za, ga, basis, st, iters, gain_fit)
+        wandered = _wandered(st, start, cx, cy)
+    if not wandered and iters > 0:
+        # The last steps with B's own slopes: the least-squares fixed point, not the shortcut's.
+        st = _gauss_newton(zgb, x, y, za, ga, basis, st, 3, gain_fit, b_slopes=True)
+        wandered = _wandered(st, start, cx, cy)
+    if wandered:
+        st = _GNState(start[0], start[1].copy(), 1.0, np.zeros(basis.shape[1]))
+    th, t, gain, coef = st.th, st.t, st.gain, st.coef
     c, s_ = np.cos(th), np.sin(th)
     fwd = np.array([[c, -s_, t[0]], [s_, c, t[1]]])
     u_all = c * x - s_ * y + t[0]
     v_all = s_ * x + c * y + t[1]
     fit = DenseFit(cv2.invertAffineTransform(fwd).astype(np.float64),
-                   overlap=_inside(u_all, v_all, w, h)[1] / len(x))
-    got = gather(th, t)
+                   overlap=_inside(u_all, v_all, w, h)[1] / len(x), wandered=bool(wandered),
+                   converged=bool(not wandered and st.last_step_px < CONVERGED_STEP_PX))
+    got = _gather(zgb, x, y, th, t, w, h)
     if got is None:
         return fit
-    sel, _u, _v, zb, bx, by, _n = got
+    sel, u_s, v_s, zb, _n = got
+    gbx, gby = _b_slopes(zgb, u_s, v_s, gain)
     xo, yo, bas = x[sel], y[sel], basis[sel]
     zo = za[sel] - bas @ coef  # A's heights with the fitted surface between the touches removed
     a_ = zo - zo.mean()
@@ -634,7 +803,7 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
     fit.ncc = float((a_ * b_).sum() / den) if den > 1e-18 else 0.0
     # Rotate about the samples' centroid so the angle's information is not mixed with translation.
     xo, yo = xo - xo.mean(), yo - yo.mean()
-    j = np.column_stack([gain * (bx * (-s_ * xo - c * yo) + by * (c * xo - s_ * yo)), gain * bx, gain * by, bas])
+    j = np.column_stack([gbx * (-s_ * xo - c * yo) + gby * (c * xo - s_ * yo), gbx, gby, bas])
     resid = gain * b_ - a_
     var = max(float(resid @ resid) / max(len(resid) - j.shape[1], 1), noise_mm ** 2)
     try:
@@ -684,8 +853,9 @@ def _dense_fourier_mellin(height_a: np.ndarray, height_b: np.ndarray) -> tuple[n
 
 
 def _pinned(fit: DenseFit, params: RegistrationParams) -> bool:
-    """The dense fit pins the pose: small 1-sigma errors and content that is not rotation-symmetric."""
-    return (fit.sigma_rot_deg <= params.max_sigma_rot_deg and fit.sigma_px <= params.max_sigma_px
+    """The dense fit pins the pose: it converged (did not wander, last step small), small 1-sigma
+    errors and content that is not rotation-symmetric."""
+    return (fit.converged and fit.sigma_rot_deg <= params.max_sigma_rot_deg and fit.sigma_px <= params.max_sigma_px
             and fit.rotation_pinning >= params.min_rotation_pinning)
 
 
