@@ -30,7 +30,7 @@ from tactile_rig.core.errors import (
 from tactile_rig.core.types import GripperOutcome, GripperState
 from tactile_rig.devices.dynamixel import control_table as ct
 from tactile_rig.drivers.base import Driver, Lifecycle
-from tactile_rig.drivers.dynamixel.bus import DynamixelBus
+from tactile_rig.drivers.dynamixel.bus import DEFAULT_LATENCY_TIMER_MS, DynamixelBus
 
 log = logging.getLogger("tactile_rig.dynamixel.gripper")
 
@@ -99,13 +99,15 @@ class DynamixelGripper(Driver):
         default_timeout_s: float = 5.0,
         stall_window: int = 5,
         settled_speed_mps: float = SETTLED_SPEED_MPS,
+        latency_timer_ms: float = DEFAULT_LATENCY_TIMER_MS,
+        retries: int = 2,
     ) -> None:
         if isinstance(port, DynamixelBus):
             self.bus = port
             self._owns_bus = False
         else:
             self.bus = DynamixelBus(port, baudrate=baudrate or (1_000_000 if protocol == 2 else 57600),
-                                    protocol=protocol)
+                                    protocol=protocol, latency_timer_ms=latency_timer_ms, retries=retries)
             self._owns_bus = True
         self.protocol = self.bus.protocol
         self.id = dxl_id
