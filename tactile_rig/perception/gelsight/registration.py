@@ -4,9 +4,10 @@ Pipeline: height maps rendered to 8-bit with a band-pass that puts keypoints on 
 BRISK or ORB keypoints -> cross-checked Hamming matches -> two-pair sampling RANSAC for a rigid
 transform -> least-squares refit on the inliers -> the paper's confidence
 c = max(1 - |1 - det R|, 0), R the 2x2 part of the least-squares homography of the inliers -> a dense
-check (normalised correlation of the overlapping heights). With too few keypoints a dense
-Fourier–Mellin (log-polar phase correlation) estimate is tried; when neither is trustworthy the result
-is a refusal (``ok=False`` with a ``reason``) rather than a confident wrong answer.
+check (normalised correlation of the overlapping heights). When keypoints fail, a global dense search
+(:mod:`~tactile_rig.perception.gelsight.dense_search`: masked correlation of high-passed heights over
+every rotation and shift, its best poses polished and checked) is tried; when neither is trustworthy
+the result is a refusal (``ok=False`` with a ``reason``) rather than a confident wrong answer.
 
 Frames: a point of B in mm from B's centre (x right, y down) maps into A's frame (mm from A's centre)
 by ``matrix_mm``; ``matrix_px`` does the same in pixel (column, row) coordinates.
@@ -20,6 +21,7 @@ import cv2
 import numpy as np
 
 from tactile_rig.core.errors import DegenerateTransform, HeightOutOfRange, NoContact, PerceptionError
+from tactile_rig.perception.gelsight.dense_search import rotation_search
 
 INSUFFICIENT_TEXTURE = "insufficient_texture"
 NO_CONSENSUS = "no_consensus"
@@ -101,6 +103,20 @@ class RegistrationParams:
     dense_gain: the polish also fits a height gain between the touches (a deeper press);
     dense_bias_order: the height difference between the touches the polish allows: 0 a constant, 1 a
     plane, 2 a quadratic surface (the bowl of a deeper press).
+
+    When keypoints fail and ``dense_fallback`` is on, a global dense search
+    (:mod:`~tactile_rig.perception.gelsight.dense_search`) runs on high-passed heights:
+    search_highpass_px: sigma (px) of the low-pass removed from both maps for the search and its
+    polish (the press bowl and the depth's gain go, the relief stays); search_coarse_px: the search
+    runs on maps reduced by this factor (full px per coarse px); search_step_deg: rotation step of
+    the sweep over the full circle; search_candidates: best poses (local maxima over rotation)
+    polished and checked; search_min_ncc: the polished pose's normalised correlation of the
+    high-passed heights (lower than min_ncc's raw heights: high-passed heights carry relatively
+    more noise) below this is refused; search_min_ratio: the pose must explain this many times more
+    of A's relief (NCC^2 x overlap) than any other candidate pose, else the content is ambiguous
+    (blobs and domes fit several poses); search_min_support: at least this many of the keypoint
+    matches must agree with the pose within inlier_px. A search answer must also pass min_overlap
+    and the pinning bars.
     """
 
     detector: str = "orb"
@@ -129,6 +145,13 @@ class RegistrationParams:
     dense_highpass_px: float = 0.0
     dense_gain: bool = True
     dense_bias_order: int = 2
+    search_highpass_px: float = 8.0
+    search_coarse_px: int = 8
+    search_step_deg: float = 6.0
+    search_candidates: int = 5
+    search_min_ncc: float = 0.7
+    search_min_ratio: float = 2.0
+    search_min_support: int = 2
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -140,6 +163,16 @@ class RegistrationParams:
             raise ValueError(
                 f"ransac_iters={self.ransac_iters!r} must be >= 1 and min_inliers={self.min_inliers!r} must be >= 2"
             )
+        if not (0.5 <= self.search_highpass_px <= 256.0 and 1 <= self.search_coarse_px <= 64
+                and 0.1 <= self.search_step_deg <= 45.0 and 1 <= self.search_candidates <= 32
+                and -1.0 <= self.search_min_ncc <= 1.0 and self.search_min_ratio >= 1.0
+                and self.search_min_support >= 0):
+            raise ValueError(
+                f"search knobs out of range: search_highpass_px={self.search_highpass_px!r} (0.5..256 px), "
+                f"search_coarse_px={self.search_coarse_px!r} (1..64), search_step_deg={self.search_step_deg!r} "
+                f"(0.1..45 deg), search_candidates={self.search_candidates!r} (1..32), "
+                f"search_min_ncc={self.search_min_ncc!r} (-1..1), search_min_ratio={self.search_min_ratio!r} (>= 1), "
+                f"search_min_support={self.search_min_support!r} (>= 0)")
         if self.orb_levels < 1 or not self.orb_scale > 1.0 or self.orb_fast_threshold < 0:
             raise ValueError(f"orb_levels must be >= 1, orb_scale > 1 and orb_fast_threshold >= 0, got "
                              f"{self.orb_levels!r}, {self.orb_scale!r}, {self.orb_fast_threshold!r}")
@@ -655,32 +688,79 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
     return fit
 
 
-def _dense_fourier_mellin(height_a: np.ndarray, height_b: np.ndarray) -> tuple[np.ndarray, float]:
-    """B->A rigid estimate by log-polar phase correlation of the magnitude spectra (rotation, with
-    the 180 degree ambiguity resolved by correlation) then phase correlation (translation)."""
-    h, w = height_a.shape
-    win = cv2.createHanningWindow((w, h), cv2.CV_32F)
+def _search_features(z: np.ndarray, valid: np.ndarray | None, params: RegistrationParams,
+                     samples: bool) -> Features:
+    """High-passed heights (and, with ``samples``, A's steep pixels) for polishing a search pose.
+    A band of two low-pass sigmas along the map's edge (and its unknown pixels) is left out: there
+    the high-pass depends on what lies beyond the edge, which differs between two touches."""
+    sigma = params.search_highpass_px
+    smooth = cv2.subtract(cv2.GaussianBlur(z, (0, 0), 1.0), _lowpass(z, sigma, valid))
+    margin = int(np.ceil(2.0 * sigma))
+    inner = np.zeros(z.shape, np.uint8)
+    inner[margin:z.shape[0] - margin, margin:z.shape[1] - margin] = 1
+    if valid is not None:
+        inner &= cv2.erode(valid.astype(np.uint8), np.ones((2 * margin + 1, 2 * margin + 1), np.uint8))
+    feats = Features(smooth=smooth, valid=inner.astype(bool))
+    if samples:
+        feats.sample_xy, feats.sample_z = _dense_samples(smooth, params.dense_samples, feats.valid)
+    return feats
 
-    def logpolar_mag(z: np.ndarray) -> np.ndarray:
-        f = np.fft.fftshift(np.abs(np.fft.fft2((z - z.mean()) * win)))
-        f = np.log1p(f).astype(np.float32)
-        radius = min(h, w) / 2.0
-        return cv2.warpPolar(f, (0, 0), (w / 2.0, h / 2.0), radius, cv2.WARP_POLAR_LOG + cv2.INTER_LINEAR)
 
-    la, lb = logpolar_mag(height_a), logpolar_mag(height_b)
-    (_, dy), _ = cv2.phaseCorrelate(lb, la)
-    angle = -360.0 * dy / la.shape[0]
-    best = (None, -2.0)
-    for cand in (angle, angle + 180.0):
-        rot = cv2.getRotationMatrix2D(((w - 1) / 2.0, (h - 1) / 2.0), -cand, 1.0)
-        rb = cv2.warpAffine(height_b, rot, (w, h), flags=cv2.INTER_LINEAR)
-        (sx, sy), _ = cv2.phaseCorrelate(rb * win, height_a * win)
-        m = rot.copy()
-        m[:, 2] += (sx, sy)
-        ncc, _ = overlap_ncc(height_a, height_b, m)
-        if ncc > best[1]:
-            best = (m, ncc)
-    return best[0], best[1]  # type: ignore[return-value]
+# Two poses are the same answer when they differ by less than this (deg, px at B's centre).
+SAME_POSE_DEG = 2.0
+SAME_POSE_PX = 3.0
+
+
+def _same_pose(m: np.ndarray, n: np.ndarray, centre: np.ndarray) -> bool:
+    d_rot = abs(float(np.degrees(np.arctan2(m[1, 0], m[0, 0]) - np.arctan2(n[1, 0], n[0, 0])))) % 360.0
+    d_px = float(np.linalg.norm((m[:, :2] - n[:, :2]) @ centre + m[:, 2] - n[:, 2]))
+    return min(d_rot, 360.0 - d_rot) <= SAME_POSE_DEG and d_px <= SAME_POSE_PX
+
+
+def _dense_search(a: np.ndarray, b: np.ndarray, valid_a: np.ndarray | None, valid_b: np.ndarray | None,
+                  pa: np.ndarray, pb: np.ndarray, params: RegistrationParams) -> tuple[DenseFit | None, float]:
+    """The answer when keypoints fail: :func:`~tactile_rig.perception.gelsight.dense_search.rotation_search`
+    on high-passed heights, each candidate polished by :func:`dense_refine` on the same high-passed heights. The best
+    polished pose is accepted only when it passes search_min_ncc, min_overlap and the pinning bars,
+    explains search_min_ratio times more of A's relief (NCC^2 x overlap) than any distinct candidate
+    (content that fits several poses is ambiguous: blobs, domes) and is confirmed by at least
+    search_min_support of the keypoint matches (pa in A, pb in B) within inlier_px.
+    Returns (accepted fit or None, the best polished NCC)."""
+    found = rotation_search(
+        a, b, highpass_px=params.search_highpass_px, coarse_px=params.search_coarse_px,
+        step_deg=params.search_step_deg, max_candidates=params.search_candidates,
+        valid_a=valid_a, valid_b=valid_b)
+    if not found.candidates:
+        return None, float("nan")
+    fa = _search_features(a, valid_a, params, samples=True)
+    fb = _search_features(b, valid_b, params, samples=False)
+    centre_b = np.array([(b.shape[1] - 1) / 2.0, (b.shape[0] - 1) / 2.0])
+    fits = [dense_refine(fa, fb.smooth, c.matrix_px, params.refine_iters if params.refine else 0,  # type: ignore[arg-type]
+                         gain_fit=params.dense_gain, valid_b=fb.valid, bias_order=params.dense_bias_order)
+            for c in found.candidates]
+    fits = [f for f in fits if np.isfinite(f.ncc)]
+    if not fits:
+        return None, float("nan")
+    best_ncc = max(f.ncc for f in fits)
+    passed = [f for f in fits
+              if f.ncc >= params.search_min_ncc and f.overlap >= params.min_overlap and _pinned(f, params)]
+    if not passed:
+        return None, best_ncc
+    top = max(passed, key=lambda f: f.ncc)
+    explained = top.ncc * top.ncc * top.overlap
+    for other in fits:
+        if other is top or _same_pose(other.matrix_px, top.matrix_px, centre_b):
+            continue
+        if other.overlap >= params.min_overlap and explained < params.search_min_ratio * other.ncc ** 2 * other.overlap:
+            return None, best_ncc  # another pose fits nearly as well: ambiguous content
+    if len(pa):
+        res = pb @ top.matrix_px[:, :2].T + top.matrix_px[:, 2] - pa
+        support = int(np.count_nonzero(np.einsum("ij,ij->i", res, res) < params.inlier_px ** 2))
+    else:
+        support = 0
+    if support < params.search_min_support:
+        return None, best_ncc
+    return top, top.ncc
 
 
 def _pinned(fit: DenseFit, params: RegistrationParams) -> bool:
@@ -776,17 +856,11 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
         else:
             keypoint_reason = NO_CONSENSUS
     ncc = float("nan")
-    if params.dense_fallback and a.shape == b.shape:
-        m, ncc = _dense_fourier_mellin(a, b)
-        if m is not None and ncc >= params.min_ncc:
-            fit = dense_refine(fa, fb.smooth, m, params.refine_iters if params.refine else 0,  # type: ignore[arg-type]
-                               gain_fit=params.dense_gain, valid_b=fb.valid,
-                                   bias_order=params.dense_bias_order)
-            ncc = fit.ncc
-            if (fit.ncc >= max(params.min_ncc, 0.8) and fit.overlap >= params.min_overlap
-                    and _pinned(fit, params)):
-                return _result(True, fit.matrix_px, *shapes, scale, 1.0, 0, "dense_fourier_mellin", None,  # type: ignore[arg-type]
-                               len(pa), fit.ncc)
+    if params.dense_fallback:
+        fit_s, ncc = _dense_search(a, b, fa.valid, fb.valid, pa, pb, params)
+        if fit_s is not None:
+            return _result(True, fit_s.matrix_px, *shapes, scale, 1.0, 0, "dense_search", None,  # type: ignore[arg-type]
+                           len(pa), fit_s.ncc)
         method += "+dense"
         if keypoint_reason == NO_CONSENSUS:
             keypoint_reason = INSUFFICIENT_TEXTURE
