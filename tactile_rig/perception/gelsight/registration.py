@@ -116,7 +116,9 @@ class RegistrationParams:
     of A's relief (NCC^2 x overlap) than any other candidate pose, else the content is ambiguous
     (blobs and domes fit several poses); search_min_support: at least this many of the keypoint
     matches must agree with the pose within inlier_px. A search answer must also pass min_overlap
-    and the pinning bars.
+    and the pinning bars. verify_ncc: a keypoint answer whose dense check passes below this NCC
+    (sparse relief on a press bowl, where the raw-height polish can be a degree off and still pass)
+    joins the search as one more candidate and is held to the search's bars (with dense_fallback).
     """
 
     detector: str = "orb"
@@ -152,6 +154,7 @@ class RegistrationParams:
     search_min_ncc: float = 0.7
     search_min_ratio: float = 2.0
     search_min_support: int = 2
+    verify_ncc: float = 0.97
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -717,50 +720,58 @@ def _same_pose(m: np.ndarray, n: np.ndarray, centre: np.ndarray) -> bool:
     return min(d_rot, 360.0 - d_rot) <= SAME_POSE_DEG and d_px <= SAME_POSE_PX
 
 
+def _search_bars(fit: DenseFit, params: RegistrationParams) -> bool:
+    """A pose polished on high-passed heights passes search_min_ncc, min_overlap and pinning."""
+    return bool(np.isfinite(fit.ncc) and fit.ncc >= params.search_min_ncc and fit.overlap >= params.min_overlap
+                and _pinned(fit, params))
+
+
 def _dense_search(a: np.ndarray, b: np.ndarray, valid_a: np.ndarray | None, valid_b: np.ndarray | None,
-                  pa: np.ndarray, pb: np.ndarray, params: RegistrationParams) -> tuple[DenseFit | None, float]:
-    """The answer when keypoints fail: :func:`~tactile_rig.perception.gelsight.dense_search.rotation_search`
-    on high-passed heights, each candidate polished by :func:`dense_refine` on the same high-passed heights. The best
-    polished pose is accepted only when it passes search_min_ncc, min_overlap and the pinning bars,
-    explains search_min_ratio times more of A's relief (NCC^2 x overlap) than any distinct candidate
-    (content that fits several poses is ambiguous: blobs, domes) and is confirmed by at least
+                  pa: np.ndarray, pb: np.ndarray, params: RegistrationParams,
+                  extra: list[np.ndarray]) -> tuple[DenseFit | None, float, bool]:
+    """The dense answer: :func:`~tactile_rig.perception.gelsight.dense_search.rotation_search` on
+    high-passed heights, its candidates (and the ``extra`` B->A poses, e.g. a marginal keypoint
+    answer) polished by :func:`dense_refine` on the same high-passed heights. The best polished pose
+    is accepted only when it passes search_min_ncc, min_overlap and the pinning bars, explains
+    search_min_ratio times more of A's relief (NCC^2 x overlap) than any distinct pose (content
+    that fits several poses is ambiguous: blobs, domes) and is confirmed by at least
     search_min_support of the keypoint matches (pa in A, pb in B) within inlier_px.
-    Returns (accepted fit or None, the best polished NCC)."""
+    Returns (accepted fit or None, the best polished NCC, whether it came from ``extra``)."""
     found = rotation_search(
         a, b, highpass_px=params.search_highpass_px, coarse_px=params.search_coarse_px,
         step_deg=params.search_step_deg, max_candidates=params.search_candidates,
         valid_a=valid_a, valid_b=valid_b)
-    if not found.candidates:
-        return None, float("nan")
+    starts = list(extra) + [c.matrix_px for c in found.candidates]
+    if not starts:
+        return None, float("nan"), False
     fa = _search_features(a, valid_a, params, samples=True)
     fb = _search_features(b, valid_b, params, samples=False)
-    centre_b = np.array([(b.shape[1] - 1) / 2.0, (b.shape[0] - 1) / 2.0])
-    fits = [dense_refine(fa, fb.smooth, c.matrix_px, params.refine_iters if params.refine else 0,  # type: ignore[arg-type]
+    fits = [dense_refine(fa, fb.smooth, m, params.refine_iters if params.refine else 0,  # type: ignore[arg-type]
                          gain_fit=params.dense_gain, valid_b=fb.valid, bias_order=params.dense_bias_order)
-            for c in found.candidates]
-    fits = [f for f in fits if np.isfinite(f.ncc)]
-    if not fits:
-        return None, float("nan")
-    best_ncc = max(f.ncc for f in fits)
-    passed = [f for f in fits
-              if f.ncc >= params.search_min_ncc and f.overlap >= params.min_overlap and _pinned(f, params)]
+            for m in starts]
+    finite = [f for f in fits if np.isfinite(f.ncc)]
+    if not finite:
+        return None, float("nan"), False
+    best_ncc = max(f.ncc for f in finite)
+    passed = [f for f in finite if _search_bars(f, params)]
     if not passed:
-        return None, best_ncc
+        return None, best_ncc, False
     top = max(passed, key=lambda f: f.ncc)
+    centre_b = np.array([(b.shape[1] - 1) / 2.0, (b.shape[0] - 1) / 2.0])
     explained = top.ncc * top.ncc * top.overlap
-    for other in fits:
+    for other in finite:
         if other is top or _same_pose(other.matrix_px, top.matrix_px, centre_b):
             continue
         if other.overlap >= params.min_overlap and explained < params.search_min_ratio * other.ncc ** 2 * other.overlap:
-            return None, best_ncc  # another pose fits nearly as well: ambiguous content
+            return None, best_ncc, False  # another pose fits nearly as well: ambiguous content
     if len(pa):
         res = pb @ top.matrix_px[:, :2].T + top.matrix_px[:, 2] - pa
         support = int(np.count_nonzero(np.einsum("ij,ij->i", res, res) < params.inlier_px ** 2))
     else:
         support = 0
     if support < params.search_min_support:
-        return None, best_ncc
-    return top, top.ncc
+        return None, best_ncc, False
+    return top, top.ncc, any(top is f for f in fits[:len(extra)])
 
 
 def _pinned(fit: DenseFit, params: RegistrationParams) -> bool:
@@ -830,6 +841,7 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
     method = params.detector
     keypoint_reason = INSUFFICIENT_TEXTURE
     conf, n_inl = 0.0, 0
+    keypoint_pose: np.ndarray | None = None
     if len(pa) >= params.min_inliers:
         m, mask = ransac_rigid(pb, pa, params.ransac_iters, params.inlier_px, params.seed)
         n_inl = int(mask.sum())
@@ -846,9 +858,17 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
                                    bias_order=params.dense_bias_order)
                 if fit.ncc >= params.min_ncc and fit.overlap >= params.min_overlap:
                     if _pinned(fit, params):
-                        return _result(True, fit.matrix_px, *shapes, scale, conf, n_inl, method, None,  # type: ignore[arg-type]
-                                       len(pa), fit.ncc)
-                    keypoint_reason = INSUFFICIENT_TEXTURE
+                        if fit.ncc >= params.verify_ncc or not params.dense_fallback:
+                            return _result(True, fit.matrix_px, *shapes, scale, conf, n_inl, method, None,  # type: ignore[arg-type]
+                                           len(pa), fit.ncc)
+                        # A marginal dense check: sparse relief on a press bowl, which the raw-height
+                        # polish can trade against the pose (a degree off, checks passed). The pose
+                        # goes to the dense search as one more candidate, polished on high-passed
+                        # heights and held to the search's bars against the search's own poses.
+                        keypoint_pose = fit.matrix_px
+                        keypoint_reason = MISMATCH
+                    else:
+                        keypoint_reason = INSUFFICIENT_TEXTURE
                 else:
                     keypoint_reason = MISMATCH
             else:
@@ -857,8 +877,12 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
             keypoint_reason = NO_CONSENSUS
     ncc = float("nan")
     if params.dense_fallback:
-        fit_s, ncc = _dense_search(a, b, fa.valid, fb.valid, pa, pb, params)
+        extra = [] if keypoint_pose is None else [keypoint_pose]
+        fit_s, ncc, from_extra = _dense_search(a, b, fa.valid, fb.valid, pa, pb, params, extra)
         if fit_s is not None:
+            if from_extra:  # the keypoint pose, confirmed (and polished) on high-passed heights
+                return _result(True, fit_s.matrix_px, *shapes, scale, conf, n_inl, method, None,  # type: ignore[arg-type]
+                               len(pa), fit_s.ncc)
             return _result(True, fit_s.matrix_px, *shapes, scale, 1.0, 0, "dense_search", None,  # type: ignore[arg-type]
                            len(pa), fit_s.ncc)
         method += "+dense"
