@@ -51,6 +51,8 @@ class SearchResult:
     coarse_px: int = 0
 
 
+# Heights beyond this (mm) are not a gel surface: treated as unknown.
+MAX_ABS_HEIGHT_MM = 1e3
 # Longest side of a map in coarse pixels; beyond it the reduction factor grows.
 MAX_COARSE_SIDE = 160
 # Rotations correlated per batch of FFTs (bounds the working memory).
@@ -73,15 +75,19 @@ def _lowpass(z: np.ndarray, w: np.ndarray, sigma_px: float) -> np.ndarray:
 
 def prepare(height_mm: np.ndarray, highpass_px: float, coarse_px: int,
             valid: np.ndarray | None = None) -> _Coarse | None:
-    """High-passed, normalised, reduced map (None when it has no relief or under 8x8 coarse px)."""
-    z = np.asarray(height_mm, np.float32)
-    known = np.isfinite(z) if valid is None else (np.asarray(valid, bool) & np.isfinite(z))
+    """High-passed, normalised, reduced map (None when it has no relief, under 8x8 coarse pixels or
+    under 64 known pixels)."""
+    z = np.asarray(height_mm, np.float64)
+    # Non-finite and absurd heights (beyond MAX_ABS_HEIGHT_MM: no gel shows them) count as unknown.
+    known = np.abs(np.nan_to_num(z, nan=np.inf)) <= MAX_ABS_HEIGHT_MM
+    if valid is not None:
+        known &= np.asarray(valid, bool)
+    z = np.where(known, z, 0.0).astype(np.float32)
     f = int(coarse_px)
     hc, wc = z.shape[0] // f, z.shape[1] // f
     if hc < 8 or wc < 8 or known.sum() < 64:
         return None
     w = known.astype(np.float32)
-    z = np.where(known, z, np.float32(0.0)).astype(np.float32)
     # Area reduction first (heights and mask), then the high-pass at coarse resolution: the same
     # band at a fraction of the cost. A coarse pixel counts as known when all of it is.
     zs = cv2.resize((z * w)[:hc * f, :wc * f], (wc, hc), interpolation=cv2.INTER_AREA)
@@ -92,8 +98,9 @@ def prepare(height_mm: np.ndarray, highpass_px: float, coarse_px: int,
     zc = np.where(m > 0, zs / np.maximum(wm, 1e-3), 0.0).astype(np.float32)
     zc = (zc - _lowpass(zc, m, max(highpass_px / f, 0.5))) * m
     sel = m > 0
-    mu = float(zc[sel].mean())
-    sd = float(zc[sel].std())
+    vals = zc[sel].astype(np.float64)
+    mu = float(vals.mean())
+    sd = float(vals.std())
     if not np.isfinite(sd) or sd < 1e-9:
         return None
     zc = np.where(sel, (zc - mu) / sd, 0.0).astype(np.float32)
@@ -125,12 +132,14 @@ def rotation_search(height_a_mm: np.ndarray, height_b_mm: np.ndarray, *, highpas
     step_deg: rotation step; min_overlap: smallest overlap scored (fraction of the smaller map's
     known coarse pixels); max_candidates: how many local maxima over angle are returned. A map
     larger than ``MAX_COARSE_SIDE`` coarse pixels is reduced further (bounded memory and time).
-    Non-finite heights count as unknown. Maps without relief or under 8x8 coarse pixels give no
+    Non-finite heights and heights beyond +-``MAX_ABS_HEIGHT_MM`` count as unknown. Maps without relief or under 8x8 coarse pixels give no
     candidates. Raises ``ValueError`` for non-2-D maps or parameters out of range.
     """
     for name, h in (("height_a_mm", height_a_mm), ("height_b_mm", height_b_mm)):
         if not isinstance(h, np.ndarray) or h.ndim != 2:
             raise ValueError(f"{name}: expected a 2-D numpy array, got {getattr(h, 'shape', type(h).__name__)}")
+        if not (np.issubdtype(h.dtype, np.floating) or np.issubdtype(h.dtype, np.integer)):
+            raise ValueError(f"{name}: expected real heights (float or integer), got dtype {h.dtype}")
     if not (highpass_px > 0 and np.isfinite(highpass_px)):
         raise ValueError(f"highpass_px must be a positive number of pixels, got {highpass_px!r}")
     if not 1 <= int(coarse_px) <= 64:

@@ -92,7 +92,7 @@ class RegistrationParams:
     ``detect_short_px``; band_px: (fine, coarse) Gaussian sigmas of the band-pass rendering;
     ransac_iters: two-pair samples; inlier_px: RANSAC residual threshold; min_inliers: fewer is a
     refusal of the keypoint answer; min_confidence: the paper's c below this is refused (the tactile
-    map accepts at 0.98); min_ncc: the dense check on the overlap; dense_fallback: try Fourier–Mellin
+    map accepts at 0.98); min_ncc: the dense check on the overlap; dense_fallback: try the dense search
     when keypoints fail; refine: Gauss–Newton polish on dense_samples steep pixels (sub-pixel);
     max_sigma_rot_deg / max_sigma_px: refuse when the dense fit cannot pin rotation/translation
     (1-sigma from the Gauss-Newton information and the residual); min_rotation_pinning: refuse
