@@ -154,13 +154,11 @@ _REG_FLAGS: tuple[tuple[str, Callable[[str], Any], str], ...] = (
      "refuse rotation-symmetric content (rotation vs translation information)"),
     ("detect_short_px", int_in(16, 8192, "px"), "keypoints are found on the map resized to this short side (px)"),
     ("orb_features", int_in(10, 100_000), "ORB keypoints per touch-sized image"),
-    ("search_min_ncc", float_in(-1.0, 1.0),
-     "dense search: NCC of the high-passed heights at the polished pose below this is refused"),
+    ("search_min_explained", float_in(0.0, 1.0),
+     "dense search: refuse a pose explaining less of the map's relief (NCC^2 x overlap) than this"),
     ("search_min_ratio", float_in(1.0, 1000.0),
      "dense search: refuse unless the pose explains this many times more relief than any other pose"),
     ("search_min_support", int_in(0, 100_000), "dense search: keypoint matches that must agree with the pose"),
-    ("verify_ncc", float_in(-1.0, 1.0),
-     "a keypoint answer whose dense check is below this NCC is re-checked by the dense search"),
 )
 
 

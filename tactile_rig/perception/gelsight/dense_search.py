@@ -125,15 +125,17 @@ def _parabola(ym: float, y0: float, yp: float) -> float:
 
 def rotation_search(height_a_mm: np.ndarray, height_b_mm: np.ndarray, *, highpass_px: float = 16.0,
                     coarse_px: int = 8, step_deg: float = 6.0, min_overlap: float = 0.3,
-                    max_candidates: int = 3, valid_a: np.ndarray | None = None, valid_b: np.ndarray | None = None) -> SearchResult:
+                    max_candidates: int = 3, valid_a: np.ndarray | None = None,
+                    valid_b: np.ndarray | None = None) -> SearchResult:
     """Masked-NCC search of B's rotation (full circle) and shift onto A; see the module docstring.
 
     highpass_px: sigma (full px) of the low-pass removed; coarse_px: full pixels per coarse pixel;
     step_deg: rotation step; min_overlap: smallest overlap scored (fraction of the smaller map's
     known coarse pixels); max_candidates: how many local maxima over angle are returned. A map
     larger than ``MAX_COARSE_SIDE`` coarse pixels is reduced further (bounded memory and time).
-    Non-finite heights and heights beyond +-``MAX_ABS_HEIGHT_MM`` count as unknown. Maps without relief or under 8x8 coarse pixels give no
-    candidates. Raises ``ValueError`` for non-2-D maps or parameters out of range.
+    Non-finite heights and heights beyond +-``MAX_ABS_HEIGHT_MM`` count as unknown. Maps without
+    relief or under 8x8 coarse pixels give no candidates. Raises ``ValueError`` for non-2-D maps or
+    parameters out of range.
     """
     for name, h in (("height_a_mm", height_a_mm), ("height_b_mm", height_b_mm)):
         if not isinstance(h, np.ndarray) or h.ndim != 2:

@@ -92,14 +92,17 @@ class RegistrationParams:
     ``detect_short_px``; band_px: (fine, coarse) Gaussian sigmas of the band-pass rendering;
     ransac_iters: two-pair samples; inlier_px: RANSAC residual threshold; min_inliers: fewer is a
     refusal of the keypoint answer; min_confidence: the paper's c below this is refused (the tactile
-    map accepts at 0.98); min_ncc: the dense check on the overlap; dense_fallback: try the dense search
+    map accepts at 0.98); min_ncc: the dense check, normalised correlation of the two touches' heights
+    on A's samples after the polish (of the high-passed heights when dense_highpass_px > 0: a wrong
+    pose reads ~0 there, a right one 0.7-0.99); dense_fallback: try the dense search
     when keypoints fail; refine: Gauss–Newton polish on dense_samples steep pixels (sub-pixel);
     max_sigma_rot_deg / max_sigma_px: refuse when the dense fit cannot pin rotation/translation
     (1-sigma from the Gauss-Newton information and the residual); min_rotation_pinning: refuse
     rotation-symmetric content (rotation information over translation information x radius^2: a
     lone smooth dome reads 0.01-0.02, one real press with gel texture 0.14-0.2, texture ~1);
     dense_highpass_px: the polish compares heights minus their low-pass of this sigma (0: plain
-    heights), which removes the press-depth and gel-blur differences of independent re-touches;
+    heights), which removes the press-depth and integration differences of independent re-touches
+    (on plain heights they biased the plate's re-touches by up to 2.3 px, with 6 px at most 1.4);
     dense_gain: the polish also fits a height gain between the touches (a deeper press);
     dense_bias_order: the height difference between the touches the polish allows: 0 a constant, 1 a
     plane, 2 a quadratic surface (the bowl of a deeper press).
@@ -110,15 +113,15 @@ class RegistrationParams:
     polish (the press bowl and the depth's gain go, the relief stays); search_coarse_px: the search
     runs on maps reduced by this factor (full px per coarse px); search_step_deg: rotation step of
     the sweep over the full circle; search_candidates: best poses (local maxima over rotation)
-    polished and checked; search_min_ncc: the polished pose's normalised correlation of the
-    high-passed heights (lower than min_ncc's raw heights: high-passed heights carry relatively
-    more noise) below this is refused; search_min_ratio: the pose must explain this many times more
-    of A's relief (NCC^2 x overlap) than any other candidate pose, else the content is ambiguous
-    (blobs and domes fit several poses); search_min_support: at least this many of the keypoint
-    matches must agree with the pose within inlier_px. A search answer must also pass min_overlap
-    and the pinning bars. verify_ncc: a keypoint answer whose dense check passes below this NCC
-    (sparse relief on a press bowl, where the raw-height polish can be a degree off and still pass)
-    joins the search as one more candidate and is held to the search's bars (with dense_fallback).
+    polished and checked; search_min_explained: the share of A's high-passed relief the polished
+    pose explains (NCC^2 x overlap) below this is refused (a search tries every pose, so it needs
+    more evidence than a keypoint consensus: at 0.5 a pose must cover at least half of A and
+    correlate at >= 0.71; unrelated dome fields reach 0.46, right plate re-touches 0.44-0.9);
+    search_min_ratio: the pose must explain this many times more of A's relief than any other
+    candidate pose, else the content is ambiguous (blobs and domes fit several poses);
+    search_min_support: at least this many of the keypoint matches must agree with the pose within
+    inlier_px. A search answer must also pass min_overlap
+    and the pinning bars.
     """
 
     detector: str = "orb"
@@ -129,13 +132,13 @@ class RegistrationParams:
     orb_scale: float = 1.2
     orb_fast_threshold: int = 5
     detect_scale: float | None = None
-    detect_short_px: int = 160
+    detect_short_px: int = 120
     band_px: tuple[float, float] = (0.0, 4.0)
     ransac_iters: int = 256
     inlier_px: float = 4.0
     min_inliers: int = 8
     min_confidence: float = 0.9
-    min_ncc: float = 0.9
+    min_ncc: float = 0.6
     min_overlap: float = 0.2
     dense_fallback: bool = True
     refine: bool = True
@@ -144,17 +147,16 @@ class RegistrationParams:
     max_sigma_rot_deg: float = 0.25
     max_sigma_px: float = 0.25
     min_rotation_pinning: float = 0.05
-    dense_highpass_px: float = 0.0
+    dense_highpass_px: float = 6.0
     dense_gain: bool = True
     dense_bias_order: int = 2
     search_highpass_px: float = 8.0
     search_coarse_px: int = 8
     search_step_deg: float = 6.0
     search_candidates: int = 5
-    search_min_ncc: float = 0.7
+    search_min_explained: float = 0.5
     search_min_ratio: float = 2.0
     search_min_support: int = 2
-    verify_ncc: float = 0.97
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -166,16 +168,13 @@ class RegistrationParams:
             raise ValueError(
                 f"ransac_iters={self.ransac_iters!r} must be >= 1 and min_inliers={self.min_inliers!r} must be >= 2"
             )
-        if not (0.5 <= self.search_highpass_px <= 256.0 and 1 <= self.search_coarse_px <= 64
-                and 0.1 <= self.search_step_deg <= 45.0 and 1 <= self.search_candidates <= 32
-                and -1.0 <= self.search_min_ncc <= 1.0 and self.search_min_ratio >= 1.0
-                and self.search_min_support >= 0):
-            raise ValueError(
-                f"search knobs out of range: search_highpass_px={self.search_highpass_px!r} (0.5..256 px), "
-                f"search_coarse_px={self.search_coarse_px!r} (1..64), search_step_deg={self.search_step_deg!r} "
-                f"(0.1..45 deg), search_candidates={self.search_candidates!r} (1..32), "
-                f"search_min_ncc={self.search_min_ncc!r} (-1..1), search_min_ratio={self.search_min_ratio!r} (>= 1), "
-                f"search_min_support={self.search_min_support!r} (>= 0)")
+        search_ranges = {"search_highpass_px": (0.5, 256.0), "search_coarse_px": (1, 64), "search_step_deg": (0.1, 45.0),
+                         "search_candidates": (1, 32), "search_min_explained": (0.0, 1.0),
+                         "search_min_ratio": (1.0, 1e6), "search_min_support": (0, 1_000_000)}
+        for name, (lo, hi) in search_ranges.items():
+            value = getattr(self, name)
+            if not lo <= value <= hi:  # also refuses NaN
+                raise ValueError(f"{name} must be in [{lo:g}, {hi:g}], got {value!r}")
         if self.orb_levels < 1 or not self.orb_scale > 1.0 or self.orb_fast_threshold < 0:
             raise ValueError(f"orb_levels must be >= 1, orb_scale > 1 and orb_fast_threshold >= 0, got "
                              f"{self.orb_levels!r}, {self.orb_scale!r}, {self.orb_fast_threshold!r}")
@@ -258,6 +257,32 @@ def _lowpass(z: np.ndarray, sigma_px: float, valid: np.ndarray | None) -> np.nda
     return num / np.maximum(den, 1e-3)
 
 
+def _lowpass_coarse(z: np.ndarray, sigma_px: float, valid: np.ndarray | None) -> np.ndarray:
+    """:func:`_lowpass` computed on the map area-reduced by up to 4 (to a sigma of >= 1.5 px there)
+    and brought back by bilinear resize: a wide low-pass at a fraction of the full-size cost."""
+    f = int(np.clip(sigma_px // 1.5, 1, 4))
+    if valid is not None:  # the ragged edge of a map's coverage would blur into fractional weights
+        f = 1
+    if f == 1 or min(z.shape) < 8 * f:
+        w = None if valid is None else valid.astype(np.float32)
+        num = cv2.GaussianBlur(z if w is None else z * w, (0, 0), sigma_px, borderType=cv2.BORDER_REPLICATE)
+        if w is None:
+            return num
+        return num / np.maximum(cv2.GaussianBlur(w, (0, 0), sigma_px, borderType=cv2.BORDER_REPLICATE), 1e-3)
+    size = (max(1, z.shape[1] // f), max(1, z.shape[0] // f))
+    small = cv2.resize(z, size, interpolation=cv2.INTER_AREA)
+    v_small = None if valid is None else cv2.resize(valid.astype(np.float32), size, interpolation=cv2.INTER_AREA)
+    # A true Gaussian (isotropic): a box blur's square kernel gives a lone dome's high-pass a
+    # four-fold pattern that pins rotation where nothing does.
+    sig = sigma_px / f
+    if v_small is None:
+        low = cv2.GaussianBlur(small, (0, 0), sig, borderType=cv2.BORDER_REPLICATE)
+    else:
+        low = (cv2.GaussianBlur(small * v_small, (0, 0), sig, borderType=cv2.BORDER_REPLICATE)
+               / np.maximum(cv2.GaussianBlur(v_small, (0, 0), sig, borderType=cv2.BORDER_REPLICATE), 1e-3))
+    return cv2.resize(low, (z.shape[1], z.shape[0]), interpolation=cv2.INTER_LINEAR)
+
+
 def render_u8(height_mm: np.ndarray, band_px: tuple[float, float] = (0.0, 4.0),
               valid: np.ndarray | None = None) -> np.ndarray:
     """8-bit image for keypoints: band-passed height (difference of blurs) plus a little of the
@@ -320,7 +345,7 @@ def extract_features(height_mm: np.ndarray, params: RegistrationParams = Registr
         # The dense polish compares high-passed heights: an independent re-touch pressed deeper or
         # through a softer gel differs from the map mostly at low spatial frequencies (the bowl of
         # the press, the integrator's offsets), which would bias the alignment by pixels.
-        smooth = cv2.subtract(smooth, _lowpass(z, params.dense_highpass_px, valid))
+        smooth = cv2.subtract(smooth, _lowpass_coarse(z, params.dense_highpass_px, valid))
     # The checked map and its range ride along, so register() need not re-check a cached reference.
     feats = Features(smooth=smooth, height=z, ptp_mm=_ptp(z), valid=valid)
     if dense:
@@ -512,13 +537,14 @@ def _dense_samples(smooth: np.ndarray, count: int, valid: np.ndarray | None = No
     """Pixels of A that constrain alignment: the steepest quarter (2 px from the edge and inside
     ``valid`` shrunk by 3 px), thinned to at most ``count`` on a regular stride (deterministic)."""
     gx, gy = _grad(smooth)
-    mag = gx * gx + gy * gy
-    mag[:2, :] = mag[-2:, :] = 0
-    mag[:, :2] = mag[:, -2:] = 0
+    mag = cv2.magnitude(gx, gy)  # the slope's size: its quartile selects the same pixels as its square's
+    m = max(2, min(DENSE_MARGIN_PX, min(mag.shape) // 4))
+    mag[:m, :] = mag[-m:, :] = 0
+    mag[:, :m] = mag[:, -m:] = 0
     if valid is not None:
         mag[cv2.erode(valid.astype(np.uint8), np.ones((7, 7), np.uint8)) == 0] = 0
     thr = _upper_quartile(mag[::3, ::3])  # a sparse grid estimates the quartile well enough
-    pts = cv2.findNonZero((mag > max(float(thr), 1e-20)).view(np.uint8))  # row-major, as np.nonzero
+    pts = cv2.findNonZero((mag > max(float(thr), 1e-10)).view(np.uint8))  # row-major, as np.nonzero
     if pts is None:
         return np.zeros((0, 2), np.float32), np.zeros(0)
     pts = pts.reshape(-1, 2)  # (N, 1, 2) on OpenCV 4, (N, 2) on 5
@@ -544,8 +570,8 @@ def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return out.reshape(len(x), -1).astype(np.float64)
 
 
-def _inside(u: np.ndarray, v: np.ndarray, w: int, h: int) -> tuple[np.ndarray, int]:
-    ok = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
+def _inside(u: np.ndarray, v: np.ndarray, w: int, h: int, margin: float = 0.0) -> tuple[np.ndarray, int]:
+    ok = (u >= margin) & (u <= w - 1 - margin) & (v >= margin) & (v <= h - 1 - margin)
     return ok, int(np.count_nonzero(ok))
 
 
@@ -553,7 +579,9 @@ def _inside(u: np.ndarray, v: np.ndarray, w: int, h: int) -> tuple[np.ndarray, i
 class DenseFit:
     """Result of :func:`dense_refine`: B->A matrix (px), NCC and overlap on A's samples, and the
     1-sigma uncertainty of rotation (deg) and translation (px) from the Gauss–Newton information
-    (residual variance floored at ``noise_mm``): large when the content is rotation-symmetric/flat."""
+    (residual variance floored at ``noise_mm``): large when the content is rotation-symmetric/flat;
+    ``wandered``: the polish left its basin and the matrix is the unpolished start (never accept it);
+    ``converged``: its last step was below CONVERGED_STEP_PX."""
 
     matrix_px: np.ndarray
     ncc: float = 0.0
@@ -561,6 +589,8 @@ class DenseFit:
     sigma_rot_deg: float = float("inf")
     sigma_px: float = float("inf")
     rotation_pinning: float = 0.0
+    wandered: bool = False
+    converged: bool = False
 
 
 def _bias_basis(x: np.ndarray, y: np.ndarray, order: int) -> np.ndarray:
@@ -575,55 +605,57 @@ def _bias_basis(x: np.ndarray, y: np.ndarray, order: int) -> np.ndarray:
     return np.stack(cols, 1)
 
 
-def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, iters: int = 5,
-                 noise_mm: float = 2e-3, gain_fit: bool = False, valid_b: np.ndarray | None = None,
-                 bias_order: int = 0) -> DenseFit:
-    """Gauss–Newton polish of a B->A rigid transform on A's steep pixels: rotation, translation,
-    a height offset between the touches (with ``bias_order`` 1 or 2 a plane or quadratic surface in
-    A's frame: the tilt or bowl by which an independent re-touch differs) and, with ``gain_fit``, a
-    height gain in [0.5, 2]. Samples landing outside B or on its unknown pixels are left out."""
-    xy, za = fa.sample_xy, fa.sample_z
-    if xy is None or za is None or len(xy) < 8:
-        return DenseFit(matrix_px)
-    h, w = smooth_b.shape
-    # Height and both slopes of B in one 3-channel image: one remap per iteration instead of three.
-    zgb = cv2.merge([smooth_b, *_grad(smooth_b)])
+# A polish that moves further than this from its starting pose has wandered (flat content, or a
+# start outside the fine basin): the coarse-to-fine retry starts over, and a wandered fit is never
+# accepted.
+WANDER_DEG = 4.0
+WANDER_PX = 5.0
+# Gaussian sigma (px) of the coarse stage of the retry: widens the basin of the polish to several px.
+COARSE_SIGMA_PX = 3.0
+# The polish has converged when its last step moves the samples by less than this (px; rotation
+# counted at a 100 px lever).
+CONVERGED_STEP_PX = 0.05
+# A's samples are taken this far (px) inside its border.
+DENSE_MARGIN_PX = 2
+# Samples that land within this many px of B's border are left out of the polish: a high-pass (and
+# the Poisson integration) distorts heights next to a border, and a re-touch shifted by a few mm puts
+# B's border over A's interior, where that distortion pulled the fit by 2-4 px.
+B_MARGIN_PX = 8.0
+
+
+def _zgb(smooth_b: np.ndarray, valid_b: np.ndarray | None) -> np.ndarray:
+    """Height and both slopes of B (and its known mask) in one image: one remap per iteration."""
+    chans = [smooth_b, *_grad(smooth_b)]
     if valid_b is not None:
-        zgb = cv2.merge([smooth_b, *_grad(smooth_b), valid_b.astype(np.float32)])
-    inv = cv2.invertAffineTransform(matrix_px)  # A px -> B px
-    th = float(np.arctan2(inv[1, 0], inv[0, 0]))
-    t = inv[:, 2].astype(np.float64).copy()
-    gain = 1.0
-    x, y = xy[:, 0].astype(np.float64), xy[:, 1].astype(np.float64)
-    basis = _bias_basis(x, y, int(bias_order))
+        chans.append(valid_b.astype(np.float32))
+    return cv2.merge(chans)
+
+
+@dataclass
+class _GNState:
+    th: float
+    t: np.ndarray
+    gain: float
+    coef: np.ndarray
+    last_step_px: float = float("inf")
+
+
+def _gauss_newton(zgb: np.ndarray, x: np.ndarray, y: np.ndarray, za: np.ndarray, basis: np.ndarray,
+                  st: _GNState, iters: int, gain_fit: bool) -> _GNState:
+    """Gauss–Newton iterations of the B->A pose (A px -> B px as rotation ``th`` and translation
+    ``t``), height gain and bias surface, on A's samples (x, y, za) against B's ``zgb``."""
+    h, w = zgb.shape[:2]
     nb = basis.shape[1]
-    coef = np.zeros(nb)
-    start = (th, t.copy())
-
-    def gather(th: float, t: np.ndarray):
-        c, s_ = np.cos(th), np.sin(th)
-        u = c * x - s_ * y + t[0]
-        v = s_ * x + c * y + t[1]
-        ok, n_ok = _inside(u, v, w, h)
-        if n_ok < 8:
-            return None
-        idx = np.flatnonzero(ok) if n_ok < len(x) else None
-        if idx is not None:
-            u, v = u[idx], v[idx]
-        zb, bx, by, *vb = _sample(zgb, u, v).T
-        if vb:
-            keep = vb[0] > 0.999
-            if keep.sum() < 8:
-                return None
-            idx = np.flatnonzero(keep) if idx is None else idx[keep]
-            zb, bx, by, u, v = zb[keep], bx[keep], by[keep], u[keep], v[keep]
-        sel = slice(None) if idx is None else idx
-        return sel, u, v, zb, bx, by, n_ok
-
-    for _ in range(iters):
-        got = gather(th, t)
+    th, t, gain, coef = st.th, st.t.copy(), st.gain, st.coef.copy()
+    last = float("inf")
+    frozen = None
+    for k in range(iters):
+        # After two steps the samples in play are frozen: samples crossing B's margin or coverage
+        # edge at every step would otherwise keep the fit cycling by a fraction of a pixel.
+        got = _gather(zgb, x, y, th, t, w, h, frozen if k >= 2 else None)
         if got is None:
             break
+        frozen = got[0]
         sel, u, v, zb, bx, by, _n = got
         zo, bas = za[sel], basis[sel]
         npar = 3 + nb + (1 if gain_fit else 0)
@@ -644,21 +676,111 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
         th += d[0]
         t += d[1:3]
         coef += d[3:3 + nb]
+        last = float(abs(d[0]) * 100.0 + np.hypot(d[1], d[2]))
         if gain_fit:
             # A re-touch pressed deeper shows its relief a little higher: a bounded height gain.
             gain = float(np.clip(gain + d[-1], 0.5, 2.0))
-        if abs(d[0]) < 1e-6 and abs(d[1]) + abs(d[2]) < 1e-4:
+        if last < CONVERGED_STEP_PX / 25.0:  # a thousandth of a pixel more is not worth an iteration
             break
-    # GN can wander on flat content: a large move away from the coarse answer is not trusted.
-    if abs(th - start[0]) > np.radians(6.0) or np.abs(t - start[1]).max() > 8.0 or not np.isfinite(th):
-        th, t = start
+    return _GNState(float(th), t, gain, coef, last)
+
+
+def _gather(zgb: np.ndarray, x: np.ndarray, y: np.ndarray, th: float, t: np.ndarray, w: int, h: int,
+            only: np.ndarray | slice | None = None):
+    """A's samples moved into B by (th, t), B's height/slopes there, dropping samples outside B or
+    on its unknown pixels: (selection, u, v, zb, bx, by, n inside) or None below 8 samples.
+    only: a previous selection to keep as it is (no inside or known test)."""
+    c, s_ = np.cos(th), np.sin(th)
+    if only is not None:
+        xs, ys = x[only], y[only]
+        u = c * xs - s_ * ys + t[0]
+        v = s_ * xs + c * ys + t[1]
+        zb, bx, by, *_vb = _sample(zgb, u, v).T
+        return only, u, v, zb, bx, by, len(u)
+    u = c * x - s_ * y + t[0]
+    v = s_ * x + c * y + t[1]
+    ok, n_ok = _inside(u, v, w, h, B_MARGIN_PX)
+    if n_ok < 8:
+        return None
+    idx = np.flatnonzero(ok) if n_ok < len(x) else None
+    if idx is not None:
+        u, v = u[idx], v[idx]
+    zb, bx, by, *vb = _sample(zgb, u, v).T
+    if vb:
+        keep = vb[0] > 0.999
+        if keep.sum() < 8:
+            return None
+        idx = np.flatnonzero(keep) if idx is None else idx[keep]
+        zb, bx, by, u, v = zb[keep], bx[keep], by[keep], u[keep], v[keep]
+    sel = slice(None) if idx is None else idx
+    return sel, u, v, zb, bx, by, n_ok
+
+
+def _wandered(st: _GNState, start: tuple[float, np.ndarray], cx: float, cy: float) -> bool:
+    """The polish moved A's sample centroid (cx, cy) by more than WANDER_PX, or turned by more than
+    WANDER_DEG, from the start (the centroid, not the pixel origin: a small turn about a far origin
+    is a large translation there)."""
+    if not np.isfinite(st.th) or not np.all(np.isfinite(st.t)):
+        return True
+    if abs(st.th - start[0]) > np.radians(WANDER_DEG):
+        return True
+    moved = [np.cos(th) * cx - np.sin(th) * cy + t[0] for th, t in ((st.th, st.t), start)], \
+        [np.sin(th) * cx + np.cos(th) * cy + t[1] for th, t in ((st.th, st.t), start)]
+    return float(np.hypot(moved[0][0] - moved[0][1], moved[1][0] - moved[1][1])) > WANDER_PX
+
+
+def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, iters: int = 5,
+                 noise_mm: float = 2e-3, gain_fit: bool = False, valid_b: np.ndarray | None = None,
+                 bias_order: int = 0, coarse_retry: bool = True) -> DenseFit:
+    """Gauss–Newton polish of a B->A rigid transform on A's steep pixels: rotation, translation,
+    a height offset between the touches (with ``bias_order`` 1 or 2 a plane or quadratic surface in
+    A's frame: the tilt or bowl by which an independent re-touch differs) and, with ``gain_fit``, a
+    height gain in [0.5, 2]. Samples landing outside B or on its unknown pixels are left out.
+
+    A polish that wanders (moves more than WANDER_DEG / WANDER_PX from the start: the start was
+    outside the basin of the fine heights) is retried coarse to fine with ``coarse_retry`` (heights
+    blurred by COARSE_SIGMA_PX first); a fit that still wanders is returned at the start pose with
+    ``wandered=True`` and must not be accepted. ``converged`` says the last step moved the samples
+    by less than CONVERGED_STEP_PX."""
+    xy, za = fa.sample_xy, fa.sample_z
+    if xy is None or za is None or len(xy) < 8:
+        return DenseFit(matrix_px)
+    h, w = smooth_b.shape
+    zgb = _zgb(smooth_b, valid_b)
+    inv = cv2.invertAffineTransform(matrix_px)  # A px -> B px
+    x, y = xy[:, 0].astype(np.float64), xy[:, 1].astype(np.float64)
+    basis = _bias_basis(x, y, int(bias_order))
+    st0 = _GNState(float(np.arctan2(inv[1, 0], inv[0, 0])), inv[:, 2].astype(np.float64).copy(), 1.0,
+                   np.zeros(basis.shape[1]))
+    start = (st0.th, st0.t.copy())
+    cx, cy = float(x.mean()), float(y.mean())
+    st = _gauss_newton(zgb, x, y, za, basis, st0, iters, gain_fit)
+    for _ in range(2):  # a start a few degrees off needs more than ``iters`` steps to settle
+        if st.last_step_px < CONVERGED_STEP_PX or _wandered(st, start, cx, cy):
+            break
+        st = _gauss_newton(zgb, x, y, za, basis, st, iters, gain_fit)
+    wandered = _wandered(st, start, cx, cy)
+    if wandered and coarse_retry and iters > 0 and fa.smooth is not None:
+        # Coarse to fine: blurred heights have a basin of several px; A's samples keep their places
+        # and read A's blurred heights there.
+        ia, ja = xy[:, 1].astype(np.intp), xy[:, 0].astype(np.intp)
+        coarse_a = cv2.GaussianBlur(fa.smooth, (0, 0), COARSE_SIGMA_PX)[ia, ja].astype(np.float64)
+        coarse_b = _zgb(cv2.GaussianBlur(smooth_b, (0, 0), COARSE_SIGMA_PX), valid_b)
+        st = _gauss_newton(coarse_b, x, y, coarse_a, basis, st0, 2 * iters, gain_fit)
+        if not _wandered(st, start, cx, cy):
+            st = _gauss_newton(zgb, x, y, za, basis, st, iters, gain_fit)
+        wandered = _wandered(st, start, cx, cy)
+    if wandered:
+        st = _GNState(start[0], start[1].copy(), 1.0, np.zeros(basis.shape[1]))
+    th, t, gain, coef = st.th, st.t, st.gain, st.coef
     c, s_ = np.cos(th), np.sin(th)
     fwd = np.array([[c, -s_, t[0]], [s_, c, t[1]]])
     u_all = c * x - s_ * y + t[0]
     v_all = s_ * x + c * y + t[1]
     fit = DenseFit(cv2.invertAffineTransform(fwd).astype(np.float64),
-                   overlap=_inside(u_all, v_all, w, h)[1] / len(x))
-    got = gather(th, t)
+                   overlap=_inside(u_all, v_all, w, h)[1] / len(x), wandered=bool(wandered),
+                   converged=bool(not wandered and st.last_step_px < CONVERGED_STEP_PX))
+    got = _gather(zgb, x, y, th, t, w, h)
     if got is None:
         return fit
     sel, _u, _v, zb, bx, by, _n = got
@@ -691,24 +813,6 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
     return fit
 
 
-def _search_features(z: np.ndarray, valid: np.ndarray | None, params: RegistrationParams,
-                     samples: bool) -> Features:
-    """High-passed heights (and, with ``samples``, A's steep pixels) for polishing a search pose.
-    A band of two low-pass sigmas along the map's edge (and its unknown pixels) is left out: there
-    the high-pass depends on what lies beyond the edge, which differs between two touches."""
-    sigma = params.search_highpass_px
-    smooth = cv2.subtract(cv2.GaussianBlur(z, (0, 0), 1.0), _lowpass(z, sigma, valid))
-    margin = int(np.ceil(2.0 * sigma))
-    inner = np.zeros(z.shape, np.uint8)
-    inner[margin:z.shape[0] - margin, margin:z.shape[1] - margin] = 1
-    if valid is not None:
-        inner &= cv2.erode(valid.astype(np.uint8), np.ones((2 * margin + 1, 2 * margin + 1), np.uint8))
-    feats = Features(smooth=smooth, valid=inner.astype(bool))
-    if samples:
-        feats.sample_xy, feats.sample_z = _dense_samples(smooth, params.dense_samples, feats.valid)
-    return feats
-
-
 # Two poses are the same answer when they differ by less than this (deg, px at B's centre).
 SAME_POSE_DEG = 2.0
 SAME_POSE_PX = 3.0
@@ -721,62 +825,57 @@ def _same_pose(m: np.ndarray, n: np.ndarray, centre: np.ndarray) -> bool:
 
 
 def _search_bars(fit: DenseFit, params: RegistrationParams) -> bool:
-    """A pose polished on high-passed heights passes search_min_ncc, min_overlap and pinning."""
-    return bool(np.isfinite(fit.ncc) and fit.ncc >= params.search_min_ncc and fit.overlap >= params.min_overlap
-                and _pinned(fit, params))
+    """A search pose, polished: it explains search_min_explained of A's relief (NCC^2 x overlap),
+    passes min_overlap and pins the pose."""
+    explained = fit.ncc * fit.ncc * fit.overlap if fit.ncc > 0.0 else 0.0
+    return bool(explained >= params.search_min_explained and fit.overlap >= params.min_overlap and _pinned(fit, params))
 
 
-def _dense_search(a: np.ndarray, b: np.ndarray, valid_a: np.ndarray | None, valid_b: np.ndarray | None,
-                  pa: np.ndarray, pb: np.ndarray, params: RegistrationParams,
-                  extra: list[np.ndarray]) -> tuple[DenseFit | None, float, bool]:
-    """The dense answer: :func:`~tactile_rig.perception.gelsight.dense_search.rotation_search` on
-    high-passed heights, its candidates (and the ``extra`` B->A poses, e.g. a marginal keypoint
-    answer) polished by :func:`dense_refine` on the same high-passed heights. The best polished pose
-    is accepted only when it passes search_min_ncc, min_overlap and the pinning bars, explains
-    search_min_ratio times more of A's relief (NCC^2 x overlap) than any distinct pose (content
-    that fits several poses is ambiguous: blobs, domes) and is confirmed by at least
-    search_min_support of the keypoint matches (pa in A, pb in B) within inlier_px.
-    Returns (accepted fit or None, the best polished NCC, whether it came from ``extra``)."""
+def _dense_search(a: np.ndarray, b: np.ndarray, fa: Features, fb: Features, pa: np.ndarray, pb: np.ndarray,
+                  params: RegistrationParams) -> tuple[DenseFit | None, float]:
+    """The answer when keypoints fail: :func:`~tactile_rig.perception.gelsight.dense_search.rotation_search`
+    on high-passed heights, each candidate polished by :func:`dense_refine` (fa's samples, fb's
+    heights, as the keypoint answer's). The best polished pose is accepted only when it passes
+    search_min_explained, min_overlap and the pinning bars, explains search_min_ratio times more of A's
+    relief (NCC^2 x overlap) than any distinct candidate (content that fits several poses is
+    ambiguous: blobs, domes) and is confirmed by at least search_min_support of the keypoint matches
+    (pa in A, pb in B) within inlier_px. Returns (accepted fit or None, the best polished NCC)."""
     found = rotation_search(
         a, b, highpass_px=params.search_highpass_px, coarse_px=params.search_coarse_px,
         step_deg=params.search_step_deg, max_candidates=params.search_candidates,
-        valid_a=valid_a, valid_b=valid_b)
-    starts = list(extra) + [c.matrix_px for c in found.candidates]
-    if not starts:
-        return None, float("nan"), False
-    fa = _search_features(a, valid_a, params, samples=True)
-    fb = _search_features(b, valid_b, params, samples=False)
-    fits = [dense_refine(fa, fb.smooth, m, params.refine_iters if params.refine else 0,  # type: ignore[arg-type]
+        valid_a=fa.valid, valid_b=fb.valid)
+    fits = [dense_refine(fa, fb.smooth, c.matrix_px, params.refine_iters if params.refine else 0,  # type: ignore[arg-type]
                          gain_fit=params.dense_gain, valid_b=fb.valid, bias_order=params.dense_bias_order)
-            for m in starts]
-    finite = [f for f in fits if np.isfinite(f.ncc)]
-    if not finite:
-        return None, float("nan"), False
-    best_ncc = max(f.ncc for f in finite)
-    passed = [f for f in finite if _search_bars(f, params)]
+            for c in found.candidates]
+    fits = [f for f in fits if np.isfinite(f.ncc) and not f.wandered]
+    if not fits:
+        return None, float("nan")
+    best_ncc = max(f.ncc for f in fits)
+    passed = [f for f in fits if _search_bars(f, params)]
     if not passed:
-        return None, best_ncc, False
+        return None, best_ncc
     top = max(passed, key=lambda f: f.ncc)
     centre_b = np.array([(b.shape[1] - 1) / 2.0, (b.shape[0] - 1) / 2.0])
     explained = top.ncc * top.ncc * top.overlap
-    for other in finite:
+    for other in fits:
         if other is top or _same_pose(other.matrix_px, top.matrix_px, centre_b):
             continue
         if other.overlap >= params.min_overlap and explained < params.search_min_ratio * other.ncc ** 2 * other.overlap:
-            return None, best_ncc, False  # another pose fits nearly as well: ambiguous content
+            return None, best_ncc  # another pose fits nearly as well: ambiguous content
     if len(pa):
         res = pb @ top.matrix_px[:, :2].T + top.matrix_px[:, 2] - pa
         support = int(np.count_nonzero(np.einsum("ij,ij->i", res, res) < params.inlier_px ** 2))
     else:
         support = 0
     if support < params.search_min_support:
-        return None, best_ncc, False
-    return top, top.ncc, any(top is f for f in fits[:len(extra)])
+        return None, best_ncc
+    return top, top.ncc
 
 
 def _pinned(fit: DenseFit, params: RegistrationParams) -> bool:
-    """The dense fit pins the pose: small 1-sigma errors and content that is not rotation-symmetric."""
-    return (fit.sigma_rot_deg <= params.max_sigma_rot_deg and fit.sigma_px <= params.max_sigma_px
+    """The dense fit pins the pose: it converged (did not wander, last step small), small 1-sigma
+    errors and content that is not rotation-symmetric."""
+    return (fit.converged and fit.sigma_rot_deg <= params.max_sigma_rot_deg and fit.sigma_px <= params.max_sigma_px
             and fit.rotation_pinning >= params.min_rotation_pinning)
 
 
@@ -841,7 +940,6 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
     method = params.detector
     keypoint_reason = INSUFFICIENT_TEXTURE
     conf, n_inl = 0.0, 0
-    keypoint_pose: np.ndarray | None = None
     if len(pa) >= params.min_inliers:
         m, mask = ransac_rigid(pb, pa, params.ransac_iters, params.inlier_px, params.seed)
         n_inl = int(mask.sum())
@@ -858,17 +956,9 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
                                    bias_order=params.dense_bias_order)
                 if fit.ncc >= params.min_ncc and fit.overlap >= params.min_overlap:
                     if _pinned(fit, params):
-                        if fit.ncc >= params.verify_ncc or not params.dense_fallback:
-                            return _result(True, fit.matrix_px, *shapes, scale, conf, n_inl, method, None,  # type: ignore[arg-type]
-                                           len(pa), fit.ncc)
-                        # A marginal dense check: sparse relief on a press bowl, which the raw-height
-                        # polish can trade against the pose (a degree off, checks passed). The pose
-                        # goes to the dense search as one more candidate, polished on high-passed
-                        # heights and held to the search's bars against the search's own poses.
-                        keypoint_pose = fit.matrix_px
-                        keypoint_reason = MISMATCH
-                    else:
-                        keypoint_reason = INSUFFICIENT_TEXTURE
+                        return _result(True, fit.matrix_px, *shapes, scale, conf, n_inl, method, None,  # type: ignore[arg-type]
+                                       len(pa), fit.ncc)
+                    keypoint_reason = INSUFFICIENT_TEXTURE
                 else:
                     keypoint_reason = MISMATCH
             else:
@@ -877,12 +967,8 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
             keypoint_reason = NO_CONSENSUS
     ncc = float("nan")
     if params.dense_fallback:
-        extra = [] if keypoint_pose is None else [keypoint_pose]
-        fit_s, ncc, from_extra = _dense_search(a, b, fa.valid, fb.valid, pa, pb, params, extra)
+        fit_s, ncc = _dense_search(a, b, fa, fb, pa, pb, params)
         if fit_s is not None:
-            if from_extra:  # the keypoint pose, confirmed (and polished) on high-passed heights
-                return _result(True, fit_s.matrix_px, *shapes, scale, conf, n_inl, method, None,  # type: ignore[arg-type]
-                               len(pa), fit_s.ncc)
             return _result(True, fit_s.matrix_px, *shapes, scale, 1.0, 0, "dense_search", None,  # type: ignore[arg-type]
                            len(pa), fit_s.ncc)
         method += "+dense"

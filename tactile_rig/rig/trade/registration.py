@@ -34,7 +34,10 @@ TOPIC = "registration"
 SUMMARY = "GelSight registration knobs: independent re-touches not localized (%) vs fresh pairs/s"
 
 OLD_DEFAULTS = {"max_sigma_px": 0.1, "max_sigma_rot_deg": 0.1, "min_ncc": 0.6, "min_rotation_pinning": 0.0,
-                "dense_bias_order": 0, "dense_gain": False}
+                "dense_bias_order": 0, "dense_gain": False, "detect_short_px": 160, "dense_highpass_px": 0.0}
+# The defaults before the polish compared high-passed heights (plain heights, NCC bar 0.9, detection
+# at 160 px): up to 2.3 px of bias on the plate's re-touches, confident wrong answers on seeds 1-2.
+PLAIN_HEIGHTS = {"dense_highpass_px": 0.0, "min_ncc": 0.9, "detect_short_px": 160}
 
 
 def settings() -> list[dict[str, Any]]:
@@ -47,7 +50,8 @@ def settings() -> list[dict[str, Any]]:
         {"orb_features": 150},
         {"orb_features": 500},
         {"orb_levels": 4},
-        {"detect_short_px": 120},
+        {"detect_short_px": 96},
+        {"detect_short_px": 160},
         {"detect_short_px": 240},
         {"inlier_px": 2.0},
         {"inlier_px": 6.0},
@@ -57,8 +61,11 @@ def settings() -> list[dict[str, Any]]:
         {"dense_bias_order": 0, "dense_gain": False},
         {"dense_bias_order": 1},
         {"dense_gain": False},
-        {"dense_highpass_px": 24.0},
-        {"min_ncc": 0.8},
+        {"dense_highpass_px": 0.0},
+        {"dense_highpass_px": 12.0},
+        dict(PLAIN_HEIGHTS),
+        {"min_ncc": 0.5},
+        {"min_ncc": 0.7},
         {"max_sigma_px": 0.5, "max_sigma_rot_deg": 0.5},
         dict(OLD_DEFAULTS),
         {"heights_downsample": 2},
@@ -179,7 +186,7 @@ def measure(*, quick: bool, seed: int = 0) -> TradeTable:
                "ransac_iters": "two-pair RANSAC samples", "inlier_px": "RANSAC residual threshold (px)", "refine": "Gauss-Newton dense polish",
                "dense_bias_order/dense_gain": "height difference the polish allows between touches "
                                               "(0 offset, 1 plane, 2 quadratic) and a height gain",
-               "dense_highpass_px": "polish on high-passed heights",
+               "dense_highpass_px": "sigma (px) of the low-pass the polish removes from the heights (0: plain heights)",
                "min_ncc, max_sigma_*, min_rotation_pinning": "refusal thresholds (one row: the pre-issue-13 "
                                                              "defaults, offset-only polish)",
                "heights_downsample": "the touches reconstructed with integration downsample 2"},
