@@ -79,9 +79,19 @@ def test_unrelated_dome_fields_are_refused(heights, textured, b_tiles, flip) -> 
     assert not res.ok and res.matrix_mm is None and res.reason in REASONS
 
 
+def test_two_lone_domes_that_line_up_are_not_a_placement(heights) -> None:
+    # Four presses against four others turned by 180 deg: a rigid move lines up two domes of each
+    # (NCC 0.95 over 59 % of A), but nothing else agrees; found wrongly placed before the patch test.
+    a = tile([heights[i] for i in (20, 29, 25, 16)])
+    b = np.rot90(tile([heights[i] for i in (5, 0, 14, 13)]), 2).copy()
+    res = register(a, b, MM)
+    assert not res.ok and res.reason in REASONS
+
+
 def test_search_knobs_are_checked_by_name() -> None:
     for bad in ({"search_step_deg": 0.0}, {"search_coarse_px": 0}, {"search_min_ratio": 0.5},
-                {"search_highpass_px": -1.0}, {"search_candidates": 0}, {"search_min_explained": 2.0}):
+                {"search_highpass_px": -1.0}, {"search_candidates": 0}, {"search_min_explained": 2.0},
+                {"search_patch_px": 1}, {"search_min_patches": -1}):
         with pytest.raises(ValueError, match=next(iter(bad))):
             RegistrationParams(**bad)
 

@@ -159,6 +159,8 @@ _REG_FLAGS: tuple[tuple[str, Callable[[str], Any], str], ...] = (
     ("search_min_ratio", float_in(1.0, 1000.0),
      "dense search: refuse unless the pose explains this many times more relief than any other pose"),
     ("search_min_support", int_in(0, 100_000), "dense search: keypoint matches that must agree with the pose"),
+    ("search_min_patches", int_in(0, 1_000_000),
+     "dense search: patches of the overlap (search_patch_px square) that must carry relief and agree"),
 )
 
 

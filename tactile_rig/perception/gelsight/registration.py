@@ -120,7 +120,11 @@ class RegistrationParams:
     search_min_ratio: the pose must explain this many times more of A's relief than any other
     candidate pose, else the content is ambiguous (blobs and domes fit several poses);
     search_min_support: at least this many of the keypoint matches must agree with the pose within
-    inlier_px. A search answer must also pass min_overlap
+    inlier_px; search_patch_px / search_min_patches: the overlap is cut into square patches of this
+    side and at least this many of them must carry relief (10 % of the strongest patch's) and
+    correlate (NCC >= 0.5) at the pose: relief spread over the overlap, not two lone domes that a
+    rigid move can always line up (such pairs agree on 6-8 patches of 24 px, plate re-touches on
+    11-30). A search answer must also pass min_overlap
     and the pinning bars.
     """
 
@@ -157,6 +161,8 @@ class RegistrationParams:
     search_min_explained: float = 0.5
     search_min_ratio: float = 2.0
     search_min_support: int = 2
+    search_patch_px: int = 24
+    search_min_patches: int = 10
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -170,7 +176,8 @@ class RegistrationParams:
             )
         search_ranges = {"search_highpass_px": (0.5, 256.0), "search_coarse_px": (1, 64), "search_step_deg": (0.1, 45.0),
                          "search_candidates": (1, 32), "search_min_explained": (0.0, 1.0),
-                         "search_min_ratio": (1.0, 1e6), "search_min_support": (0, 1_000_000)}
+                         "search_min_ratio": (1.0, 1e6), "search_min_support": (0, 1_000_000),
+                         "search_patch_px": (4, 4096), "search_min_patches": (0, 1_000_000)}
         for name, (lo, hi) in search_ranges.items():
             value = getattr(self, name)
             if not lo <= value <= hi:  # also refuses NaN
@@ -831,6 +838,50 @@ def _search_bars(fit: DenseFit, params: RegistrationParams) -> bool:
     return bool(explained >= params.search_min_explained and fit.overlap >= params.min_overlap and _pinned(fit, params))
 
 
+# A patch counts when its relief energy is at least this share of the strongest patch's, and agrees
+# when the two touches' heights correlate there at least this well.
+PATCH_ENERGY_SHARE = 0.1
+PATCH_AGREE_NCC = 0.5
+
+
+def _agreeing_patches(fa: Features, fb: Features, matrix_px: np.ndarray, patch_px: int) -> int:
+    """Square patches of A (side ``patch_px``) inside the overlap where the polished heights of A
+    and of B warped by ``matrix_px`` both carry relief and correlate (see search_min_patches)."""
+    za, zb = fa.smooth, fb.smooth
+    if za is None or zb is None:
+        return 0
+    h, w = za.shape
+    p = int(patch_px)
+    rows, cols = h // p, w // p
+    if rows < 1 or cols < 1:
+        return 0
+    known_b = np.ones(zb.shape, np.float32) if fb.valid is None else fb.valid.astype(np.float32)
+    wb = cv2.warpAffine(zb, matrix_px, (w, h), flags=cv2.INTER_LINEAR)
+    kb = cv2.warpAffine(known_b, matrix_px, (w, h), flags=cv2.INTER_LINEAR) > 0.999
+    if fa.valid is not None:
+        kb &= fa.valid
+    crop = (slice(0, rows * p), slice(0, cols * p))
+
+    def cells(x: np.ndarray) -> np.ndarray:  # (rows, cols, p * p)
+        return x[crop].reshape(rows, p, cols, p).swapaxes(1, 2).reshape(rows, cols, p * p)
+
+    m = cells(kb.astype(np.float64))
+    n = m.sum(-1)
+    full = n >= 0.9 * p * p  # patches (nearly) all inside the overlap
+    if not full.any():
+        return 0
+    x, y = cells(za.astype(np.float64)) * m, cells(wb.astype(np.float64)) * m
+    nn = np.maximum(n, 1.0)
+    xm, ym = x.sum(-1) / nn, y.sum(-1) / nn
+    sxx = (x * x).sum(-1) / nn - xm * xm
+    syy = (y * y).sum(-1) / nn - ym * ym
+    sxy = (x * y).sum(-1) / nn - xm * ym
+    energy = np.maximum(sxx, syy)
+    strong = full & (energy >= PATCH_ENERGY_SHARE * float(energy[full].max()))
+    ncc = sxy / np.sqrt(np.maximum(sxx * syy, 1e-30))
+    return int(np.count_nonzero(strong & (ncc >= PATCH_AGREE_NCC)))
+
+
 def _dense_search(a: np.ndarray, b: np.ndarray, fa: Features, fb: Features, pa: np.ndarray, pb: np.ndarray,
                   params: RegistrationParams) -> tuple[DenseFit | None, float]:
     """The answer when keypoints fail: :func:`~tactile_rig.perception.gelsight.dense_search.rotation_search`
@@ -838,8 +889,9 @@ def _dense_search(a: np.ndarray, b: np.ndarray, fa: Features, fb: Features, pa: 
     heights, as the keypoint answer's). The best polished pose is accepted only when it passes
     search_min_explained, min_overlap and the pinning bars, explains search_min_ratio times more of A's
     relief (NCC^2 x overlap) than any distinct candidate (content that fits several poses is
-    ambiguous: blobs, domes) and is confirmed by at least search_min_support of the keypoint matches
-    (pa in A, pb in B) within inlier_px. Returns (accepted fit or None, the best polished NCC)."""
+    ambiguous: blobs, domes), is confirmed by at least search_min_support of the keypoint matches
+    (pa in A, pb in B) within inlier_px and agrees on search_min_patches patches of the overlap.
+    Returns (accepted fit or None, the best polished NCC)."""
     found = rotation_search(
         a, b, highpass_px=params.search_highpass_px, coarse_px=params.search_coarse_px,
         step_deg=params.search_step_deg, max_candidates=params.search_candidates,
@@ -869,6 +921,8 @@ def _dense_search(a: np.ndarray, b: np.ndarray, fa: Features, fb: Features, pa: 
         support = 0
     if support < params.search_min_support:
         return None, best_ncc
+    if _agreeing_patches(fa, fb, top.matrix_px, params.search_patch_px) < params.search_min_patches:
+        return None, best_ncc  # the agreement rests on a few lone features
     return top, top.ncc
 
 
