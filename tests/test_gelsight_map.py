@@ -100,8 +100,8 @@ def test_pose_hint_places_a_touch_keypoints_cannot(surface) -> None:
     tmap.add_touch(touch_at(surface, 0, ROOT, SHAPE))
     touch = touch_at(surface, 0, (170, 125), SHAPE)
     hint = np.hstack([np.eye(2), _truth_mm((170.6, 124.5))[:, None]])  # 0.1 mm off
-    # Force the keypoint path to refuse: demand more inliers than any touch yields.
-    tmap.params = type(tmap.params)(min_inliers=10_000)
+    # Force registration to refuse: demand more inliers than any touch yields, no dense search.
+    tmap.params = type(tmap.params)(min_inliers=10_000, dense_fallback=False)
     rec = tmap.add_touch(touch, pose_hint=hint)
     assert rec.accepted and rec.result.method == "hint"
     np.testing.assert_allclose(rec.result.translation_mm, _truth_mm((170, 125)), atol=0.03)

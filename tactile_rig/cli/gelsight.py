@@ -189,6 +189,13 @@ _REG_FLAGS: tuple[tuple[str, Callable[[str], Any], str], ...] = (
      "refuse rotation-symmetric content (rotation vs translation information)"),
     ("detect_short_px", int_in(16, 8192, "px"), "keypoints are found on the map resized to this short side (px)"),
     ("orb_features", int_in(10, 100_000), "ORB keypoints per touch-sized image"),
+    ("search_min_explained", float_in(0.0, 1.0),
+     "dense search: refuse a pose explaining less of the map's relief (NCC^2 x overlap) than this"),
+    ("search_min_ratio", float_in(1.0, 1000.0),
+     "dense search: refuse unless the pose explains this many times more relief than any other pose"),
+    ("search_min_support", int_in(0, 100_000), "dense search: keypoint matches that must agree with the pose"),
+    ("search_min_patches", int_in(0, 1_000_000),
+     "dense search: patches of the overlap (search_patch_px square) that must carry relief and agree"),
 )
 
 
@@ -242,7 +249,7 @@ def _add_reg_knobs(p: argparse.ArgumentParser) -> None:
         p.add_argument("--" + name.replace("_", "-"), type=kind, default=getattr(d, name),
                        help=f"{text} (default {getattr(d, name)})")
     p.add_argument("--no-dense-fallback", action="store_true",
-                   help="do not try Fourier-Mellin when keypoints fail (default: try it)")
+                   help="no dense search when keypoints fail (default: search)")
     add_json_flag(p)
 
 

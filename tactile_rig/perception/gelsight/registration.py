@@ -4,9 +4,10 @@ Pipeline: height maps rendered to 8-bit with a band-pass that puts keypoints on 
 BRISK or ORB keypoints -> cross-checked Hamming matches -> two-pair sampling RANSAC for a rigid
 transform -> least-squares refit on the inliers -> the paper's confidence
 c = max(1 - |1 - det R|, 0), R the 2x2 part of the least-squares homography of the inliers -> a dense
-check (normalised correlation of the overlapping heights). With too few keypoints a dense
-Fourier–Mellin (log-polar phase correlation) estimate is tried; when neither is trustworthy the result
-is a refusal (``ok=False`` with a ``reason``) rather than a confident wrong answer.
+check (normalised correlation of the overlapping heights). When keypoints fail, a global dense search
+(:mod:`~tactile_rig.perception.gelsight.dense_search`: masked correlation of high-passed heights over
+every rotation and shift, its best poses polished and checked) is tried; when neither is trustworthy
+the result is a refusal (``ok=False`` with a ``reason``) rather than a confident wrong answer.
 
 Frames: a point of B in mm from B's centre (x right, y down) maps into A's frame (mm from A's centre)
 by ``matrix_mm``; ``matrix_px`` does the same in pixel (column, row) coordinates.
@@ -20,6 +21,7 @@ import cv2
 import numpy as np
 
 from tactile_rig.core.errors import DegenerateTransform, HeightOutOfRange, NoContact, PerceptionError
+from tactile_rig.perception.gelsight.dense_search import rotation_search
 
 INSUFFICIENT_TEXTURE = "insufficient_texture"
 NO_CONSENSUS = "no_consensus"
@@ -92,7 +94,7 @@ class RegistrationParams:
     refusal of the keypoint answer; min_confidence: the paper's c below this is refused (the tactile
     map accepts at 0.98); min_ncc: the dense check, normalised correlation of the two touches' heights
     on A's samples after the polish (of the high-passed heights when dense_highpass_px > 0: a wrong
-    pose reads ~0 there, a right one 0.7-0.99); dense_fallback: try Fourier–Mellin
+    pose reads ~0 there, a right one 0.7-0.99); dense_fallback: try the dense search
     when keypoints fail; refine: Gauss–Newton polish on dense_samples steep pixels (sub-pixel);
     max_sigma_rot_deg / max_sigma_px: refuse when the dense fit cannot pin rotation/translation
     (1-sigma from the Gauss-Newton information and the residual); min_rotation_pinning: refuse
@@ -104,6 +106,26 @@ class RegistrationParams:
     dense_gain: the polish also fits a height gain between the touches (a deeper press);
     dense_bias_order: the height difference between the touches the polish allows: 0 a constant, 1 a
     plane, 2 a quadratic surface (the bowl of a deeper press).
+
+    When keypoints fail and ``dense_fallback`` is on, a global dense search
+    (:mod:`~tactile_rig.perception.gelsight.dense_search`) runs on high-passed heights:
+    search_highpass_px: sigma (px) of the low-pass removed from both maps for the search and its
+    polish (the press bowl and the depth's gain go, the relief stays); search_coarse_px: the search
+    runs on maps reduced by this factor (full px per coarse px); search_step_deg: rotation step of
+    the sweep over the full circle; search_candidates: best poses (local maxima over rotation)
+    polished and checked; search_min_explained: the share of A's high-passed relief the polished
+    pose explains (NCC^2 x overlap) below this is refused (a search tries every pose, so it needs
+    more evidence than a keypoint consensus: at 0.5 a pose must cover at least half of A and
+    correlate at >= 0.71; unrelated dome fields reach 0.46, right plate re-touches 0.44-0.9);
+    search_min_ratio: the pose must explain this many times more of A's relief than any other
+    candidate pose, else the content is ambiguous (blobs and domes fit several poses);
+    search_min_support: at least this many of the keypoint matches must agree with the pose within
+    inlier_px; search_patch_px / search_min_patches: the overlap is cut into square patches of this
+    side and at least this many of them must carry relief (10 % of the strongest patch's) and
+    correlate (NCC >= 0.5) at the pose: relief spread over the overlap, not two lone domes that a
+    rigid move can always line up (such pairs agree on 6-8 patches of 24 px, plate re-touches on
+    11-30). A search answer must also pass min_overlap
+    and the pinning bars.
     """
 
     detector: str = "orb"
@@ -132,6 +154,15 @@ class RegistrationParams:
     dense_highpass_px: float = 6.0
     dense_gain: bool = True
     dense_bias_order: int = 2
+    search_highpass_px: float = 8.0
+    search_coarse_px: int = 8
+    search_step_deg: float = 6.0
+    search_candidates: int = 5
+    search_min_explained: float = 0.5
+    search_min_ratio: float = 2.0
+    search_min_support: int = 2
+    search_patch_px: int = 24
+    search_min_patches: int = 10
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -143,6 +174,14 @@ class RegistrationParams:
             raise ValueError(
                 f"ransac_iters={self.ransac_iters!r} must be >= 1 and min_inliers={self.min_inliers!r} must be >= 2"
             )
+        search_ranges = {"search_highpass_px": (0.5, 256.0), "search_coarse_px": (1, 64), "search_step_deg": (0.1, 45.0),
+                         "search_candidates": (1, 32), "search_min_explained": (0.0, 1.0),
+                         "search_min_ratio": (1.0, 1e6), "search_min_support": (0, 1_000_000),
+                         "search_patch_px": (4, 4096), "search_min_patches": (0, 1_000_000)}
+        for name, (lo, hi) in search_ranges.items():
+            value = getattr(self, name)
+            if not lo <= value <= hi:  # also refuses NaN
+                raise ValueError(f"{name} must be in [{lo:g}, {hi:g}], got {value!r}")
         if self.orb_levels < 1 or not self.orb_scale > 1.0 or self.orb_fast_threshold < 0:
             raise ValueError(f"orb_levels must be >= 1, orb_scale > 1 and orb_fast_threshold >= 0, got "
                              f"{self.orb_levels!r}, {self.orb_scale!r}, {self.orb_fast_threshold!r}")
@@ -808,32 +847,110 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
     return fit
 
 
-def _dense_fourier_mellin(height_a: np.ndarray, height_b: np.ndarray) -> tuple[np.ndarray, float]:
-    """B->A rigid estimate by log-polar phase correlation of the magnitude spectra (rotation, with
-    the 180 degree ambiguity resolved by correlation) then phase correlation (translation)."""
-    h, w = height_a.shape
-    win = cv2.createHanningWindow((w, h), cv2.CV_32F)
+# Two poses are the same answer when they differ by less than this (deg, px at B's centre).
+SAME_POSE_DEG = 2.0
+SAME_POSE_PX = 3.0
 
-    def logpolar_mag(z: np.ndarray) -> np.ndarray:
-        f = np.fft.fftshift(np.abs(np.fft.fft2((z - z.mean()) * win)))
-        f = np.log1p(f).astype(np.float32)
-        radius = min(h, w) / 2.0
-        return cv2.warpPolar(f, (0, 0), (w / 2.0, h / 2.0), radius, cv2.WARP_POLAR_LOG + cv2.INTER_LINEAR)
 
-    la, lb = logpolar_mag(height_a), logpolar_mag(height_b)
-    (_, dy), _ = cv2.phaseCorrelate(lb, la)
-    angle = -360.0 * dy / la.shape[0]
-    best = (None, -2.0)
-    for cand in (angle, angle + 180.0):
-        rot = cv2.getRotationMatrix2D(((w - 1) / 2.0, (h - 1) / 2.0), -cand, 1.0)
-        rb = cv2.warpAffine(height_b, rot, (w, h), flags=cv2.INTER_LINEAR)
-        (sx, sy), _ = cv2.phaseCorrelate(rb * win, height_a * win)
-        m = rot.copy()
-        m[:, 2] += (sx, sy)
-        ncc, _ = overlap_ncc(height_a, height_b, m)
-        if ncc > best[1]:
-            best = (m, ncc)
-    return best[0], best[1]  # type: ignore[return-value]
+def _same_pose(m: np.ndarray, n: np.ndarray, centre: np.ndarray) -> bool:
+    d_rot = abs(float(np.degrees(np.arctan2(m[1, 0], m[0, 0]) - np.arctan2(n[1, 0], n[0, 0])))) % 360.0
+    d_px = float(np.linalg.norm((m[:, :2] - n[:, :2]) @ centre + m[:, 2] - n[:, 2]))
+    return min(d_rot, 360.0 - d_rot) <= SAME_POSE_DEG and d_px <= SAME_POSE_PX
+
+
+def _search_bars(fit: DenseFit, params: RegistrationParams) -> bool:
+    """A search pose, polished: it explains search_min_explained of A's relief (NCC^2 x overlap),
+    passes min_overlap and pins the pose."""
+    explained = fit.ncc * fit.ncc * fit.overlap if fit.ncc > 0.0 else 0.0
+    return bool(explained >= params.search_min_explained and fit.overlap >= params.min_overlap and _pinned(fit, params))
+
+
+# A patch counts when its relief energy is at least this share of the strongest patch's, and agrees
+# when the two touches' heights correlate there at least this well.
+PATCH_ENERGY_SHARE = 0.1
+PATCH_AGREE_NCC = 0.5
+
+
+def _agreeing_patches(fa: Features, fb: Features, matrix_px: np.ndarray, patch_px: int) -> int:
+    """Square patches of A (side ``patch_px``) inside the overlap where the polished heights of A
+    and of B warped by ``matrix_px`` both carry relief and correlate (see search_min_patches)."""
+    za, zb = fa.smooth, fb.smooth
+    if za is None or zb is None:
+        return 0
+    h, w = za.shape
+    p = int(patch_px)
+    rows, cols = h // p, w // p
+    if rows < 1 or cols < 1:
+        return 0
+    known_b = np.ones(zb.shape, np.float32) if fb.valid is None else fb.valid.astype(np.float32)
+    wb = cv2.warpAffine(zb, matrix_px, (w, h), flags=cv2.INTER_LINEAR)
+    kb = cv2.warpAffine(known_b, matrix_px, (w, h), flags=cv2.INTER_LINEAR) > 0.999
+    if fa.valid is not None:
+        kb &= fa.valid
+    crop = (slice(0, rows * p), slice(0, cols * p))
+
+    def cells(x: np.ndarray) -> np.ndarray:  # (rows, cols, p * p)
+        return x[crop].reshape(rows, p, cols, p).swapaxes(1, 2).reshape(rows, cols, p * p)
+
+    m = cells(kb.astype(np.float64))
+    n = m.sum(-1)
+    full = n >= 0.9 * p * p  # patches (nearly) all inside the overlap
+    if not full.any():
+        return 0
+    x, y = cells(za.astype(np.float64)) * m, cells(wb.astype(np.float64)) * m
+    nn = np.maximum(n, 1.0)
+    xm, ym = x.sum(-1) / nn, y.sum(-1) / nn
+    sxx = (x * x).sum(-1) / nn - xm * xm
+    syy = (y * y).sum(-1) / nn - ym * ym
+    sxy = (x * y).sum(-1) / nn - xm * ym
+    energy = np.maximum(sxx, syy)
+    strong = full & (energy >= PATCH_ENERGY_SHARE * float(energy[full].max()))
+    ncc = sxy / np.sqrt(np.maximum(sxx * syy, 1e-30))
+    return int(np.count_nonzero(strong & (ncc >= PATCH_AGREE_NCC)))
+
+
+def _dense_search(a: np.ndarray, b: np.ndarray, fa: Features, fb: Features, pa: np.ndarray, pb: np.ndarray,
+                  params: RegistrationParams) -> tuple[DenseFit | None, float]:
+    """The answer when keypoints fail: :func:`~tactile_rig.perception.gelsight.dense_search.rotation_search`
+    on high-passed heights, each candidate polished by :func:`dense_refine` (fa's samples, fb's
+    heights, as the keypoint answer's). The best polished pose is accepted only when it passes
+    search_min_explained, min_overlap and the pinning bars, explains search_min_ratio times more of A's
+    relief (NCC^2 x overlap) than any distinct candidate (content that fits several poses is
+    ambiguous: blobs, domes), is confirmed by at least search_min_support of the keypoint matches
+    (pa in A, pb in B) within inlier_px and agrees on search_min_patches patches of the overlap.
+    Returns (accepted fit or None, the best polished NCC)."""
+    found = rotation_search(
+        a, b, highpass_px=params.search_highpass_px, coarse_px=params.search_coarse_px,
+        step_deg=params.search_step_deg, max_candidates=params.search_candidates,
+        valid_a=fa.valid, valid_b=fb.valid)
+    fits = [dense_refine(fa, fb.smooth, c.matrix_px, params.refine_iters if params.refine else 0,  # type: ignore[arg-type]
+                         gain_fit=params.dense_gain, valid_b=fb.valid, bias_order=params.dense_bias_order)
+            for c in found.candidates]
+    fits = [f for f in fits if np.isfinite(f.ncc) and not f.wandered]
+    if not fits:
+        return None, float("nan")
+    best_ncc = max(f.ncc for f in fits)
+    passed = [f for f in fits if _search_bars(f, params)]
+    if not passed:
+        return None, best_ncc
+    top = max(passed, key=lambda f: f.ncc)
+    centre_b = np.array([(b.shape[1] - 1) / 2.0, (b.shape[0] - 1) / 2.0])
+    explained = top.ncc * top.ncc * top.overlap
+    for other in fits:
+        if other is top or _same_pose(other.matrix_px, top.matrix_px, centre_b):
+            continue
+        if other.overlap >= params.min_overlap and explained < params.search_min_ratio * other.ncc ** 2 * other.overlap:
+            return None, best_ncc  # another pose fits nearly as well: ambiguous content
+    if len(pa):
+        res = pb @ top.matrix_px[:, :2].T + top.matrix_px[:, 2] - pa
+        support = int(np.count_nonzero(np.einsum("ij,ij->i", res, res) < params.inlier_px ** 2))
+    else:
+        support = 0
+    if support < params.search_min_support:
+        return None, best_ncc
+    if _agreeing_patches(fa, fb, top.matrix_px, params.search_patch_px) < params.search_min_patches:
+        return None, best_ncc  # the agreement rests on a few lone features
+    return top, top.ncc
 
 
 def _pinned(fit: DenseFit, params: RegistrationParams) -> bool:
@@ -930,17 +1047,11 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
         else:
             keypoint_reason = NO_CONSENSUS
     ncc = float("nan")
-    if params.dense_fallback and a.shape == b.shape:
-        m, ncc = _dense_fourier_mellin(a, b)
-        if m is not None and ncc >= params.min_ncc:
-            fit = dense_refine(fa, fb.smooth, m, params.refine_iters if params.refine else 0,  # type: ignore[arg-type]
-                               gain_fit=params.dense_gain, valid_b=fb.valid,
-                                   bias_order=params.dense_bias_order)
-            ncc = fit.ncc
-            if (fit.ncc >= max(params.min_ncc, 0.8) and fit.overlap >= params.min_overlap
-                    and _pinned(fit, params)):
-                return _result(True, fit.matrix_px, *shapes, scale, 1.0, 0, "dense_fourier_mellin", None,  # type: ignore[arg-type]
-                               len(pa), fit.ncc)
+    if params.dense_fallback:
+        fit_s, ncc = _dense_search(a, b, fa, fb, pa, pb, params)
+        if fit_s is not None:
+            return _result(True, fit_s.matrix_px, *shapes, scale, 1.0, 0, "dense_search", None,  # type: ignore[arg-type]
+                           len(pa), fit_s.ncc)
         method += "+dense"
         if keypoint_reason == NO_CONSENSUS:
             keypoint_reason = INSUFFICIENT_TEXTURE
