@@ -10,7 +10,7 @@ import pytest
 
 from tactile_rig.cli import main
 from tactile_rig.core.errors import BenchError
-from tactile_rig.rig.bench import load_bench
+from tactile_rig.rig.bench import connect_bench, load_bench
 
 CASES = [
     ('[jig]\nport = "rigsim://jig"\nx_limits_mm = [-inf, inf]\n', 3, "finite"),
@@ -20,6 +20,8 @@ CASES = [
     ('[scale]\nport = ""\n', 2, "empty"),
     ('[camera]\nport = "rigsim://camera"\nwidth = 100000000000\n', 3, "frame size"),
     ('[bench]\nseed = -5\n', 2, "seed"),
+    ('[gripper]\nport = "rigsim://dynamixel"\nlatency_timer_ms = 300\n', 3, "latency timer"),
+    ('[gripper]\nport = "rigsim://dynamixel"\nretries = -1\n', 3, "retries"),
 ]
 
 
@@ -54,3 +56,13 @@ def test_a_folder_or_binary_file_is_one_line_exit_2(tmp_path: Path, capsys) -> N
         assert main(["run", "jig-accuracy", "--bench", str(tmp_path / name), "--no-record"]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and word in err and name in err and "Traceback" not in err
+
+
+def test_the_latency_timer_and_retries_reach_the_bus() -> None:
+    bench = load_bench(text='[gripper]\nport = "rigsim://dynamixel"\nlatency_timer_ms = 4\nretries = 5\n', env={})
+    cfg = bench.devices["gripper"]
+    assert cfg.latency_timer_ms == 4.0 and cfg.retries == 5
+    with connect_bench(bench) as rig:
+        assert rig.gripper.bus.latency_timer_ms == 4.0 and rig.gripper.bus.retries == 5
+    default = load_bench(text='[gripper]\nport = "rigsim://dynamixel"\n', env={}).devices["gripper"]
+    assert default.latency_timer_ms == 16.0 and default.retries == 2

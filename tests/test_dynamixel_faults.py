@@ -15,7 +15,9 @@ from hypothesis import given, settings, strategies as st
 import tactile_rig.drivers.transport as transport
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.core.errors import DeviceTimeout, LinkCorrupt, NotConnected, PortInUse, RigError
+from tactile_rig.core.types import GripperOutcome
 from tactile_rig.drivers.dynamixel import DynamixelBus, DynamixelGripper
+from tactile_rig.drivers.base import Lifecycle
 from tactile_rig.drivers.dynamixel import wire
 from tactile_rig.drivers.reconnect import Reconnect
 from tactile_rig.mocks.dynamixel import make_bus
@@ -292,6 +294,58 @@ def test_the_gripper_sees_not_connected_and_works_after_replug(monkeypatch) -> N
         plug.plugged = True
         clock.advance(1.0)
         assert g.state().hardware_error == 0
+
+
+@pytest.mark.parametrize("protocol", [2, 1])
+def test_a_servo_that_lost_power_with_the_port_is_not_driven_as_if_holding(monkeypatch, protocol: int) -> None:
+    # The adapter and the servo's supply on one hub: unplugged together, the servo comes back with
+    # torque off and its RAM at defaults. A move must not wait for motion that never comes.
+    plug = Plug(monkeypatch)
+    clock = VirtualClock()
+    dev = make_bus(protocol=protocol, ids=[1], timing=True, return_delay_us=0)
+    with serve_in_process(dev, clock) as url, DynamixelGripper(url, protocol=protocol, baudrate=dev.baud) as g:
+        g.activate()
+        assert g.lifecycle == Lifecycle.ACTIVE and dev.servo(1).torque_on
+        plug.plugged = False
+        with pytest.raises(NotConnected):
+            g.state()
+        dev.servo(1).reboot(clock.now_s(), 0.0)  # power lost: torque off, RAM defaults
+        plug.plugged = True
+        clock.advance(1.0)
+        with pytest.raises(NotConnected, match="torque is off"):
+            g.gripper_go(0.05, 0.3)
+        assert g.lifecycle == Lifecycle.CONNECTED and not g.state().active
+        g.activate()
+        assert g.gripper_go(0.05, 0.3, blocking=False) == GripperOutcome.MOVING
+        assert dev.servo(1).torque_on
+
+
+def test_a_replug_that_kept_the_servo_powered_keeps_it_active(monkeypatch) -> None:
+    plug = Plug(monkeypatch)
+    clock = VirtualClock()
+    dev = make_bus(protocol=2, ids=[1], timing=True, return_delay_us=0)
+    with serve_in_process(dev, clock) as url, DynamixelGripper(url) as g:
+        g.activate()
+        plug.plugged = False
+        with pytest.raises(NotConnected):
+            g.state()
+        plug.plugged = True
+        clock.advance(1.0)
+        assert g.gripper_go(0.05, 0.3, blocking=False) == GripperOutcome.MOVING
+        assert g.lifecycle == Lifecycle.ACTIVE and g.state().active
+
+
+def test_torque_lost_without_a_fault_reads_as_not_active(monkeypatch) -> None:
+    clock = VirtualClock()
+    dev = make_bus(protocol=2, ids=[1], timing=True, return_delay_us=0)
+    with serve_in_process(dev, clock) as url, DynamixelGripper(url) as g:
+        g.activate()
+        dev.servo(1).reboot(clock.now_s(), 0.0)  # a brown-out: no unplug seen by the host
+        clock.advance(1.0)
+        st = g.state()
+        assert not st.active and st.hardware_error == 0 and g.lifecycle == Lifecycle.CONNECTED
+        with pytest.raises(NotConnected, match="before activate"):
+            g.gripper_go(0.05, 0.3)
 
 
 def _symlink(link: str, target: str) -> None:

@@ -8,6 +8,7 @@ saturated, colours beyond its range, heights no gel shows, one line naming the r
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 from typing import Any, Callable
 
@@ -83,31 +84,63 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _npy_writer(shape: tuple[int, ...], dtype: type[np.generic] | np.dtype):
+def _npy_writer(shape: tuple[int, ...], dtype: type[np.generic] | np.dtype) -> Callable[[Path | str, np.ndarray], None]:
     """A writer of .npy files for arrays of one shape and dtype: the header (np.save's format) is
-    built once, then each file is the header plus the array's bytes (no per-file formatting)."""
+    built once, then each file is the header plus the array's bytes (no per-file formatting).
+
+    An existing file is overwritten in place, then cut to length: truncating it first frees its
+    blocks only for the write to allocate them again (0.5-2 ms a file on ext4 here, 0.1 ms in place).
+    """
     import io
 
     buf = io.BytesIO()
     np.lib.format.write_array_header_1_0(buf, {"descr": np.lib.format.dtype_to_descr(np.dtype(dtype)),
                                                "fortran_order": False, "shape": tuple(shape)})
     header = buf.getvalue()
+    flags = os.O_WRONLY | os.O_CREAT | getattr(os, "O_BINARY", 0)
+    writev = getattr(os, "writev", None)
 
-    def write(path: Path, arr: np.ndarray) -> None:
-        with open(path, "wb") as fh:
-            fh.write(header)
-            fh.write(np.ascontiguousarray(arr, dtype).data)
+    def write(path: Path | str, arr: np.ndarray) -> None:
+        data = np.ascontiguousarray(arr, dtype).reshape(-1).view(np.uint8).data
+        total = len(header) + len(data)
+        fd = os.open(path, flags, 0o666)
+        try:
+            done = writev(fd, (header, data)) if writev is not None else os.write(fd, header)
+            while done < total:  # a short write: the rest, from where it stopped
+                done += os.write(fd, data[done - len(header):] if done >= len(header) else header[done:])
+            if os.fstat(fd).st_size != total:
+                os.ftruncate(fd, total)
+        finally:
+            os.close(fd)
 
     return write
+
+
+def _keep_freed_memory() -> None:
+    """Let this process keep the memory it frees (glibc only; a no-op elsewhere). A frame's buffers
+    (~0.3 MB each) are otherwise handed back to the system after every frame and faulted in again,
+    page by page, for the next: about a quarter of the per-frame time of a 320x240 folder."""
+    import ctypes
+    import platform
+
+    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
+        return
+    try:
+        libc = ctypes.CDLL(None)
+        libc.mallopt(-1, 64 << 20)  # M_TRIM_THRESHOLD: keep up to 64 MB of freed heap
+        libc.mallopt(-3, 16 << 20)  # M_MMAP_THRESHOLD: blocks below 16 MB come from that heap
+    except (OSError, AttributeError):
+        pass
 
 
 def _cmd_height(args: argparse.Namespace) -> int:
     if bench_live.wants_bench(args, "calib", "images"):
         return bench_live.height(args)
     bench_live.need_files(args, "calib", "images", "output")
+    _keep_freed_memory()
     rec = _reconstructor(args.calib, args.background, args.solver)
     out = Path(args.output)
-    written = []
+    written: list[str] = []
     write = _npy_writer(rec.calibration.shape, np.float32)
     if len(args.images) == 1:
         target = out if out.suffix == ".npy" else out.with_suffix(".npy")
@@ -115,10 +148,12 @@ def _cmd_height(args: argparse.Namespace) -> int:
         written.append(str(target))
     else:
         out.mkdir(exist_ok=True)  # the parent exists (output_path): only the leaf is made
+        folder = str(out)
         for img in args.images:
-            target = out / (Path(img).stem + ".npy")
-            write(target, rec.height_mm(_read_image(img)))
-            written.append(str(target))
+            stem = os.path.splitext(os.path.basename(img))[0]  # Path(img).stem, without the objects
+            path = os.path.join(folder, stem + ".npy")
+            write(path, rec.height_mm(_read_image(img)))
+            written.append(path)
     if args.json:
         print_json({"written": written})
     else:

@@ -17,6 +17,7 @@ import json
 import math
 import re
 import struct
+import threading
 import zipfile
 import zlib
 from contextlib import contextmanager
@@ -347,26 +348,122 @@ def load_toml(path: str | Path, what: str = "TOML file", *, max_depth: int = MAX
 
 
 # -- images -----------------------------------------------------------------------------------
+def _png_chunks(data: bytes | memoryview) -> tuple[str | None, list[tuple[bytes, memoryview]]]:
+    """Walk a PNG's chunks once, checking every CRC: ``(problem or None, [(tag, body), ...])`` (the
+    bodies are views into ``data``, no copies)."""
+    mv = memoryview(data)
+    n_bytes = len(mv)
+    unpack = struct.unpack_from
+    crc32 = _crc32()
+    chunks: list[tuple[bytes, memoryview]] = []
+    pos = 8
+    n = 0
+    while pos + 12 <= n_bytes:
+        length = unpack(">I", mv, pos)[0]
+        tag = bytes(mv[pos + 4:pos + 8])
+        end = pos + 12 + length
+        if length > n_bytes or end > n_bytes:
+            return f"chunk {n} ({tag!r}) runs past the end of the file (truncated)", chunks
+        if crc32(mv[pos + 4:end - 4]) != unpack(">I", mv, end - 4)[0]:
+            return f"chunk {n} ({tag!r}) at byte {pos} fails its CRC", chunks
+        chunks.append((tag, mv[pos + 8:end - 4]))
+        if tag == b"IEND":
+            return None, chunks
+        pos = end
+        n += 1
+    return "no IEND chunk (truncated)", chunks
+
+
 def png_problem(data: bytes) -> str | None:
     """What is wrong with a PNG's chunk structure (a chunk CRC, a cut-off end), or None. PNG stores a
     CRC-32 per chunk: checking them all costs a pass over the bytes and catches any flipped bit, so
     the decoder (and its own messages on stderr) never sees a damaged file."""
-    pos = 8
-    n = 0
-    while pos + 12 <= len(data):
-        length = struct.unpack(">I", data[pos:pos + 4])[0]
-        tag = data[pos + 4:pos + 8]
-        end = pos + 12 + length
-        if length > len(data) or end > len(data):
-            return f"chunk {n} ({tag!r}) runs past the end of the file (truncated)"
-        crc = struct.unpack(">I", data[end - 4:end])[0]
-        if zlib.crc32(data[pos + 4:end - 4]) != crc:
-            return f"chunk {n} ({tag!r}) at byte {pos} fails its CRC"
-        if tag == b"IEND":
-            return None
-        pos = end
-        n += 1
-    return "no IEND chunk (truncated)"
+    return _png_chunks(data)[0]
+
+
+# Chunks that change nothing in OpenCV's BGR decode of an 8-bit RGB PNG; any other (gamma, colour
+# profile, transparency, palette ...) sends the file to OpenCV's own decoder.
+_PNG_PLAIN_CHUNKS = frozenset({b"IHDR", b"IDAT", b"IEND", b"tEXt", b"zTXt", b"iTXt", b"tIME", b"pHYs"})
+_PNG_MAX_INTEGRAL_PX = (2**31 - 1) // 255  # the int32 running sums of every pixel stay exact
+_png_work = threading.local()
+_decompressobj: Callable[[], Any] | None = None
+_crc: Callable[..., int] | None = None
+
+
+def _crc32() -> Callable[..., int]:
+    """zlib's CRC-32, or ISA-L's if the ``fast`` extra is installed (the same value, ~6x faster)."""
+    global _crc
+    if _crc is None:
+        try:
+            from isal import isal_zlib  # optional extra
+
+            _crc = isal_zlib.crc32
+        except ImportError:
+            _crc = zlib.crc32
+    return _crc
+
+
+def _inflater() -> Any:
+    """A fresh inflater: zlib's, or ISA-L's if the ``fast`` extra is installed (the same bytes out,
+    about three times faster)."""
+    global _decompressobj
+    if _decompressobj is None:
+        try:
+            from isal import isal_zlib  # optional extra: ISA-L inflate
+
+            _decompressobj = isal_zlib.decompressobj
+        except ImportError:
+            _decompressobj = zlib.decompressobj
+    return _decompressobj()
+
+
+def _png_rgb8_bgr(chunks: list[tuple[bytes, memoryview]]) -> np.ndarray | None:
+    """OpenCV's BGR decode of an intact (CRC-checked) 8-bit RGB, non-interlaced PNG whose rows are
+    all filtered None or Sub (what OpenCV's own writer emits), or None for any other PNG (left to
+    OpenCV). The same pixels, about twice as fast with the ``fast`` extra's inflate."""
+    import cv2
+
+    if not chunks or chunks[0][0] != b"IHDR" or len(chunks[0][1]) != 13:
+        return None
+    w, h, depth, ctype, comp, filt, interlace = struct.unpack(">IIBBBBB", chunks[0][1])
+    if (depth, ctype, comp, filt, interlace) != (8, 2, 0, 0, 0) or w < 1 or h < 1:
+        return None
+    if any(tag not in _PNG_PLAIN_CHUNKS for tag, _ in chunks):
+        return None
+    stride = 3 * w + 1
+    if h * w > _PNG_MAX_INTEGRAL_PX:
+        return None
+    try:
+        # Bounded: a stream that inflates beyond the rows its header declares is not read past them.
+        inflater = _inflater()
+        raw = inflater.decompress(b"".join(body for tag, body in chunks if tag == b"IDAT"), h * stride + 1)
+        complete = inflater.eof and not inflater.unused_data  # the stream's Adler-32 checked at its end
+    except Exception:  # noqa: BLE001 - a broken stream is OpenCV's to report, as before
+        return None
+    if len(raw) != h * stride or not complete:
+        return None
+    rows = np.frombuffer(raw, np.uint8).reshape(h, stride)
+    kinds = rows[:, 0]
+    if kinds.max() > 1:
+        return None  # Up, Average or Paeth rows depend on the row above: OpenCV decodes those
+    x = rows[:, 1:].reshape(h, w, 3)
+    if kinds.any():
+        # Sub rows: the running sum of each channel along the row, mod 256. OpenCV's integral image
+        # gives the sums (int32) and a row minus the one above leaves that row's running sums; the
+        # low byte is the pixel. Its buffers are kept per thread: fresh ones of ~1 MB a frame cost
+        # more in page faults than the arithmetic.
+        work = getattr(_png_work, "bufs", None)
+        if work is None or work[0].shape != (h + 1, w + 1, 3):
+            work = (np.empty((h + 1, w + 1, 3), np.int32), np.empty((h, w, 3), np.int32))
+            _png_work.bufs = work
+        sums, run = work
+        cv2.integral(x, sum=sums, sdepth=cv2.CV_32S)
+        np.subtract(sums[1:, 1:], sums[:-1, 1:], out=run)
+        plain = x
+        x = run.astype(np.uint8)
+        if not kinds.all():
+            x[kinds == 0] = plain[kinds == 0]  # None rows are stored as they are
+    return cv2.cvtColor(x, cv2.COLOR_RGB2BGR)
 
 
 def jpeg_problem(data: bytes) -> str | None:
@@ -488,11 +585,35 @@ def check_image_dims(path: str | Path, what: str, w: int, h: int, max_side_px: i
                       f"at most {max_side_px} px a side and {max_pixels} pixels")
 
 
-def _checked_image(p: Path, what: str, max_side_px: int, max_pixels: int) -> tuple[int, int, str, bytes]:
-    w, h, fmt = image_size(p, what)
-    check_image_dims(p, what, w, h, max_side_px, max_pixels)
-    raw = _read_bytes(p, what)
-    problem = png_problem(raw) if fmt == "PNG" else jpeg_problem(raw) if fmt == "JPEG" else None
+def _checked_image(p: Path, what: str, max_side_px: int, max_pixels: int,
+                   png: list | None = None) -> tuple[int, int, str, bytes]:
+    """Size, format and bytes of an image whose header is bounded and whose structure is intact.
+    A PNG is opened once: its header's width x height is bounded, then the rest is read from the same
+    handle; ``png`` (a list) receives its CRC-checked chunks."""
+    p = check_file(p, what)
+    raw = b""
+    dims: tuple[int, int] | None = None
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(32)
+            if head.startswith(b"\x89PNG\r\n\x1a\n"):
+                dims = _png_size(head)
+                if dims is None:
+                    raise BadFile(p, f"{what} has a truncated or malformed PNG header", "a complete PNG image")
+                check_image_dims(p, what, dims[0], dims[1], max_side_px, max_pixels)
+                raw = head + fh.read()
+    except OSError as exc:
+        raise BadFile(p, f"{what} cannot be read ({exc.strerror or exc})", "a readable file") from None
+    if dims is not None:
+        w, h, fmt = dims[0], dims[1], "PNG"
+        problem, chunks = _png_chunks(raw)
+        if png is not None:
+            png[:] = chunks
+    else:
+        w, h, fmt = image_size(p, what)
+        check_image_dims(p, what, w, h, max_side_px, max_pixels)
+        raw = _read_bytes(p, what)
+        problem = jpeg_problem(raw) if fmt == "JPEG" else None
     if problem:
         raise BadFile(p, f"{what} is a damaged {fmt}: {problem}", f"an intact {fmt} image")
     return w, h, fmt, raw
@@ -531,10 +652,12 @@ def read_image(path: str | Path, what: str = "image", *, color: bool = True,
     import cv2
 
     p = Path(path)
-    w, h, fmt, raw = _checked_image(p, what, max_side_px, max_pixels)
-    data = np.frombuffer(raw, np.uint8)
-    with quiet_opencv():
-        img = cv2.imdecode(data, cv2.IMREAD_COLOR if color else cv2.IMREAD_GRAYSCALE)
+    chunks: list = []
+    w, h, fmt, raw = _checked_image(p, what, max_side_px, max_pixels, chunks)
+    img = _png_rgb8_bgr(chunks) if color and fmt == "PNG" else None
+    if img is None:
+        with quiet_opencv():
+            img = cv2.imdecode(np.frombuffer(raw, np.uint8), cv2.IMREAD_COLOR if color else cv2.IMREAD_GRAYSCALE)
     if img is None or img.size == 0:
         raise BadFile(p, f"{what} cannot be decoded as {fmt} (corrupt or truncated)", f"a valid {fmt} image")
     if img.shape[1] != w or img.shape[0] != h:

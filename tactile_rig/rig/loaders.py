@@ -70,7 +70,7 @@ def load_gelsight_calibration(path: str | Path) -> GelSightCalibration:
         raise BadFile(npath, f"GelSight calibration background has dtype {bg.dtype}", "uint8 BGR")
     with files.checked(npath, "GelSight calibration", "a calibration written by 'tactile-rig gelsight calibrate'"):
         try:
-            cal = GelSightCalibration.load(base)
+            cal = GelSightCalibration.from_saved(meta, arrays, str(jpath))  # the files read once
         except CalibrationError as exc:
             raise BadFile(jpath, str(exc).split(": ", 1)[-1], "a GelSight calibration of this version") from None
         # A smoke run: a model whose arrays do not fit together fails here, naming the file.

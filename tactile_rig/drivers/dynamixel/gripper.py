@@ -30,7 +30,7 @@ from tactile_rig.core.errors import (
 from tactile_rig.core.types import GripperOutcome, GripperState
 from tactile_rig.devices.dynamixel import control_table as ct
 from tactile_rig.drivers.base import Driver, Lifecycle
-from tactile_rig.drivers.dynamixel.bus import DynamixelBus
+from tactile_rig.drivers.dynamixel.bus import DEFAULT_LATENCY_TIMER_MS, DynamixelBus
 
 log = logging.getLogger("tactile_rig.dynamixel.gripper")
 
@@ -99,13 +99,15 @@ class DynamixelGripper(Driver):
         default_timeout_s: float = 5.0,
         stall_window: int = 5,
         settled_speed_mps: float = SETTLED_SPEED_MPS,
+        latency_timer_ms: float = DEFAULT_LATENCY_TIMER_MS,
+        retries: int = 2,
     ) -> None:
         if isinstance(port, DynamixelBus):
             self.bus = port
             self._owns_bus = False
         else:
             self.bus = DynamixelBus(port, baudrate=baudrate or (1_000_000 if protocol == 2 else 57600),
-                                    protocol=protocol)
+                                    protocol=protocol, latency_timer_ms=latency_timer_ms, retries=retries)
             self._owns_bus = True
         self.protocol = self.bus.protocol
         self.id = dxl_id
@@ -120,6 +122,9 @@ class DynamixelGripper(Driver):
         self.settled_speed_mps = check_range("settled_speed_mps", settled_speed_mps, 0.0, 10.0, "m/s")
         self.effort = 0.3
         self._speed_mps = 0.0
+        #: the bus's reconnect count when torque was last known on (a reopened port may front a
+        #: servo that lost power with it: torque off, RAM at defaults)
+        self._reconnects_seen = self.bus.stats.reconnects
         self._connect()
 
     # -- lifecycle ------------------------------------------------------------------------------
@@ -165,7 +170,27 @@ class DynamixelGripper(Driver):
             b.write(i, "Goal Position", min(4095, max(0, present)))
             b.write(i, "Torque Limit", self._torque_limit_units(self.effort))
         b.write(i, "Torque Enable", 1)
+        self._reconnects_seen = b.stats.reconnects
         self.lifecycle = Lifecycle.ACTIVE
+
+    def _torque_lost(self, what: str) -> NotConnected | None:
+        """After the bus reopened its port: the servo may have lost power with it (torque off, RAM at
+        defaults). Reads Torque Enable once per reconnect; when it is off the driver is ``connected``
+        again and the error says to activate() (a move would otherwise wait for motion that never
+        comes and time out)."""
+        if self.lifecycle != Lifecycle.ACTIVE:
+            return None
+        if not self.bus.reconnect.away and self.bus.stats.reconnects == self._reconnects_seen:
+            return None
+        torque = self.bus.read(self.id, "Torque Enable")  # reopens the port when it is due
+        self._reconnects_seen = self.bus.stats.reconnects
+        if torque:
+            return None
+        self.lifecycle = Lifecycle.CONNECTED
+        log.warning("%s: torque is off after the port came back (the servo lost power): activate() again",
+                    self.device)
+        return NotConnected(f"{what}: the port came back after an unplug and the servo's torque is off (it "
+                            "lost power with it); call activate() again", device=self.device)
 
     def _deactivate(self) -> None:
         """Torque off (allowed while faulted)."""
@@ -216,6 +241,9 @@ class DynamixelGripper(Driver):
         goal = self.goal_ticks(position)
         if self.lifecycle == Lifecycle.FAULT:
             raise self.bus.fault_error(self.id, "gripper_go")
+        lost = self._torque_lost("gripper_go")
+        if lost is not None:
+            raise lost
         if self.lifecycle != Lifecycle.ACTIVE:
             raise NotConnected("gripper_go before activate(): torque is off", device=self.device)
         self.effort = effort
@@ -311,6 +339,11 @@ class DynamixelGripper(Driver):
             hw = self.bus.hardware_errors.get(self.id, 0)
         if hw and self.lifecycle == Lifecycle.ACTIVE:
             self.lifecycle = Lifecycle.FAULT
+        elif not torque and self.lifecycle == Lifecycle.ACTIVE:
+            # Torque went off with no fault latched: the servo lost power (or was rebooted by
+            # someone else); it holds nothing until activate().
+            self.lifecycle = Lifecycle.CONNECTED
+            log.warning("%s: torque is off with no fault latched (power lost?): activate() again", self.device)
         frac = cal.frac_from_ticks(ticks)
         return GripperState(
             t_s=self.clock.now_s(),

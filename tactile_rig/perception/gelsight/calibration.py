@@ -12,7 +12,7 @@ import datetime as _dt
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import cv2
 import numpy as np
@@ -175,6 +175,25 @@ def training_samples(presses: PressSet, mm_per_px: float, ball_radius_mm: float,
     return np.concatenate(feats), np.concatenate(slopes).astype(np.float32)
 
 
+@dataclass(frozen=True)
+class PackedTable:
+    """A baked table laid out for one gather per pixel (see :meth:`GelSightCalibration.packed_table`).
+
+    A pixel's key is ``(qb << 2 bits) | (qg << bits) | qr`` with ``q = s >> shift`` of the saturated
+    difference byte ``s = clip(frame - background + 128, 0, 255)`` of each channel, and
+    ``table[cell_offset + key]`` is its ``gx + 1j * gy``. ``zero_key`` is a zero difference (slope 0,
+    the background's own). ``peak_slope`` is the largest |slope| in the table (``inf`` if any entry is
+    not finite).
+    """
+
+    shift: int
+    bits: int
+    zero_key: int
+    table: np.ndarray
+    cell_offset: np.ndarray
+    peak_slope: float
+
+
 class GelSightCalibration:
     """A fitted colour(+position) -> slope model with its background frame and scale.
 
@@ -219,6 +238,8 @@ class GelSightCalibration:
         self._g0: np.ndarray | None = None
         self._raw_table: np.ndarray | None = None
         self._table: np.ndarray | None = None
+        self._packed_shift: int | None = None
+        self._packed: PackedTable | None = None
         if isinstance(self.model, LutModel):
             self._setup_table(self.model.table.reshape(-1, 2), self.model.bins, self.model.colour_range,
                               np.zeros(h * w, np.int64))
@@ -236,18 +257,43 @@ class GelSightCalibration:
         zero_bin = int(idx[255])
         # The background's own slope is the table entry of a zero difference in each position cell:
         # subtracting it inside the table costs nothing per frame.
-        table = np.asarray(table, np.float32).reshape(-1, bins ** 3, 2)
-        table = table - table[:, (zero_bin * bins + zero_bin) * bins + zero_bin][:, None, :]
-        table = table.reshape(-1, 2)
+        # As complex64 (gx + 1j gy) so that the subtraction runs along the cell, not over pairs.
+        table = np.ascontiguousarray(table, np.float32).reshape(-1, bins ** 3, 2).view(np.complex64)[..., 0]
+        table = table - table[:, (zero_bin * bins + zero_bin) * bins + zero_bin][:, None]
+        table = table.view(np.float32).reshape(-1, 2)
         self._table = table
-        self._tab_x = np.ascontiguousarray(table[:, 0])
-        self._tab_y = np.ascontiguousarray(table[:, 1])
+        self._tab_xy: tuple[np.ndarray, np.ndarray] | None = None  # gx, gy columns: made on first use
         self._bins = bins
         # Per-channel contributions to the flat table index, looked up by the colour difference + 255.
         self._lut_b = (idx * bins * bins).astype(np.int32)
         self._lut_g = (idx * bins).astype(np.int32)
         self._lut_r = idx.astype(np.int32)
         self._cell_offset = cell_offset.reshape(self.shape).astype(np.int32)
+        # The bin of a difference d is a shift of the saturated byte d + 128 when the bins are a power
+        # of two over +-128 (the default 32 bins): the fast path's precondition, checked on all 511 d.
+        self._packed_shift = None
+        self._packed = None
+        if 2 <= bins <= 256 and bins & (bins - 1) == 0:
+            shift = 9 - bins.bit_length()
+            if np.array_equal(idx, np.clip(d + 128, 0, 255).astype(np.int32) >> shift):
+                self._packed_shift = shift
+
+    def packed_table(self) -> PackedTable | None:
+        """The table as one complex64 entry per key (``gx + 1j * gy``, a view: no copy) for a gather
+        per pixel, or None when the bins do not allow the shifted-byte key (see :class:`PackedTable`)."""
+        if self._packed_shift is None or self._table is None:
+            return None
+        if self._packed is None:
+            t = self._table
+            # All entries finite (checkRange) and their largest magnitude: both in C, once per load.
+            finite = bool(cv2.checkRange(t)[0]) if t.size else True
+            lo, hi = cv2.minMaxLoc(t)[:2] if t.size else (0.0, 0.0)
+            bins = self._bins
+            self._packed = PackedTable(shift=self._packed_shift, bits=bins.bit_length() - 1,
+                                       zero_key=(bins // 2) * (bins * bins + bins + 1),
+                                       table=t.view(np.complex64).ravel(), cell_offset=self._cell_offset,
+                                       peak_slope=max(-lo, hi) if finite else float("inf"))
+        return self._packed
 
     def _bake(self, bins: int) -> None:
         h, w = self.shape
@@ -284,7 +330,9 @@ class GelSightCalibration:
             flat += np.take(self._lut_g, g + 255)
             flat += np.take(self._lut_r, r + 255)
             flat += self._cell_offset
-            return np.take(self._tab_x, flat), np.take(self._tab_y, flat)
+            if self._tab_xy is None:
+                self._tab_xy = (np.ascontiguousarray(self._table[:, 0]), np.ascontiguousarray(self._table[:, 1]))
+            return np.take(self._tab_xy[0], flat), np.take(self._tab_xy[1], flat)
         cr = self.colour_range
         feats = pixel_features(np.clip(diff16.astype(np.float32), -cr, cr))
         g = self.model.predict(feats).reshape(diff16.shape[0], diff16.shape[1], 2)  # type: ignore[attr-defined]
@@ -376,19 +424,28 @@ class GelSightCalibration:
             raise CalibrationError(f"calibration {base} needs both {jpath.name} and {npath.name}",
                                    device="gelsight.calibration")
         meta = json.loads(jpath.read_text())
+        with np.load(npath, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+        return cls.from_saved(meta, arrays, str(jpath))
+
+    @classmethod
+    def from_saved(cls, meta: Mapping[str, Any], arrays: Mapping[str, np.ndarray],
+                   source: str = "calibration") -> "GelSightCalibration":
+        """A calibration from what :meth:`save` wrote, already read by the caller: the JSON metadata
+        and the npz's arrays by name (``background``, ``model_*``, ``baked_table``). ``source`` names
+        the file in messages. Raises CalibrationError (a checked loader reads the files once)."""
         if meta.get("format") != "tactile_rig.gelsight.calibration":
-            raise CalibrationError(f"{jpath} is not a GelSight calibration", device="gelsight.calibration")
+            raise CalibrationError(f"{source} is not a GelSight calibration", device="gelsight.calibration")
         if meta.get("version") != FORMAT_VERSION:
-            raise CalibrationError(f"{jpath}: calibration format version {meta.get('version')!r}, "
+            raise CalibrationError(f"{source}: calibration format version {meta.get('version')!r}, "
                                    f"this code reads version {FORMAT_VERSION}", device="gelsight.calibration")
         kind = meta.get("model")
         if kind not in MODELS:
-            raise CalibrationError(f"{jpath}: unknown model {kind!r}", device="gelsight.calibration")
-        with np.load(npath, allow_pickle=False) as data:
-            arrays = {k[len("model_"):]: data[k] for k in data.files if k.startswith("model_")}
-            background = data["background"]
-            baked = data["baked_table"].astype(np.float32) if "baked_table" in data.files else None
-        model = MODELS[kind].from_arrays(arrays)
+            raise CalibrationError(f"{source}: unknown model {kind!r}", device="gelsight.calibration")
+        model_arrays = {k[len("model_"):]: v for k, v in arrays.items() if k.startswith("model_")}
+        background = arrays["background"]
+        baked = arrays["baked_table"].astype(np.float32, copy=False) if "baked_table" in arrays else None
+        model = MODELS[kind].from_arrays(model_arrays)
         cells = tuple(meta.get("bake_cells", (6, 8)))
         cal = cls(model, background, meta["mm_per_px_x"], meta["mm_per_px_y"], meta["ball_radius_mm"],
                   meta.get("sensor", "gelsight"), meta.get("date"), meta.get("bake_bins"),

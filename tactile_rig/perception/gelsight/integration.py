@@ -188,6 +188,24 @@ class HeightMapper:
             z = cv2.resize(z, (self.shape[1], self.shape[0]), interpolation=cv2.INTER_LINEAR)
         return z.astype(np.float32, copy=False)
 
+    def integrate_scaled(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
+        """Height map in mm (float32) of slopes the caller has already made safe: finite, within
+        ``max_slope`` before scaling, masked, zero on the border and multiplied by the pixel pitch
+        (``px = gx * mm_per_px_x``, ``py = gy * mm_per_px_y``); float32 2-D arrays of the mapper's shape
+        (views are fine, they are not modified). Only without downsampling (raises ``ValueError``).
+        This skips :meth:`height_mm`'s checks and copies for a caller that proved them once, e.g. on
+        a calibration table every slope comes from."""
+        if self._k != 1:
+            raise ValueError("integrate_scaled needs downsample=1 (the slopes are scaled per output pixel)")
+        if px.shape != self.shape or py.shape != self.shape:
+            raise ValueError(f"slope shapes {px.shape}, {py.shape} do not match the mapper's shape {self.shape}")
+        solver = self.params.solver
+        if solver == "dct":
+            return self._solve_dct(px, py)
+        if solver == "dst":
+            return self._solve_dst(px, py)
+        return self._solve_fc(px, py).astype(np.float32, copy=False)
+
     def _solve_dst(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
         # Slopes averaged onto half-pixels, then differenced: the compact 5-point Laplacian with
         # no half-pixel shift of the result.

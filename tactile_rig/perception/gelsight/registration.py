@@ -132,7 +132,7 @@ class RegistrationParams:
     brisk_threshold: int = 20
     brisk_octaves: int = 3
     orb_features: int = 300
-    orb_levels: int = 8
+    orb_levels: int = 6
     orb_scale: float = 1.2
     orb_fast_threshold: int = 5
     detect_scale: float | None = None
@@ -268,8 +268,6 @@ def _lowpass_coarse(z: np.ndarray, sigma_px: float, valid: np.ndarray | None) ->
     """:func:`_lowpass` computed on the map area-reduced by up to 4 (to a sigma of >= 1.5 px there)
     and brought back by bilinear resize: a wide low-pass at a fraction of the full-size cost."""
     f = int(np.clip(sigma_px // 1.5, 1, 4))
-    if valid is not None:  # the ragged edge of a map's coverage would blur into fractional weights
-        f = 1
     if f == 1 or min(z.shape) < 8 * f:
         w = None if valid is None else valid.astype(np.float32)
         num = cv2.GaussianBlur(z if w is None else z * w, (0, 0), sigma_px, borderType=cv2.BORDER_REPLICATE)
@@ -356,7 +354,10 @@ def extract_features(height_mm: np.ndarray, params: RegistrationParams = Registr
     # The checked map and its range ride along, so register() need not re-check a cached reference.
     feats = Features(smooth=smooth, height=z, ptp_mm=_ptp(z), valid=valid)
     if dense:
-        feats.sample_xy, feats.sample_z = _dense_samples(smooth, params.dense_samples, valid)
+        # A high-pass bends the heights within about two sigmas of a coverage edge (a tactile map's):
+        # samples keep that far inside it.
+        edge = max(3, int(round(2.0 * params.dense_highpass_px)))
+        feats.sample_xy, feats.sample_z = _dense_samples(smooth, params.dense_samples, valid, edge)
     k = detect_scale(params, z.shape) if scale is None else float(scale)
     small = z if k == 1.0 else cv2.resize(z, None, fx=k, fy=k, interpolation=cv2.INTER_AREA)
     if valid is not None and k != 1.0:
@@ -382,9 +383,9 @@ def extract_features(height_mm: np.ndarray, params: RegistrationParams = Registr
 
 
 def _train_bits(desc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Train-side terms of the Hamming product: -2 x bits^T (bits, N) float32 and popcounts (N,)."""
+    """Train-side terms of the Hamming product: the unpacked bits (N, bits) float32 and popcounts (N,)."""
     t = np.unpackbits(desc, axis=1).astype(np.float32)
-    return np.ascontiguousarray(-2.0 * t.T), t.sum(1)
+    return t, t.sum(1)
 
 
 def hamming_cross_matches(desc_q: np.ndarray, desc_t: np.ndarray,
@@ -397,9 +398,11 @@ def hamming_cross_matches(desc_q: np.ndarray, desc_t: np.ndarray,
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     # d(q, t) = |q| + |t| - 2 q.t on the unpacked bits: one float32 matrix product (exact: counts
     # <= 8 * bytes) is about twice as fast as OpenCV's brute-force matcher on a few hundred points.
+    # The product takes the train bits transposed as a view (BLAS reads them so): no copy.
     q = np.unpackbits(desc_q, axis=1).astype(np.float32)
-    neg2_tt, t_count = train_bits if train_bits is not None else _train_bits(desc_t)
-    d = q @ neg2_tt
+    t_bits, t_count = train_bits if train_bits is not None else _train_bits(desc_t)
+    d = q @ t_bits.T
+    d *= -2.0
     d += q.sum(1)[:, None]
     d += t_count[None, :]
     best_t = d.argmin(1)
@@ -539,26 +542,37 @@ def _upper_quartile(x: np.ndarray) -> float:
     return float(part[lo] + (part[hi] - part[lo]) * (pos - lo))
 
 
-def _dense_samples(smooth: np.ndarray, count: int, valid: np.ndarray | None = None
+def _dense_samples(smooth: np.ndarray, count: int, valid: np.ndarray | None = None, edge_px: int = 3
                    ) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels of A that constrain alignment: the steepest quarter (2 px from the edge and inside
-    ``valid`` shrunk by 3 px), thinned to at most ``count`` on a regular stride (deterministic)."""
-    gx, gy = _grad(smooth)
+    """Pixels of A that constrain alignment: the steepest quarter of every other pixel of every other
+    row (DENSE_MARGIN_PX from the edge and inside ``valid`` shrunk by ``edge_px``), thinned to at most
+    ``count`` on a regular stride (deterministic). The half-density grid finds the same structure at
+    a quarter of the cost; the polish samples B bilinearly wherever A's samples land. Returns the
+    samples (N, 2) px and A's heights there (N,)."""
+    h, w = smooth.shape
+    ys0, xs0 = 2 * np.arange(1, (h - 1) // 2), 2 * np.arange(1, (w - 1) // 2)  # even rows/columns, not the edge
+    if len(ys0) < 2 or len(xs0) < 2:
+        return np.zeros((0, 2), np.float32), np.zeros(0)
+    r0, r1, c0, c1 = ys0[0], ys0[-1] + 1, xs0[0], xs0[-1] + 1
+    # Central differences on the even grid (as _grad, whose slopes are half the neighbour difference).
+    gx = 0.5 * (smooth[r0:r1:2, c0 + 1:c1 + 1:2] - smooth[r0:r1:2, c0 - 1:c1 - 1:2])
+    gy = 0.5 * (smooth[r0 + 1:r1 + 1:2, c0:c1:2] - smooth[r0 - 1:r1 - 1:2, c0:c1:2])
     mag = cv2.magnitude(gx, gy)  # the slope's size: its quartile selects the same pixels as its square's
-    m = max(2, min(DENSE_MARGIN_PX, min(mag.shape) // 4))
-    mag[:m, :] = mag[-m:, :] = 0
-    mag[:, :m] = mag[:, -m:] = 0
+    m = max(2, min(DENSE_MARGIN_PX, min(h, w) // 4))
+    mag[(ys0 < m) | (ys0 >= h - m), :] = 0
+    mag[:, (xs0 < m) | (xs0 >= w - m)] = 0
     if valid is not None:
-        mag[cv2.erode(valid.astype(np.uint8), np.ones((7, 7), np.uint8)) == 0] = 0
-    thr = _upper_quartile(mag[::3, ::3])  # a sparse grid estimates the quartile well enough
+        k = 2 * edge_px + 1
+        inner = cv2.erode(valid.astype(np.uint8), np.ones((k, k), np.uint8))
+        mag[inner[r0:r1:2, c0:c1:2] == 0] = 0
+    thr = _upper_quartile(mag[::2, ::2])  # a sparse grid estimates the quartile well enough
     pts = cv2.findNonZero((mag > max(float(thr), 1e-10)).view(np.uint8))  # row-major, as np.nonzero
     if pts is None:
         return np.zeros((0, 2), np.float32), np.zeros(0)
     pts = pts.reshape(-1, 2)  # (N, 1, 2) on OpenCV 4, (N, 2) on 5
-    xs, ys = pts[:, 0], pts[:, 1]
-    if len(xs) > count:
-        sel = np.linspace(0, len(xs) - 1, count).astype(np.int64)
-        ys, xs = ys[sel], xs[sel]
+    if len(pts) > count:
+        pts = pts[np.linspace(0, len(pts) - 1, count).astype(np.int64)]
+    xs, ys = xs0[pts[:, 0]], ys0[pts[:, 1]]
     return np.stack([xs, ys], 1).astype(np.float32), smooth[ys, xs].astype(np.float64)
 
 
@@ -631,11 +645,10 @@ B_MARGIN_PX = 8.0
 
 
 def _zgb(smooth_b: np.ndarray, valid_b: np.ndarray | None) -> np.ndarray:
-    """Height and both slopes of B (and its known mask) in one image: one remap per iteration."""
-    chans = [smooth_b, *_grad(smooth_b)]
-    if valid_b is not None:
-        chans.append(valid_b.astype(np.float32))
-    return cv2.merge(chans)
+    """B's heights (and its known mask as a second channel): what the polish samples per step."""
+    if valid_b is None:
+        return smooth_b
+    return cv2.merge([smooth_b, valid_b.astype(np.float32)])
 
 
 @dataclass
@@ -647,11 +660,12 @@ class _GNState:
     last_step_px: float = float("inf")
 
 
-def _gauss_newton(zgb: np.ndarray, x: np.ndarray, y: np.ndarray, za: np.ndarray, basis: np.ndarray,
+def _gauss_newton(zb_img: np.ndarray, x: np.ndarray, y: np.ndarray, za: np.ndarray, basis: np.ndarray,
                   st: _GNState, iters: int, gain_fit: bool) -> _GNState:
     """Gauss–Newton iterations of the B->A pose (A px -> B px as rotation ``th`` and translation
-    ``t``), height gain and bias surface, on A's samples (x, y, za) against B's ``zgb``."""
-    h, w = zgb.shape[:2]
+    ``t``), height gain and bias surface, on A's samples (x, y) and heights ``za`` against B's heights
+    ``zb_img`` (B's slopes from bilinear samples 1 px either side: no slope images of B)."""
+    h, w = zb_img.shape[:2]
     nb = basis.shape[1]
     th, t, gain, coef = st.th, st.t.copy(), st.gain, st.coef.copy()
     last = float("inf")
@@ -659,17 +673,18 @@ def _gauss_newton(zgb: np.ndarray, x: np.ndarray, y: np.ndarray, za: np.ndarray,
     for k in range(iters):
         # After two steps the samples in play are frozen: samples crossing B's margin or coverage
         # edge at every step would otherwise keep the fit cycling by a fraction of a pixel.
-        got = _gather(zgb, x, y, th, t, w, h, frozen if k >= 2 else None)
+        got = _gather(zb_img, x, y, th, t, w, h, frozen if k >= 2 else None)
         if got is None:
             break
         frozen = got[0]
-        sel, u, v, zb, bx, by, _n = got
+        sel, u, v, zb, _n = got
         zo, bas = za[sel], basis[sel]
+        gbx, gby = _b_slopes(zb_img, u, v, gain)
         npar = 3 + nb + (1 if gain_fit else 0)
         j = np.empty((len(zb), npar))
         # d(u, v)/d(theta) = (-(v - t_y), u - t_x): no second rotation of the samples.
-        j[:, 0] = gain * (by * (u - t[0]) - bx * (v - t[1]))
-        j[:, 1], j[:, 2] = gain * bx, gain * by
+        j[:, 0] = gby * (u - t[0]) - gbx * (v - t[1])
+        j[:, 1], j[:, 2] = gbx, gby
         j[:, 3:3 + nb] = bas
         if gain_fit:
             j[:, -1] = zb
@@ -692,18 +707,27 @@ def _gauss_newton(zgb: np.ndarray, x: np.ndarray, y: np.ndarray, za: np.ndarray,
     return _GNState(float(th), t, gain, coef, last)
 
 
-def _gather(zgb: np.ndarray, x: np.ndarray, y: np.ndarray, th: float, t: np.ndarray, w: int, h: int,
+def _b_slopes(zb_img: np.ndarray, u: np.ndarray, v: np.ndarray, gain: float) -> tuple[np.ndarray, np.ndarray]:
+    """gain x B's slopes (x, y) at (u, v): half the difference of bilinear samples 1 px either side
+    (the same numbers as sampling a central-difference image, in one remap of 4N points)."""
+    n = len(u)
+    uu = np.concatenate([u + 1.0, u - 1.0, u, u])
+    vv = np.concatenate([v, v, v + 1.0, v - 1.0])
+    z4 = _sample(zb_img, uu, vv)[:, 0]
+    return 0.5 * gain * (z4[:n] - z4[n:2 * n]), 0.5 * gain * (z4[2 * n:3 * n] - z4[3 * n:])
+
+
+def _gather(zb_img: np.ndarray, x: np.ndarray, y: np.ndarray, th: float, t: np.ndarray, w: int, h: int,
             only: np.ndarray | slice | None = None):
-    """A's samples moved into B by (th, t), B's height/slopes there, dropping samples outside B or
-    on its unknown pixels: (selection, u, v, zb, bx, by, n inside) or None below 8 samples.
-    only: a previous selection to keep as it is (no inside or known test)."""
+    """A's samples moved into B by (th, t) and B's heights there, dropping samples within
+    B_MARGIN_PX of B's border or on its unknown pixels: (selection, u, v, zb, n inside) or None below
+    8 samples. only: a previous selection to keep as it is (no inside or known test)."""
     c, s_ = np.cos(th), np.sin(th)
     if only is not None:
         xs, ys = x[only], y[only]
         u = c * xs - s_ * ys + t[0]
         v = s_ * xs + c * ys + t[1]
-        zb, bx, by, *_vb = _sample(zgb, u, v).T
-        return only, u, v, zb, bx, by, len(u)
+        return only, u, v, _sample(zb_img, u, v)[:, 0], len(u)
     u = c * x - s_ * y + t[0]
     v = s_ * x + c * y + t[1]
     ok, n_ok = _inside(u, v, w, h, B_MARGIN_PX)
@@ -712,15 +736,16 @@ def _gather(zgb: np.ndarray, x: np.ndarray, y: np.ndarray, th: float, t: np.ndar
     idx = np.flatnonzero(ok) if n_ok < len(x) else None
     if idx is not None:
         u, v = u[idx], v[idx]
-    zb, bx, by, *vb = _sample(zgb, u, v).T
-    if vb:
-        keep = vb[0] > 0.999
+    smp = _sample(zb_img, u, v)
+    zb = smp[:, 0]
+    if smp.shape[1] > 1:
+        keep = smp[:, 1] > 0.999
         if keep.sum() < 8:
             return None
         idx = np.flatnonzero(keep) if idx is None else idx[keep]
-        zb, bx, by, u, v = zb[keep], bx[keep], by[keep], u[keep], v[keep]
+        zb, u, v = zb[keep], u[keep], v[keep]
     sel = slice(None) if idx is None else idx
-    return sel, u, v, zb, bx, by, n_ok
+    return sel, u, v, zb, n_ok
 
 
 def _wandered(st: _GNState, start: tuple[float, np.ndarray], cx: float, cy: float) -> bool:
@@ -771,7 +796,8 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
         # Coarse to fine: blurred heights have a basin of several px; A's samples keep their places
         # and read A's blurred heights there.
         ia, ja = xy[:, 1].astype(np.intp), xy[:, 0].astype(np.intp)
-        coarse_a = cv2.GaussianBlur(fa.smooth, (0, 0), COARSE_SIGMA_PX)[ia, ja].astype(np.float64)
+        blur_a = cv2.GaussianBlur(fa.smooth, (0, 0), COARSE_SIGMA_PX)
+        coarse_a = blur_a[ia, ja].astype(np.float64)
         coarse_b = _zgb(cv2.GaussianBlur(smooth_b, (0, 0), COARSE_SIGMA_PX), valid_b)
         st = _gauss_newton(coarse_b, x, y, coarse_a, basis, st0, 2 * iters, gain_fit)
         if not _wandered(st, start, cx, cy):
@@ -790,7 +816,8 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
     got = _gather(zgb, x, y, th, t, w, h)
     if got is None:
         return fit
-    sel, _u, _v, zb, bx, by, _n = got
+    sel, u_s, v_s, zb, _n = got
+    gbx, gby = _b_slopes(zgb, u_s, v_s, gain)
     xo, yo, bas = x[sel], y[sel], basis[sel]
     zo = za[sel] - bas @ coef  # A's heights with the fitted surface between the touches removed
     a_ = zo - zo.mean()
@@ -799,7 +826,7 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
     fit.ncc = float((a_ * b_).sum() / den) if den > 1e-18 else 0.0
     # Rotate about the samples' centroid so the angle's information is not mixed with translation.
     xo, yo = xo - xo.mean(), yo - yo.mean()
-    j = np.column_stack([gain * (bx * (-s_ * xo - c * yo) + by * (c * xo - s_ * yo)), gain * bx, gain * by, bas])
+    j = np.column_stack([gbx * (-s_ * xo - c * yo) + gby * (c * xo - s_ * yo), gbx, gby, bas])
     resid = gain * b_ - a_
     var = max(float(resid @ resid) / max(len(resid) - j.shape[1], 1), noise_mm ** 2)
     try:

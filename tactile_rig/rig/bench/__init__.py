@@ -14,6 +14,8 @@
     protocol = 2
     current_limit_frac = 0.5
     calibration = "calib/gripper.json"
+    latency_timer_ms = 16          # the USB adapter's (FTDI: 16, or 1 after the udev rule)
+    retries = 2                    # of a read whose status was lost
 
     [scale]                        # Arduino HX711 load cell
     port = "rigsim://scale"

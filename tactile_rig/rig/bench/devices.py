@@ -17,6 +17,7 @@ from typing import Any, Callable, ClassVar
 from tactile_rig.core.errors import CalibrationError, LimitError
 from tactile_rig.core.files import load_json
 from tactile_rig.drivers.camera import FingertipCamera
+from tactile_rig.drivers.dynamixel.bus import DEFAULT_LATENCY_TIMER_MS
 from tactile_rig.drivers.dynamixel.gripper import DynamixelGripper, GripperCalibration
 from tactile_rig.drivers.jig import Jig
 from tactile_rig.drivers.scale import Scale
@@ -103,7 +104,9 @@ def _check_limits(problem: Problem, key: str, limits: tuple[float, float], unit:
 
 @dataclass
 class GripperConfig(DeviceConfig):
-    """Dynamixel MX-64 gripper: servo IDs, protocol, current limit and opening range (m)."""
+    """Dynamixel MX-64 gripper: servo IDs, protocol, current limit and opening range (m);
+    ``latency_timer_ms`` the USB adapter's latency timer the status timeout allows for (FTDI default
+    16 ms; the larger of this and the one read from sysfs counts), ``retries`` of idempotent reads."""
 
     baud: int = 57600
     ids: list[int] = field(default_factory=lambda: [1])
@@ -111,6 +114,8 @@ class GripperConfig(DeviceConfig):
     current_limit_frac: float = 1.0
     min_opening_m: float = 0.0
     max_opening_m: float = 0.1
+    latency_timer_ms: float = DEFAULT_LATENCY_TIMER_MS
+    retries: int = 2
 
     kind: ClassVar[str] = "gripper"
     example_port: ClassVar[str] = "/dev/serial/by-id/usb-FTDI_...-if00-port0"
@@ -131,6 +136,11 @@ class GripperConfig(DeviceConfig):
         if not 0 <= self.min_opening_m < self.max_opening_m <= 1.0:
             problem("max_opening_m", f"= {self.max_opening_m} must exceed min_opening_m = {self.min_opening_m} "
                                      ">= 0 and be at most 1 m")
+        if not 0 <= self.latency_timer_ms <= 255:
+            problem("latency_timer_ms", f"= {self.latency_timer_ms} must be in [0, 255] ms (an FTDI adapter's "
+                                        "latency timer: 16 by default, 1 after the udev rule in docs/your_bench.md)")
+        if not 0 <= self.retries <= 10:
+            problem("retries", f"= {self.retries} must be in [0, 10] (retries of a read whose status was lost)")
 
     def mock_params(self) -> dict[str, str]:
         return {"baud": str(self.baud), "ids": ",".join(str(i) for i in self.ids), "protocol": str(self.protocol)}
@@ -145,7 +155,7 @@ class GripperConfig(DeviceConfig):
                 raise CalibrationError(f"gripper calibration {self.calibration} is unreadable: {exc}; re-make it "
                                        f"with: {self.calibration_command}", device=self.name) from None
         return DynamixelGripper(self.port, dxl_id=self.ids[0], protocol=self.protocol, baudrate=self.baud,
-                                calibration=cal)
+                                calibration=cal, latency_timer_ms=self.latency_timer_ms, retries=self.retries)
 
 
 @dataclass

@@ -50,6 +50,7 @@ def settings() -> list[dict[str, Any]]:
         {"orb_features": 150},
         {"orb_features": 500},
         {"orb_levels": 4},
+        {"orb_levels": 8},
         {"detect_short_px": 96},
         {"detect_short_px": 160},
         {"detect_short_px": 240},

@@ -1,0 +1,161 @@
+"""The reconstruction's packed-table path gives the heights and the refusals of the plain formulation
+(calibration slopes -> contact mask -> checked integration -> range check), for every frame."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from tactile_rig.core.errors import HeightOutOfRange, PerceptionError
+from tactile_rig.perception.gelsight import (
+    ContactParams,
+    IntegrationParams,
+    Reconstructor,
+    calibrate_from_presses,
+    load_presses,
+)
+from tests._data import test_data
+
+MM = 0.1245
+PRESSES = test_data("taxim_gelsight_ball") / "presses"
+
+
+@pytest.fixture(scope="module")
+def presses():
+    return load_presses(PRESSES)
+
+
+@pytest.fixture(scope="module")
+def cals(presses):
+    return {"lut": calibrate_from_presses(presses, MM, 2.0, "lut", bins=32),
+            "lut20": calibrate_from_presses(presses, MM, 2.0, "lut", bins=20),  # bins no shift can make
+            "lut64": calibrate_from_presses(presses, MM, 2.0, "lut", bins=64),  # keys beyond 16 bits
+            "mlp": calibrate_from_presses(presses, MM, 2.0, "mlp")}
+
+
+def plain_height(rec: Reconstructor, frame: np.ndarray) -> np.ndarray:
+    """The reconstruction written out with the public pieces, each checking its input."""
+    cal, c = rec.calibration, rec.contact
+    cal.check_range(frame, None, c.max_saturated_fraction, c.max_out_of_range_fraction)
+    gx, gy = cal.gradients(frame, check=False)
+    z = rec.mapper.height_mm(gx, gy, mask=rec.contact_mask(frame))
+    if c.max_height_range_mm is not None:
+        lo, hi = float(z.min()), float(z.max())
+        if hi - lo > c.max_height_range_mm:
+            raise HeightOutOfRange("span", device="test", value=hi - lo, limit=c.max_height_range_mm)
+    return z
+
+
+def outcome(fn, *args):
+    try:
+        return fn(*args)
+    except PerceptionError as exc:
+        return type(exc), exc.value
+
+
+SETTINGS = [
+    ("lut", IntegrationParams(), ContactParams()),
+    ("mlp", IntegrationParams(), ContactParams()),
+    ("mlp", IntegrationParams(border_px=3), ContactParams()),
+    ("mlp", IntegrationParams(), ContactParams(colour_threshold=None)),
+    ("mlp", IntegrationParams(solver="dst"), ContactParams(colour_threshold=4.5, dilate_px=0)),
+    ("lut", IntegrationParams(solver="fc"), ContactParams(colour_threshold=30.0, dilate_px=4)),
+    ("lut64", IntegrationParams(), ContactParams()),
+    # The checked path: bins that are not a power of two, a threshold the saturated byte cannot
+    # read, downsampling, a max_slope below the table's slopes.
+    ("lut20", IntegrationParams(), ContactParams()),
+    ("mlp", IntegrationParams(), ContactParams(colour_threshold=130.0)),
+    ("mlp", IntegrationParams(downsample=2), ContactParams()),
+    ("mlp", IntegrationParams(max_slope=0.05), ContactParams()),
+]
+
+
+@pytest.mark.parametrize("model,integration,contact", SETTINGS)
+def test_packed_path_gives_the_plain_heights_on_presses(cals, presses, model, integration, contact) -> None:
+    rec = Reconstructor(cals[model], integration, contact)
+    assert (rec.calibration.packed_table() is not None) == (model != "lut20")
+    for frame in presses.frames:
+        ref = outcome(plain_height, rec, frame)
+        if isinstance(ref, tuple):  # a refusal (slopes beyond a small max_slope): the same one
+            got = outcome(rec.height_mm, frame)
+            assert isinstance(got, tuple) and got[0] is ref[0] and got[1] == pytest.approx(ref[1])
+            continue
+        z = rec.height_mm(frame)
+        assert z.dtype == np.float32 and z.shape == frame.shape[:2]
+        assert np.abs(z - ref).max() <= 1e-6  # mm; float32 rounding at most
+
+
+@settings(deadline=None, max_examples=60, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.sampled_from(["patch", "noise", "constant", "gain", "clip"]), st.integers(0, 255),
+       st.integers(0, 2**31 - 1), st.sampled_from(range(len(SETTINGS))))
+def test_packed_path_refuses_and_reads_like_the_plain_one(cals, presses, kind, value, seed, which) -> None:
+    model, integration, contact = SETTINGS[which]
+    rec = Reconstructor(cals[model], integration, contact)
+    rng = np.random.default_rng(seed)
+    base = presses.frames[seed % len(presses.frames)]
+    if kind == "patch":
+        frame = base.copy()
+        h, w = int(rng.integers(1, 120)), int(rng.integers(1, 160))
+        y, x = int(rng.integers(0, 120 - h + 1)), int(rng.integers(0, 160 - w + 1))
+        frame[y:y + h, x:x + w] = rng.integers(0, 256, 3)
+    elif kind == "noise":
+        frame = np.clip(base.astype(int) + rng.normal(0, value / 4 + 0.1, base.shape), 0, 255).astype(np.uint8)
+    elif kind == "constant":
+        frame = np.full_like(base, value)
+    elif kind == "gain":
+        frame = np.clip(base.astype(np.float32) * (value / 128.0), 0, 255).astype(np.uint8)
+    else:  # a few clipped or far-off pixels, below or above the refusal fractions
+        frame = base.copy()
+        n = int(rng.integers(1, frame.shape[0] * frame.shape[1] // 3))
+        ys, xs = rng.integers(0, frame.shape[0], n), rng.integers(0, frame.shape[1], n)
+        frame[ys, xs, int(rng.integers(0, 3))] = value
+    got, want = outcome(rec.height_mm, frame), outcome(plain_height, rec, frame)
+    if isinstance(want, tuple):
+        assert isinstance(got, tuple) and got[0] is want[0]
+        assert got[1] == pytest.approx(want[1], rel=1e-5, abs=1e-6)
+    else:
+        assert not isinstance(got, tuple)
+        assert np.abs(got - want).max() <= 1e-6
+
+
+def test_non_contiguous_frame_reads_the_same(cals, presses) -> None:
+    rec = Reconstructor(cals["mlp"])
+    frame = presses.frames[4]
+    wide = cv2.copyMakeBorder(frame, 0, 0, 0, 7, cv2.BORDER_CONSTANT)[:, :frame.shape[1]]
+    assert not wide.flags.c_contiguous
+    np.testing.assert_array_equal(rec.height_mm(wide), rec.height_mm(frame))
+
+
+@pytest.mark.parametrize("old_bytes", [0, 10, 400_000])
+def test_height_files_overwrite_old_ones_of_any_length(tmp_path, old_bytes) -> None:
+    from tactile_rig.cli.gelsight import _npy_writer
+
+    z = np.random.default_rng(1).normal(size=(24, 32)).astype(np.float32)
+    target = tmp_path / "z.npy"
+    if old_bytes:
+        target.write_bytes(b"\xab" * old_bytes)
+    _npy_writer(z.shape, np.float32)(str(target), z)
+    np.save(tmp_path / "ref.npy", z)
+    assert target.read_bytes() == (tmp_path / "ref.npy").read_bytes()
+
+
+def test_cli_folder_heights_are_the_pipeline_on_opencvs_pixels(tmp_path, capsys, cals, presses) -> None:
+    from tactile_rig.cli import main
+
+    cal = cals["mlp"]
+    cal.save(tmp_path / "cal")
+    imgs = []
+    for i in (0, 7, 19):  # written by OpenCV's default PNG writer: decoded by read_image itself
+        p = tmp_path / f"f{i}.png"
+        cv2.imwrite(str(p), presses.frames[i])
+        imgs.append(p)
+    assert main(["gelsight", "height", str(tmp_path / "cal"), *map(str, imgs), "-o", str(tmp_path / "hs")]) == 0
+    rec = Reconstructor(cal)
+    for p in imgs:
+        z = np.load(tmp_path / "hs" / (p.stem + ".npy"))
+        assert z.dtype == np.float32
+        np.testing.assert_array_equal(z, rec.height_mm(cv2.imread(str(p))))
+    capsys.readouterr()
