@@ -68,6 +68,9 @@ def settings() -> list[dict[str, Any]]:
         {"min_ncc": 0.5},
         {"min_ncc": 0.7},
         {"max_sigma_px": 0.5, "max_sigma_rot_deg": 0.5},
+        {"dense_fallback": False},
+        {"search_step_deg": 10.0},
+        {"search_min_patches": 0, "search_min_explained": 0.3},
         dict(OLD_DEFAULTS),
         {"heights_downsample": 2},
     ]
@@ -190,6 +193,9 @@ def measure(*, quick: bool, seed: int = 0) -> TradeTable:
                "dense_highpass_px": "sigma (px) of the low-pass the polish removes from the heights (0: plain heights)",
                "min_ncc, max_sigma_*, min_rotation_pinning": "refusal thresholds (one row: the pre-issue-13 "
                                                              "defaults, offset-only polish)",
+               "dense_fallback": "the dense search when keypoints fail (False: refuse instead)",
+               "search_step_deg": "rotation step of the dense search (deg)",
+               "search_min_patches/search_min_explained": "the dense search's evidence bars (one row loosened)",
                "heights_downsample": "the touches reconstructed with integration downsample 2"},
         default_note=("the front ignores wrong answers: a row that localizes more but answers even once "
                       "confidently wrong (see its note) is not a better default; among the rows with no wrong "

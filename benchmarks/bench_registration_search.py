@@ -1,0 +1,92 @@
+"""Registration of independent re-touches with and without the dense search: accuracy and speed.
+
+Run: ``python benchmarks/bench_registration_search.py [--quick] [--seeds 0,1,2] [--save]``. One core.
+For each part (usb, plate) and seed, the re-touch set of
+:mod:`tactile_rig.rig.trade.registration_data` (Li's jig protocol, 95 independent re-touches) is
+registered as fresh pairs with the defaults and, side by side in the same run, with
+``dense_fallback=False`` (keypoints only): right / wrong / refused, the MAEs, how many pairs reached
+the search, and ms per pair (each pair's best of ``--repeats`` calls, the two settings interleaved
+pair by pair, so machine load hits both alike). ``--save`` writes
+``benchmarks/results/registration_search.json``; ``--quick`` registers every third re-touch.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import argparse  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from _output import add_save_args, parse_args, save_json  # noqa: E402  (benchmarks/ is the script's folder)
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from tactile_rig.perception.gelsight import RegistrationParams, register  # noqa: E402
+from tactile_rig.rig.trade.registration_data import Score, retouch_set  # noqa: E402
+
+SETTINGS = {"defaults": RegistrationParams(), "keypoints only": RegistrationParams(dense_fallback=False)}
+
+
+def run_set(part: str, seed: int, step: int, repeats: int) -> dict:
+    """Score and time both settings on one re-touch set."""
+    data = retouch_set(part, seed=seed)
+    a = data.a.height_mm
+    pairs = list(zip(data.touches, data.truth_px))[::step]
+    scores = {k: Score() for k in SETTINGS}
+    best = {k: [float("inf")] * len(pairs) for k in SETTINGS}
+    searched = 0
+    register(a, pairs[0][0].height_mm, data.mm_per_px)  # warm-up (detector construction)
+    for rep in range(repeats):
+        for i, (t, truth) in enumerate(pairs):
+            for name, params in SETTINGS.items():
+                t0 = time.perf_counter()
+                res = register(a, t.height_mm, data.mm_per_px, params)
+                best[name][i] = min(best[name][i], time.perf_counter() - t0)
+                if rep == 0:
+                    scores[name].add(res, truth, t.height_mm.shape, data.mm_per_px)
+                    searched += name == "defaults" and res.method in ("dense_search", f"{params.detector}+dense")
+    out = {"part": part, "seed": seed, "pairs": len(pairs), "pairs_searched": int(searched)}
+    for name in SETTINGS:
+        out[name] = {**scores[name].as_dict(), "ms_per_pair_mean": 1e3 * float(np.mean(best[name])),
+                     "ms_per_pair_median": 1e3 * float(np.median(best[name]))}
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="every third re-touch")
+    ap.add_argument("--seeds", default="0", help="comma-separated re-touch set seeds (default 0)")
+    ap.add_argument("--repeats", type=int, default=3, help="timed calls per pair and setting (best kept)")
+    add_save_args(ap, "registration_search.json")
+    args = parse_args(ap)
+    cv2.setNumThreads(1)
+    seeds = [int(s) for s in args.seeds.split(",")]
+    rows = []
+    load0 = os.getloadavg()
+    print(f"{'part':6} {'seed':>4} {'setting':15} {'right':>5} {'wrong':>5} {'refused':>7} {'rot MAE':>8} "
+          f"{'trans MAE':>9} {'ms/pair':>8} {'searched':>8}")
+    for seed in seeds:
+        for part in ("usb", "plate"):
+            row = run_set(part, seed, 3 if args.quick else 1, max(1, args.repeats))
+            rows.append(row)
+            for name in SETTINGS:
+                r = row[name]
+                print(f"{part:6} {seed:>4} {name:15} {r['right']:>5} {r['wrong']:>5} {r['refused']:>7} "
+                      f"{r['rot_mae_deg']:>7.3f}° {r['trans_mae_mm']:>6.4f} mm {r['ms_per_pair_mean']:>8.2f} "
+                      f"{row['pairs_searched'] if name == 'defaults' else '':>8}")
+    save_json(args, {"opencv": cv2.__version__, "numpy": np.__version__, "quick": args.quick,
+                     "load_average_start": load0, "load_average_end": os.getloadavg(), "rows": rows})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
