@@ -773,7 +773,8 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
     outside the basin of the fine heights) is retried coarse to fine with ``coarse_retry`` (heights
     blurred by COARSE_SIGMA_PX first); a fit that still wanders is returned at the start pose with
     ``wandered=True`` and must not be accepted. ``converged`` says the last step moved the samples
-    by less than CONVERGED_STEP_PX."""
+    by less than CONVERGED_STEP_PX (with ``iters=0``, no polish asked for, the start pose is judged
+    as it is)."""
     xy, za = fa.sample_xy, fa.sample_z
     if xy is None or za is None or len(xy) < 8:
         return DenseFit(matrix_px)
@@ -812,7 +813,7 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
     v_all = s_ * x + c * y + t[1]
     fit = DenseFit(cv2.invertAffineTransform(fwd).astype(np.float64),
                    overlap=_inside(u_all, v_all, w, h)[1] / len(x), wandered=bool(wandered),
-                   converged=bool(not wandered and st.last_step_px < CONVERGED_STEP_PX))
+                   converged=bool(not wandered and (iters == 0 or st.last_step_px < CONVERGED_STEP_PX)))
     got = _gather(zgb, x, y, th, t, w, h)
     if got is None:
         return fit
