@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 
 from tactile_rig.cli import main
+from tactile_rig.perception.gelsight import IntegrationParams, Reconstructor
+from tactile_rig.rig.loaders import load_gelsight_calibration, read_frame
 from tactile_rig.perception.gelsight.synthetic import jig_move, tile, touch_at
 from tests._data import test_data
 
@@ -97,3 +99,24 @@ def test_height_files_are_the_bytes_np_save_writes(tmp_path) -> None:
     _npy_writer(z.shape, np.float32)(tmp_path / "ours.npy", z)
     np.save(tmp_path / "ref.npy", z)
     assert (tmp_path / "ours.npy").read_bytes() == (tmp_path / "ref.npy").read_bytes()
+
+
+def test_height_downsample_flag(tmp_path, capsys, presses) -> None:
+    cal = tmp_path / "cal"
+    assert main(["gelsight", "calibrate", str(presses), "--mm-per-px", MM, "--ball-radius-mm", "2.0",
+                 "--method", "lut", "-o", str(cal)]) == 0
+    frame = str(presses / "press_05.png")
+    outs = {}
+    for ds in (None, "1", "2"):
+        out = tmp_path / f"z{ds}.npy"
+        assert main(["gelsight", "height", str(cal), frame, "-o", str(out)] + (["--downsample", ds] if ds else [])) == 0
+        outs[ds] = np.load(out)
+    rec = Reconstructor(load_gelsight_calibration(str(cal)), IntegrationParams(downsample=2))
+    np.testing.assert_array_equal(outs["2"], rec.height_mm(read_frame(frame)))
+    # These 0.1245 mm pixels are solved at full resolution by default (a reduced pixel would pass 0.13 mm).
+    np.testing.assert_array_equal(outs[None], outs["1"])
+    assert not np.array_equal(outs["1"], outs["2"])
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as info:
+        main(["gelsight", "height", str(cal), frame, "-o", str(tmp_path / "x.npy"), "--downsample", "0"])
+    assert info.value.code == 2 and "downsample" in capsys.readouterr().err

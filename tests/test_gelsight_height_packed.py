@@ -64,11 +64,14 @@ SETTINGS = [
     ("mlp", IntegrationParams(solver="dst"), ContactParams(colour_threshold=4.5, dilate_px=0)),
     ("lut", IntegrationParams(solver="fc"), ContactParams(colour_threshold=30.0, dilate_px=4)),
     ("lut64", IntegrationParams(), ContactParams()),
+    # Every downsampling (reduced, scaled and solved as the checked path does: the same heights).
+    ("mlp", IntegrationParams(downsample=1), ContactParams()),
+    ("mlp", IntegrationParams(downsample=3, solver="dst"), ContactParams()),
+    ("lut", IntegrationParams(downsample=4, solver="fc", border_px=2), ContactParams()),
     # The checked path: bins that are not a power of two, a threshold the saturated byte cannot
-    # read, downsampling, a max_slope below the table's slopes.
+    # read, a max_slope below the table's slopes.
     ("lut20", IntegrationParams(), ContactParams()),
     ("mlp", IntegrationParams(), ContactParams(colour_threshold=130.0)),
-    ("mlp", IntegrationParams(downsample=2), ContactParams()),
     ("mlp", IntegrationParams(max_slope=0.05), ContactParams()),
 ]
 

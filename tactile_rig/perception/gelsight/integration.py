@@ -54,13 +54,27 @@ def _sanitise(g: np.ndarray, max_slope: float, name: str) -> np.ndarray:
     return g.astype(np.float32, copy=False)
 
 
+# The automatic downsample keeps the reduced pixel within this pitch (mm).
+AUTO_DOWNSAMPLE_PITCH_MM = 0.13
+
+
+def auto_downsample(mm_per_px_x: float, mm_per_px_y: float | None = None) -> int:
+    """The largest integer factor whose reduced pixel stays within AUTO_DOWNSAMPLE_PITCH_MM."""
+    pitch = max(float(mm_per_px_x), float(mm_per_px_x if mm_per_px_y is None else mm_per_px_y))
+    return max(1, int(AUTO_DOWNSAMPLE_PITCH_MM / pitch + 1e-9))
+
+
 @dataclass(frozen=True)
 class IntegrationParams:
     """Knobs of the integration (see docs/gelsight.md for the measured speed/accuracy trade).
 
     solver: "dst" (Dirichlet: height 0 on the border), "dct" (Neumann: border slopes honoured, mean 0)
     or "fc" (Frankot–Chellappa, periodic FFT). downsample: integer factor (>=1) applied to the
-    gradients before solving; the height is upsampled back. border_px: slopes within this many pixels
+    gradients before solving (area reduction); the height is upsampled back. None (default): the
+    largest factor that keeps the reduced pixel within AUTO_DOWNSAMPLE_PITCH_MM (0.13 mm: a GelSight
+    Mini's 0.063 mm pixels are halved, a 0.12 mm sensor is solved at full resolution): the gel's own
+    blur (0.5-0.7 mm) leaves nothing finer, and on the real presses the reduced solve is the more
+    accurate one (docs/gelsight.md). border_px: slopes within this many pixels
     of the edge are zeroed (vignetted, unreliable border). max_slope: the steepest slope accepted
     (20 = 87 deg; a calibration's slopes stay below tan 1.5 rad ~ 14); a steeper one raises
     :class:`~tactile_rig.core.errors.GradientOutOfRange` instead of being integrated into a height
@@ -68,15 +82,15 @@ class IntegrationParams:
     """
 
     solver: str = "dct"
-    downsample: int = 1
+    downsample: int | None = None
     border_px: int = 0
     max_slope: float = 20.0
 
     def __post_init__(self) -> None:
         if self.solver not in SOLVERS:
             raise ValueError(f"solver must be one of {SOLVERS}, got {self.solver!r}")
-        if int(self.downsample) != self.downsample or self.downsample < 1:
-            raise ValueError(f"downsample must be an integer >= 1, got {self.downsample!r}")
+        if self.downsample is not None and (int(self.downsample) != self.downsample or self.downsample < 1):
+            raise ValueError(f"downsample must be None (auto) or an integer >= 1, got {self.downsample!r}")
         if self.border_px < 0:
             raise ValueError(f"border_px must be >= 0, got {self.border_px!r}")
         if not (self.max_slope > 0):
@@ -106,7 +120,7 @@ class HeightMapper:
         self.params = params
         self.mm_per_px_x = float(mm_per_px_x)
         self.mm_per_px_y = float(mm_per_px_y)
-        k = int(params.downsample)
+        k = int(params.downsample) if params.downsample is not None else auto_downsample(mm_per_px_x, mm_per_px_y)
         self._k = k
         self._small = (max(3, rows // k), max(3, cols // k))
         # Slopes become height steps per (downsampled) pixel in mm.
@@ -205,6 +219,30 @@ class HeightMapper:
         if solver == "dst":
             return self._solve_dst(px, py)
         return self._solve_fc(px, py).astype(np.float32, copy=False)
+
+    def integrate_reduced(self, gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
+        """Height map in mm (float32) of slopes the caller has already made safe (finite, within
+        ``max_slope``, masked, zero on the border) but not scaled, with downsampling (``ValueError``
+        without): :meth:`height_mm`'s own steps after its checks and copies, in its order (area
+        reduction, scaling per reduced pixel, the solve, bilinear back), so the same heights."""
+        if self._k == 1:
+            raise ValueError("integrate_reduced needs downsample > 1 (use integrate_scaled)")
+        if gx.shape != self.shape or gy.shape != self.shape:
+            raise ValueError(f"slope shapes {gx.shape}, {gy.shape} do not match the mapper's shape {self.shape}")
+        size = (self._small[1], self._small[0])
+        px = cv2.resize(gx, size, interpolation=cv2.INTER_AREA)
+        py = cv2.resize(gy, size, interpolation=cv2.INTER_AREA)
+        px *= self._sx
+        py *= self._sy
+        solver = self.params.solver
+        if solver == "dst":
+            z = self._solve_dst(px, py)
+        elif solver == "dct":
+            z = self._solve_dct(px, py)
+        else:
+            z = self._solve_fc(px, py)
+        z = cv2.resize(z, (self.shape[1], self.shape[0]), interpolation=cv2.INTER_LINEAR)
+        return z.astype(np.float32, copy=False)
 
     def _solve_dst(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
         # Slopes averaged onto half-pixels, then differenced: the compact 5-point Laplacian with

@@ -78,8 +78,8 @@ class Reconstructor:
         """
         m = self.mapper
         thr = self.contact.colour_threshold
-        if m._k != 1 or (thr is not None and not thr < 127):
-            return None  # downsampled slopes are scaled after resizing; a threshold >= 127 needs |d| > 127
+        if thr is not None and not thr < 127:
+            return None  # a threshold >= 127 needs |d| > 127, which the key's clipped colours cannot show
         packed = self.calibration.packed_table()
         if packed is None or not packed.peak_slope <= self.integration.max_slope:
             return None
@@ -179,6 +179,9 @@ class Reconstructor:
             key &= cv2.merge((mask,) * (4 if wide else 2)).view(kd).reshape(h, w)  # all ones in contact, else 0
             key ^= zero
         slopes = np.take(p.table, np.add(key, p.cell_offset))
+        if self.mapper._k > 1:  # reduced, then scaled per reduced pixel, as the checked path does
+            z = self.mapper.integrate_reduced(np.ascontiguousarray(slopes.real), np.ascontiguousarray(slopes.imag))
+            return self._bounded(z)
         # Contiguous copies (the solver's differences run faster on them than on strided views),
         # scaled to mm per pixel as the checked path does.
         px = np.ascontiguousarray(slopes.real)

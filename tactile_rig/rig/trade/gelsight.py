@@ -64,12 +64,13 @@ class Setting:
     model: str  # "mlp", "poly", "lut"
     table: int | None  # bake bins (mlp, poly) or LUT bins; None: the model per pixel
     solver: str = "dct"
-    downsample: int = 1
+    downsample: int | None = None  # None: the reconstruction's automatic choice (2 on these 0.062 mm pixels)
     crop_px: int = 0
 
     def label(self) -> dict[str, Any]:
         return {"model": self.model, "table": self.table if self.table is not None else "exact",
-                "solver": self.solver, "downsample": self.downsample, "crop_px": self.crop_px}
+                "solver": self.solver, "downsample": "auto" if self.downsample is None else self.downsample,
+                "crop_px": self.crop_px}
 
     @property
     def fit_key(self) -> tuple[str, int | None]:
@@ -86,11 +87,11 @@ def settings() -> list[Setting]:
     rows += [Setting("mlp", b) for b in (16, 48)]
     rows += [Setting("poly", 32), Setting("lut", 32), Setting("lut", 16), Setting("mlp", None)]
     rows += [Setting("mlp", 32, solver=s) for s in ("dst", "fc")]
-    rows += [Setting("mlp", 32, downsample=d) for d in (2, 3)]
-    rows += [Setting("mlp", 32, downsample=2, solver="dst"), Setting("lut", 32, downsample=2),
-             Setting("poly", 32, downsample=2)]
+    rows += [Setting("mlp", 32, downsample=d) for d in (1, 2, 3)]
+    rows += [Setting("mlp", 32, downsample=1, solver="dst"), Setting("lut", 32, downsample=1),
+             Setting("poly", 32, downsample=1)]
     rows += [Setting("mlp", 32, crop_px=c) for c in (3, 6)]
-    rows += [Setting("mlp", 32, downsample=2, crop_px=3)]
+    rows += [Setting("mlp", 32, downsample=1, crop_px=3)]
     return rows
 
 

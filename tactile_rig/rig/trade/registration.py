@@ -22,8 +22,10 @@ import cv2
 import numpy as np
 
 from tactile_rig.perception.gelsight import IntegrationParams, Reconstructor, RegistrationParams, register
+from tactile_rig.perception.gelsight.integration import auto_downsample
 from tactile_rig.rig.trade.gelsight import interleaved_best_s
 from tactile_rig.rig.trade.registration_data import (
+    MINI_MM_PER_PX,
     RetouchSet,
     Score,
     mini_calibration,
@@ -43,7 +45,7 @@ PLAIN_HEIGHTS = {"dense_highpass_px": 0.0, "min_ncc": 0.9, "detect_short_px": 16
 
 def settings() -> list[dict[str, Any]]:
     """Overrides of :class:`RegistrationParams` per row ({} is the default); ``heights_downsample``
-    reconstructs the touches with that integration downsample instead of 1."""
+    reconstructs the touches with that integration downsample instead of the default."""
     return [
         {},
         {"detector": "brisk", "brisk_threshold": 10},
@@ -73,7 +75,7 @@ def settings() -> list[dict[str, Any]]:
         {"search_step_deg": 10.0},
         {"search_min_patches": 0, "search_min_explained": 0.3},
         dict(OLD_DEFAULTS),
-        {"heights_downsample": 2},
+        {"heights_downsample": 1},
     ]
 
 
@@ -135,6 +137,10 @@ def _with_heights(data: RetouchSet, downsample: int) -> RetouchSet:
     return out
 
 
+# The integration downsample the re-touch sets' heights come from (the reconstruction's automatic
+# choice: 2 on the GelSight Mini's 0.0634 mm pixels).
+HEIGHTS_DOWNSAMPLE = auto_downsample(MINI_MM_PER_PX)
+
 # Fresh pairs timed per setting: re-touches of the USB part spread over the protocol's rotations and
 # shifts (not the identity pair, which the polish settles in half the steps), timed in turn.
 TIMED_PAIRS = 4
@@ -157,18 +163,18 @@ def measure(*, quick: bool, seed: int = 0) -> TradeTable:
     rots = tuple(float(r) for r in range(-90, 91, 20)) if quick else tuple(float(r) for r in range(-90, 91, 10))
     shifts = (-2.0, 0.0, 2.0) if quick else (-2.0, -1.0, 0.0, 1.0, 2.0)
     sets = [retouch_set(part, rotations_deg=rots, shifts_mm=shifts, seed=seed) for part in ("usb", "plate")]
-    sets_ds2: list[RetouchSet] | None = None
+    sets_other_ds: list[RetouchSet] | None = None
     rows_set = settings()
     scores: list[Score] = []
     timers: list[Callable[[], Any]] = []
     for over in rows_set:
         over = dict(over)
-        ds = int(over.pop("heights_downsample", 1))
+        ds = int(over.pop("heights_downsample", HEIGHTS_DOWNSAMPLE))
         params = RegistrationParams(**over)
         data = sets
-        if ds != 1:
-            sets_ds2 = sets_ds2 or [_with_heights(s, ds) for s in sets]
-            data = sets_ds2
+        if ds != HEIGHTS_DOWNSAMPLE:
+            sets_other_ds = sets_other_ds or [_with_heights(s, ds) for s in sets]
+            data = sets_other_ds
         sc = Score()
         for d in data:
             for t, truth in zip(d.touches, d.truth_px):
@@ -212,7 +218,8 @@ def measure(*, quick: bool, seed: int = 0) -> TradeTable:
                "dense_fallback": "the dense search when keypoints fail (False: refuse instead)",
                "search_step_deg": "rotation step of the dense search (deg)",
                "search_min_patches/search_min_explained": "the dense search's evidence bars (one row loosened)",
-               "heights_downsample": "the touches reconstructed with integration downsample 2"},
+               "heights_downsample": "the touches reconstructed with this integration downsample (default "
+                                     f"{HEIGHTS_DOWNSAMPLE})"},
         default_note=("the front ignores wrong answers: a row that localizes more but answers even once "
                       "confidently wrong (see its note) is not a better default; among the rows with no wrong "
                       "answer, orb_features=500 localizes more at some speed cost, and rows that differ from the "
