@@ -17,6 +17,7 @@ import numpy as np
 from tactile_rig.cli import bench_live
 from tactile_rig.cli.args import float_in, int_in, output_dir, output_file
 from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.core.memory import keep_freed_memory
 from tactile_rig.rig.loaders import (
     load_gelsight_calibration,
     load_height_mm,
@@ -116,28 +117,11 @@ def _npy_writer(shape: tuple[int, ...], dtype: type[np.generic] | np.dtype) -> C
     return write
 
 
-def _keep_freed_memory() -> None:
-    """Let this process keep the memory it frees (glibc only; a no-op elsewhere). A frame's buffers
-    (~0.3 MB each) are otherwise handed back to the system after every frame and faulted in again,
-    page by page, for the next: about a quarter of the per-frame time of a 320x240 folder."""
-    import ctypes
-    import platform
-
-    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
-        return
-    try:
-        libc = ctypes.CDLL(None)
-        libc.mallopt(-1, 64 << 20)  # M_TRIM_THRESHOLD: keep up to 64 MB of freed heap
-        libc.mallopt(-3, 16 << 20)  # M_MMAP_THRESHOLD: blocks below 16 MB come from that heap
-    except (OSError, AttributeError):
-        pass
-
-
 def _cmd_height(args: argparse.Namespace) -> int:
     if bench_live.wants_bench(args, "calib", "images"):
         return bench_live.height(args)
     bench_live.need_files(args, "calib", "images", "output")
-    _keep_freed_memory()
+    keep_freed_memory()
     rec = _reconstructor(args.calib, args.background, args.solver)
     out = Path(args.output)
     written: list[str] = []
@@ -211,7 +195,7 @@ def _cmd_register(args: argparse.Namespace) -> int:
 
 
 def _cmd_map(args: argparse.Namespace) -> int:
-
+    keep_freed_memory()  # many touches: their buffers are reused, not faulted in afresh
     tmap = TactileMap(args.mm_per_px, canvas_factor=args.canvas_factor, params=_params(args),
                       accept_confidence=args.accept_confidence)
     rows = []
@@ -232,7 +216,7 @@ def _cmd_map(args: argparse.Namespace) -> int:
 
 
 def _cmd_localize(args: argparse.Namespace) -> int:
-
+    keep_freed_memory()  # --bench localizes frame after frame
     tmap = load_tactile_map(args.map, params=_params(args))
     if bench_live.wants_bench(args, "touch"):
         return bench_live.localize(args, tmap)

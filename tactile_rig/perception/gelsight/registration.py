@@ -677,9 +677,9 @@ def _gauss_newton(zb_img: np.ndarray, x: np.ndarray, y: np.ndarray, za: np.ndarr
         if got is None:
             break
         frozen = got[0]
-        sel, u, v, zb, _n = got
+        sel, u, v, zb, bx, by, _n = got
         zo, bas = za[sel], basis[sel]
-        gbx, gby = _b_slopes(zb_img, u, v, gain)
+        gbx, gby = gain * bx, gain * by
         npar = 3 + nb + (1 if gain_fit else 0)
         j = np.empty((len(zb), npar))
         # d(u, v)/d(theta) = (-(v - t_y), u - t_x): no second rotation of the samples.
@@ -702,32 +702,25 @@ def _gauss_newton(zb_img: np.ndarray, x: np.ndarray, y: np.ndarray, za: np.ndarr
         if gain_fit:
             # A re-touch pressed deeper shows its relief a little higher: a bounded height gain.
             gain = float(np.clip(gain + d[-1], 0.5, 2.0))
-        if last < CONVERGED_STEP_PX / 25.0:  # a thousandth of a pixel more is not worth an iteration
+        if last < CONVERGED_STEP_PX / 5.0:  # a hundredth of a pixel more is not worth an iteration
             break
     return _GNState(float(th), t, gain, coef, last)
 
 
-def _b_slopes(zb_img: np.ndarray, u: np.ndarray, v: np.ndarray, gain: float) -> tuple[np.ndarray, np.ndarray]:
-    """gain x B's slopes (x, y) at (u, v): half the difference of bilinear samples 1 px either side
-    (the same numbers as sampling a central-difference image, in one remap of 4N points)."""
-    n = len(u)
-    uu = np.concatenate([u + 1.0, u - 1.0, u, u])
-    vv = np.concatenate([v, v, v + 1.0, v - 1.0])
-    z4 = _sample(zb_img, uu, vv)[:, 0]
-    return 0.5 * gain * (z4[:n] - z4[n:2 * n]), 0.5 * gain * (z4[2 * n:3 * n] - z4[3 * n:])
-
-
 def _gather(zb_img: np.ndarray, x: np.ndarray, y: np.ndarray, th: float, t: np.ndarray, w: int, h: int,
             only: np.ndarray | slice | None = None):
-    """A's samples moved into B by (th, t) and B's heights there, dropping samples within
-    B_MARGIN_PX of B's border or on its unknown pixels: (selection, u, v, zb, n inside) or None below
-    8 samples. only: a previous selection to keep as it is (no inside or known test)."""
+    """A's samples moved into B by (th, t), B's heights and slopes there (slopes: half the difference
+    of bilinear samples 1 px either side, the same numbers as sampling a central-difference image;
+    all five samples per point in one remap), dropping samples within B_MARGIN_PX of B's border or on
+    its unknown pixels: (selection, u, v, zb, bx, by, n inside) or None below 8 samples.
+    only: a previous selection to keep as it is (no inside or known test)."""
     c, s_ = np.cos(th), np.sin(th)
     if only is not None:
         xs, ys = x[only], y[only]
         u = c * xs - s_ * ys + t[0]
         v = s_ * xs + c * ys + t[1]
-        return only, u, v, _sample(zb_img, u, v)[:, 0], len(u)
+        zb, bx, by, _known = _sample5(zb_img, u, v)
+        return only, u, v, zb, bx, by, len(u)
     u = c * x - s_ * y + t[0]
     v = s_ * x + c * y + t[1]
     ok, n_ok = _inside(u, v, w, h, B_MARGIN_PX)
@@ -736,16 +729,27 @@ def _gather(zb_img: np.ndarray, x: np.ndarray, y: np.ndarray, th: float, t: np.n
     idx = np.flatnonzero(ok) if n_ok < len(x) else None
     if idx is not None:
         u, v = u[idx], v[idx]
-    smp = _sample(zb_img, u, v)
-    zb = smp[:, 0]
-    if smp.shape[1] > 1:
-        keep = smp[:, 1] > 0.999
+    zb, bx, by, known = _sample5(zb_img, u, v)
+    if known is not None:
+        keep = known > 0.999
         if keep.sum() < 8:
             return None
         idx = np.flatnonzero(keep) if idx is None else idx[keep]
-        zb, u, v = zb[keep], u[keep], v[keep]
+        zb, bx, by, u, v = zb[keep], bx[keep], by[keep], u[keep], v[keep]
     sel = slice(None) if idx is None else idx
-    return sel, u, v, zb, n_ok
+    return sel, u, v, zb, bx, by, n_ok
+
+
+def _sample5(zb_img: np.ndarray, u: np.ndarray, v: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """B's height, x and y slopes at (u, v) and, for a two-channel image, its known mask there."""
+    n = len(u)
+    uu = np.concatenate([u, u + 1.0, u - 1.0, u, u])
+    vv = np.concatenate([v, v, v, v + 1.0, v - 1.0])
+    smp = _sample(zb_img, uu, vv)
+    z5 = smp[:, 0]
+    known = smp[:n, 1] if smp.shape[1] > 1 else None
+    return z5[:n], 0.5 * (z5[n:2 * n] - z5[2 * n:3 * n]), 0.5 * (z5[3 * n:4 * n] - z5[4 * n:]), known
 
 
 def _wandered(st: _GNState, start: tuple[float, np.ndarray], cx: float, cy: float) -> bool:
@@ -817,8 +821,8 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
     got = _gather(zgb, x, y, th, t, w, h)
     if got is None:
         return fit
-    sel, u_s, v_s, zb, _n = got
-    gbx, gby = _b_slopes(zgb, u_s, v_s, gain)
+    sel, _u, _v, zb, bx, by, _n = got
+    gbx, gby = gain * bx, gain * by
     xo, yo, bas = x[sel], y[sel], basis[sel]
     zo = za[sel] - bas @ coef  # A's heights with the fitted surface between the touches removed
     a_ = zo - zo.mean()

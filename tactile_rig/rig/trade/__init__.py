@@ -23,6 +23,7 @@ import importlib.util
 import time
 from types import ModuleType
 
+from tactile_rig.core.memory import keep_freed_memory
 from tactile_rig.rig.trade.conditions import measure_conditions
 from tactile_rig.rig.trade.table import TradeRow, TradeTable
 
@@ -80,6 +81,9 @@ def summary(name: str) -> str:
 def measure(name: str, *, quick: bool = False, seed: int = 0) -> TradeTable:
     """Measure topic ``name`` and return its table with the run's conditions recorded."""
     module = topic_module(name)
+    # Speeds are measured as the CLI runs (its per-frame commands keep freed memory): a setting's
+    # buffers are reused across calls, not faulted in afresh (tactile_rig.core.memory).
+    kept = keep_freed_memory()
     before = measure_conditions()
     t0 = time.perf_counter()
     table = module.measure(quick=quick, seed=seed)
@@ -88,6 +92,7 @@ def measure(name: str, *, quick: bool = False, seed: int = 0) -> TradeTable:
         raise TypeError(f"trade topic {name!r} returned {type(table).__name__}, expected TradeTable")
     after = measure_conditions()
     table.conditions = {**before, **table.conditions, "quick": bool(quick), "seed": int(seed),
+                        "keep_freed_memory": kept,
                         "load_1min_after": after["load_1min"], "wall_s": round(wall_s, 2)}
     return table
 

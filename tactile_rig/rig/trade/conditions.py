@@ -75,6 +75,8 @@ def conditions_text(c: dict[str, Any]) -> str:
         if c.get("load_1min_after") is not None:
             load += f" → {c['load_1min_after']}"
         parts.append(load)
+    if c.get("keep_freed_memory"):
+        parts.append("freed memory kept (as the CLI runs)")
     if "quick" in c:
         parts.append("--quick" if c["quick"] else "full run")
     if "seed" in c:
