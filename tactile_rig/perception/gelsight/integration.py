@@ -230,8 +230,20 @@ class HeightMapper:
         if gx.shape != self.shape or gy.shape != self.shape:
             raise ValueError(f"slope shapes {gx.shape}, {gy.shape} do not match the mapper's shape {self.shape}")
         size = (self._small[1], self._small[0])
-        px = cv2.resize(gx, size, interpolation=cv2.INTER_AREA)
-        py = cv2.resize(gy, size, interpolation=cv2.INTER_AREA)
+        return self._solve_reduced(cv2.resize(gx, size, interpolation=cv2.INTER_AREA),
+                                   cv2.resize(gy, size, interpolation=cv2.INTER_AREA))
+
+    def integrate_reduced_pair(self, gxy: np.ndarray) -> np.ndarray:
+        """:meth:`integrate_reduced` of both slopes as one (rows, cols, 2) float32 image (x then y),
+        reduced in one pass (the same per-channel area averages)."""
+        if self._k == 1:
+            raise ValueError("integrate_reduced_pair needs downsample > 1 (use integrate_scaled)")
+        if gxy.shape != (*self.shape, 2):
+            raise ValueError(f"slope pair shape {gxy.shape} does not match the mapper's {(*self.shape, 2)}")
+        small = cv2.resize(gxy, (self._small[1], self._small[0]), interpolation=cv2.INTER_AREA)
+        return self._solve_reduced(np.ascontiguousarray(small[..., 0]), np.ascontiguousarray(small[..., 1]))
+
+    def _solve_reduced(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
         px *= self._sx
         py *= self._sy
         solver = self.params.solver
