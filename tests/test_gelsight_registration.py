@@ -147,3 +147,29 @@ def test_nan_in_a_map_does_not_break_registration(textured) -> None:
     b[:3, :3] = np.nan
     res = register(textured, b, MM_PER_PX)
     assert res.ok and abs(res.rotation_deg - _angle(truth)) <= 0.2
+
+
+def _unrelated_tile_pairs(heights, count: int, seed: int = 1):
+    """Four presses tiled against four others (flipped or turned at random): nothing to register."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(count):
+        idx = rng.permutation(len(heights))[:8]
+        a, b = tile([heights[i] for i in idx[:4]]), tile([heights[i] for i in idx[4:]])
+        m = rng.integers(4)
+        b = np.rot90(b, 2).copy() if m == 1 else (b[::-1].copy() if m == 2 else (b[:, ::-1].copy() if m == 3 else b))
+        out.append((a, b))
+    return out
+
+
+def test_a_thin_keypoint_consensus_on_unrelated_domes_is_refused(heights) -> None:
+    # Pairs 53, 97 and 122 of this stream were placed by 9-10 ORB inliers lining up one dome with
+    # another (NCC 0.84-0.96) before a thin consensus had to agree patch by patch.
+    pairs = _unrelated_tile_pairs(heights, 123)
+    for k in (53, 97, 122):
+        a, b = pairs[k]
+        res = register(a, b, MM_PER_PX)
+        assert not res.ok and res.reason in ("dense_check_failed", "insufficient_texture", "low_confidence",
+                                             "no_consensus", "degenerate_transform"), (k, res)
+        loose = register(a, b, MM_PER_PX, search_min_patches=0, dense_fallback=False)
+        assert loose.ok and loose.method == "orb", k  # the case the patch test catches

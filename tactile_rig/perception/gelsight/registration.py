@@ -42,6 +42,12 @@ REASONS: dict[str, str] = {
 MAX_ABS_HEIGHT_MM = 50.0
 # Li's confidence is computed on the inliers within this residual (px) of the rigid fit.
 CONFIDENCE_PX = 2.0
+# A keypoint answer with fewer RANSAC inliers than this and a dense NCC below WEAK_CONSENSUS_NCC must
+# also pass the patch agreement of the dense search (search_min_patches): 9-10 inliers lined up
+# unrelated ball-press tiles (3 of 240 pairs, NCC 0.84-0.96), while most re-touches the fast path
+# localizes carry 30-120 and a small touch on a tactile map (too few patches to count) reads 0.999.
+WEAK_CONSENSUS_INLIERS = 30
+WEAK_CONSENSUS_NCC = 0.98
 
 
 @dataclass
@@ -1042,9 +1048,17 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
                                    bias_order=params.dense_bias_order)
                 if fit.ncc >= params.min_ncc and fit.overlap >= params.min_overlap:
                     if _pinned(fit, params):
-                        return _result(True, fit.matrix_px, *shapes, scale, conf, n_inl, method, None,  # type: ignore[arg-type]
-                                       len(pa), fit.ncc)
-                    keypoint_reason = INSUFFICIENT_TEXTURE
+                        # A thin consensus (a handful of inliers) can line up two unrelated domes: it
+                        # must also agree patch by patch, as a dense-search pose must.
+                        if (n_inl >= WEAK_CONSENSUS_INLIERS or fit.ncc >= WEAK_CONSENSUS_NCC
+                                or params.search_min_patches <= 0
+                                or _agreeing_patches(fa, fb, fit.matrix_px, params.search_patch_px)
+                                >= params.search_min_patches):
+                            return _result(True, fit.matrix_px, *shapes, scale, conf, n_inl, method, None,  # type: ignore[arg-type]
+                                           len(pa), fit.ncc)
+                        keypoint_reason = MISMATCH
+                    else:
+                        keypoint_reason = INSUFFICIENT_TEXTURE
                 else:
                     keypoint_reason = MISMATCH
             else:
