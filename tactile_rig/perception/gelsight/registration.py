@@ -44,9 +44,9 @@ MAX_ABS_HEIGHT_MM = 50.0
 CONFIDENCE_PX = 2.0
 # A keypoint answer with fewer RANSAC inliers than this and a dense NCC below WEAK_CONSENSUS_NCC must
 # also pass the patch agreement of the dense search (search_min_patches): 9-10 inliers lined up
-# unrelated ball-press tiles (3 of 240 pairs, NCC 0.84-0.96), while most re-touches the fast path
-# localizes carry 30-120 and a small touch on a tactile map (too few patches to count) reads 0.999.
-WEAK_CONSENSUS_INLIERS = 30
+# unrelated ball-press tiles (3 of 240 pairs, NCC 0.84-0.96), while the USB re-touches the fast path
+# localizes carry 25-120 and a small touch on a tactile map (too few patches to count) reads 0.999.
+WEAK_CONSENSUS_INLIERS = 20
 WEAK_CONSENSUS_NCC = 0.98
 
 
@@ -884,7 +884,8 @@ PATCH_AGREE_NCC = 0.5
 
 def _agreeing_patches(fa: Features, fb: Features, matrix_px: np.ndarray, patch_px: int) -> int:
     """Square patches of A (side ``patch_px``) inside the overlap where the polished heights of A
-    and of B warped by ``matrix_px`` both carry relief and correlate (see search_min_patches)."""
+    and of B warped by ``matrix_px`` both carry relief and correlate (see search_min_patches). The
+    patch moments are area means (one OpenCV reduction per moment image, float32)."""
     za, zb = fa.smooth, fb.smooth
     if za is None or zb is None:
         return 0
@@ -898,22 +899,23 @@ def _agreeing_patches(fa: Features, fb: Features, matrix_px: np.ndarray, patch_p
     kb = cv2.warpAffine(known_b, matrix_px, (w, h), flags=cv2.INTER_LINEAR) > 0.999
     if fa.valid is not None:
         kb &= fa.valid
-    crop = (slice(0, rows * p), slice(0, cols * p))
+    hh, ww = rows * p, cols * p
+    m = kb[:hh, :ww].astype(np.float32)
+    x = za[:hh, :ww] * m
+    y = wb[:hh, :ww] * m
 
-    def cells(x: np.ndarray) -> np.ndarray:  # (rows, cols, p * p)
-        return x[crop].reshape(rows, p, cols, p).swapaxes(1, 2).reshape(rows, cols, p * p)
+    def mean(v: np.ndarray) -> np.ndarray:  # per patch, over all its pixels
+        return cv2.resize(v, (cols, rows), interpolation=cv2.INTER_AREA).astype(np.float64)
 
-    m = cells(kb.astype(np.float64))
-    n = m.sum(-1)
-    full = n >= 0.9 * p * p  # patches (nearly) all inside the overlap
+    n = mean(m)  # the known fraction of each patch
+    full = n >= 0.9  # patches (nearly) all inside the overlap
     if not full.any():
         return 0
-    x, y = cells(za.astype(np.float64)) * m, cells(wb.astype(np.float64)) * m
-    nn = np.maximum(n, 1.0)
-    xm, ym = x.sum(-1) / nn, y.sum(-1) / nn
-    sxx = (x * x).sum(-1) / nn - xm * xm
-    syy = (y * y).sum(-1) / nn - ym * ym
-    sxy = (x * y).sum(-1) / nn - xm * ym
+    nn = np.maximum(n, 1.0 / (p * p))
+    xm, ym = mean(x) / nn, mean(y) / nn
+    sxx = mean(x * x) / nn - xm * xm
+    syy = mean(y * y) / nn - ym * ym
+    sxy = mean(x * y) / nn - xm * ym
     energy = np.maximum(sxx, syy)
     strong = full & (energy >= PATCH_ENERGY_SHARE * float(energy[full].max()))
     ncc = sxy / np.sqrt(np.maximum(sxx * syy, 1e-30))
