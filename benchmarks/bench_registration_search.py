@@ -8,6 +8,12 @@ registered as fresh pairs with the defaults and, side by side in the same run, w
 the search, and ms per pair (each pair's best of ``--repeats`` calls, the two settings interleaved
 pair by pair, so machine load hits both alike). ``--save`` writes
 ``benchmarks/results/registration_search.json``; ``--quick`` registers every third re-touch.
+
+``--must-refuse [N]`` also registers pairs that must be refused, with every setting: N pairs of
+unrelated real ball-press tiles (default 480,
+:func:`~tactile_rig.rig.trade.registration_data.unrelated_tile_pairs`) and each part's re-touches
+against the other part's map; it prints how many each setting placed, by method (0 is the only
+right answer).
 """
 
 from __future__ import annotations
@@ -31,9 +37,38 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from tactile_rig.perception.gelsight import RegistrationParams, register  # noqa: E402
-from tactile_rig.rig.trade.registration_data import Score, retouch_set  # noqa: E402
+from tactile_rig.rig.trade.registration_data import (  # noqa: E402
+    TAXIM_MM_PER_PX,
+    Score,
+    retouch_set,
+    unrelated_tile_pairs,
+)
 
 SETTINGS = {"defaults": RegistrationParams(), "keypoints only": RegistrationParams(dense_fallback=False)}
+# Looser settings measured on the must-refuse pairs beside the defaults (trade rows ahead of the default).
+LOOSER = {"inlier_px=6": RegistrationParams(inlier_px=6.0),
+          "search bars loosened": RegistrationParams(search_min_patches=0, search_min_explained=0.3)}
+
+
+def must_refuse(n_tiles: int) -> dict:
+    """Placements (by method) of every setting on pairs with nothing to register."""
+    groups: dict[str, list[tuple[np.ndarray, np.ndarray, float]]] = {
+        "unrelated ball-press tiles": [(a, b, TAXIM_MM_PER_PX) for a, b in unrelated_tile_pairs(n_tiles)]}
+    usb, plate = retouch_set("usb"), retouch_set("plate")
+    groups["other part's re-touches"] = ([(plate.a.height_mm, t.height_mm, plate.mm_per_px) for t in usb.touches]
+                                         + [(usb.a.height_mm, t.height_mm, usb.mm_per_px) for t in plate.touches])
+    out: dict = {}
+    for group, pairs in groups.items():
+        out[group] = {"pairs": len(pairs)}
+        for name, params in {**SETTINGS, **LOOSER}.items():
+            placed: dict[str, int] = {}
+            for a, b, mm in pairs:
+                res = register(a, b, mm, params)
+                if res.ok:
+                    placed[res.method] = placed.get(res.method, 0) + 1
+            out[group][name] = placed
+            print(f"must refuse: {group} ({len(pairs)} pairs), {name}: placed {sum(placed.values())} {placed or ''}")
+    return out
 
 
 def run_set(part: str, seed: int, step: int, repeats: int) -> dict:
@@ -66,6 +101,9 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="every third re-touch")
     ap.add_argument("--seeds", default="0", help="comma-separated re-touch set seeds (default 0)")
     ap.add_argument("--repeats", type=int, default=3, help="timed calls per pair and setting (best kept)")
+    ap.add_argument("--must-refuse", type=int, nargs="?", const=480, default=0, metavar="N",
+                    help="also count placements on N unrelated tile pairs (default 480) and the other part's "
+                    "re-touches")
     add_save_args(ap, "registration_search.json")
     args = parse_args(ap)
     cv2.setNumThreads(1)
@@ -83,8 +121,10 @@ def main() -> int:
                 print(f"{part:6} {seed:>4} {name:15} {r['right']:>5} {r['wrong']:>5} {r['refused']:>7} "
                       f"{r['rot_mae_deg']:>7.3f}° {r['trans_mae_mm']:>6.4f} mm {r['ms_per_pair_mean']:>8.2f} "
                       f"{row['pairs_searched'] if name == 'defaults' else '':>8}")
+    refuse = must_refuse(args.must_refuse) if args.must_refuse else None
     save_json(args, {"opencv": cv2.__version__, "numpy": np.__version__, "quick": args.quick,
-                     "load_average_start": load0, "load_average_end": os.getloadavg(), "rows": rows})
+                     "load_average_start": load0, "load_average_end": os.getloadavg(), "rows": rows,
+                     "must_refuse": refuse})
     return 0
 
 

@@ -13,6 +13,7 @@ from tactile_rig.perception.gelsight import (
 from tactile_rig.core.errors import NoContact
 from tactile_rig.perception.gelsight.registration import NO_CONTACT
 from tactile_rig.perception.gelsight.synthetic import jig_move, tile
+from tactile_rig.rig.trade.registration_data import unrelated_tile_pairs
 from tests._data import test_data
 
 MM_PER_PX = 0.1245
@@ -149,23 +150,10 @@ def test_nan_in_a_map_does_not_break_registration(textured) -> None:
     assert res.ok and abs(res.rotation_deg - _angle(truth)) <= 0.2
 
 
-def _unrelated_tile_pairs(heights, count: int, seed: int = 1):
-    """Four presses tiled against four others (flipped or turned at random): nothing to register."""
-    rng = np.random.default_rng(seed)
-    out = []
-    for _ in range(count):
-        idx = rng.permutation(len(heights))[:8]
-        a, b = tile([heights[i] for i in idx[:4]]), tile([heights[i] for i in idx[4:]])
-        m = rng.integers(4)
-        b = np.rot90(b, 2).copy() if m == 1 else (b[::-1].copy() if m == 2 else (b[:, ::-1].copy() if m == 3 else b))
-        out.append((a, b))
-    return out
-
-
 def test_a_thin_keypoint_consensus_on_unrelated_domes_is_refused(heights) -> None:
     # Pairs 53, 97 and 122 of this stream were placed by 9-10 ORB inliers lining up one dome with
     # another (NCC 0.84-0.96) before a thin consensus had to agree patch by patch.
-    pairs = _unrelated_tile_pairs(heights, 123)
+    pairs = unrelated_tile_pairs(123, heights=tuple(heights))
     for k in (53, 97, 122):
         a, b = pairs[k]
         res = register(a, b, MM_PER_PX)

@@ -33,6 +33,8 @@ from tactile_rig.perception.gelsight import (
     load_presses,
     register,
 )
+from tactile_rig.perception.gelsight.synthetic import tile
+from tactile_rig.rig.trade.gelsight import _presses_dir
 from tactile_rig.sim.render import gelsight as render
 from tactile_rig.sim.world import objects
 
@@ -192,3 +194,32 @@ def score_pairs(data: RetouchSet, params: RegistrationParams | None = None,
         res = register(data.a.height_mm, t.height_mm, data.mm_per_px, params)
         sc.add(res, truth, t.height_mm.shape, data.mm_per_px)
     return sc
+
+
+# -- pairs that must be refused -------------------------------------------------------------------
+TAXIM_MM_PER_PX = 0.1245
+
+
+@lru_cache(maxsize=1)
+def taxim_heights() -> tuple[np.ndarray, ...]:
+    """Height maps (mm) of the 30 real Taxim ball presses, through a 32-bin LUT fitted on them all."""
+    presses = load_presses(_presses_dir())
+    rec = Reconstructor(calibrate_from_presses(presses, TAXIM_MM_PER_PX, 2.0, "lut", bins=32))
+    return tuple(rec.height_mm(f) for f in presses.frames)
+
+
+def unrelated_tile_pairs(count: int, seed: int = 1,
+                         heights: tuple[np.ndarray, ...] | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``count`` pairs of 240x320 maps with nothing to register: four real presses tiled 2x2 against
+    four others (turned by 180 deg, flipped or as they are, at random). Domes that line up at some
+    pose, the sensor's own gel texture in both: what a registration must refuse, never place."""
+    hs = taxim_heights() if heights is None else heights
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(count):
+        idx = rng.permutation(len(hs))[:8]
+        a, b = tile([hs[i] for i in idx[:4]]), tile([hs[i] for i in idx[4:]])
+        m = int(rng.integers(4))
+        b = np.rot90(b, 2).copy() if m == 1 else (b[::-1].copy() if m == 2 else (b[:, ::-1].copy() if m == 3 else b))
+        out.append((a, b))
+    return out
