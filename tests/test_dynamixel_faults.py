@@ -296,10 +296,12 @@ def test_the_gripper_sees_not_connected_and_works_after_replug(monkeypatch) -> N
         assert g.state().hardware_error == 0
 
 
-@pytest.mark.parametrize("protocol", [2, 1])
-def test_a_servo_that_lost_power_with_the_port_is_not_driven_as_if_holding(monkeypatch, protocol: int) -> None:
+@pytest.mark.parametrize("protocol,power_lost", [(2, True), (1, True), (2, False)])
+def test_after_a_replug_a_servo_that_lost_power_is_not_driven_as_if_holding(monkeypatch, protocol: int,
+                                                                               power_lost: bool) -> None:
     # The adapter and the servo's supply on one hub: unplugged together, the servo comes back with
-    # torque off and its RAM at defaults. A move must not wait for motion that never comes.
+    # torque off and its RAM at defaults, and a move must not wait for motion that never comes. A
+    # replug that kept the servo powered leaves it holding and the driver active.
     plug = Plug(monkeypatch)
     clock = VirtualClock()
     dev = make_bus(protocol=protocol, ids=[1], timing=True, return_delay_us=0)
@@ -309,30 +311,17 @@ def test_a_servo_that_lost_power_with_the_port_is_not_driven_as_if_holding(monke
         plug.plugged = False
         with pytest.raises(NotConnected):
             g.state()
-        dev.servo(1).reboot(clock.now_s(), 0.0)  # power lost: torque off, RAM defaults
+        if power_lost:
+            dev.servo(1).reboot(clock.now_s(), 0.0)  # torque off, RAM defaults
         plug.plugged = True
         clock.advance(1.0)
-        with pytest.raises(NotConnected, match="torque is off"):
-            g.gripper_go(0.05, 0.3)
-        assert g.lifecycle == Lifecycle.CONNECTED and not g.state().active
-        g.activate()
+        if power_lost:
+            with pytest.raises(NotConnected, match="torque is off"):
+                g.gripper_go(0.05, 0.3)
+            assert g.lifecycle == Lifecycle.CONNECTED and not g.state().active
+            g.activate()
         assert g.gripper_go(0.05, 0.3, blocking=False) == GripperOutcome.MOVING
-        assert dev.servo(1).torque_on
-
-
-def test_a_replug_that_kept_the_servo_powered_keeps_it_active(monkeypatch) -> None:
-    plug = Plug(monkeypatch)
-    clock = VirtualClock()
-    dev = make_bus(protocol=2, ids=[1], timing=True, return_delay_us=0)
-    with serve_in_process(dev, clock) as url, DynamixelGripper(url) as g:
-        g.activate()
-        plug.plugged = False
-        with pytest.raises(NotConnected):
-            g.state()
-        plug.plugged = True
-        clock.advance(1.0)
-        assert g.gripper_go(0.05, 0.3, blocking=False) == GripperOutcome.MOVING
-        assert g.lifecycle == Lifecycle.ACTIVE and g.state().active
+        assert g.lifecycle == Lifecycle.ACTIVE and g.state().active and dev.servo(1).torque_on
 
 
 def test_torque_lost_without_a_fault_reads_as_not_active(monkeypatch) -> None:

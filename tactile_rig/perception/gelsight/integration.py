@@ -186,21 +186,11 @@ class HeightMapper:
             gy *= self._border
         if self._k > 1:
             size = (self._small[1], self._small[0])
-            gx = cv2.resize(gx, size, interpolation=cv2.INTER_AREA)
-            gy = cv2.resize(gy, size, interpolation=cv2.INTER_AREA)
+            return self._solve_reduced(cv2.resize(gx, size, interpolation=cv2.INTER_AREA),
+                                       cv2.resize(gy, size, interpolation=cv2.INTER_AREA))
         gx *= self._sx
         gy *= self._sy
-        px, py = gx, gy
-        solver = p.solver
-        if solver == "dst":
-            z = self._solve_dst(px, py)
-        elif solver == "dct":
-            z = self._solve_dct(px, py)
-        else:
-            z = self._solve_fc(px, py)
-        if self._k > 1:
-            z = cv2.resize(z, (self.shape[1], self.shape[0]), interpolation=cv2.INTER_LINEAR)
-        return z.astype(np.float32, copy=False)
+        return self._solve(gx, gy)
 
     def integrate_scaled(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
         """Height map in mm (float32) of slopes the caller has already made safe: finite, within
@@ -213,12 +203,7 @@ class HeightMapper:
             raise ValueError("integrate_scaled needs downsample=1 (the slopes are scaled per output pixel)")
         if px.shape != self.shape or py.shape != self.shape:
             raise ValueError(f"slope shapes {px.shape}, {py.shape} do not match the mapper's shape {self.shape}")
-        solver = self.params.solver
-        if solver == "dct":
-            return self._solve_dct(px, py)
-        if solver == "dst":
-            return self._solve_dst(px, py)
-        return self._solve_fc(px, py).astype(np.float32, copy=False)
+        return self._solve(px, py)
 
     def integrate_reduced(self, gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
         """Height map in mm (float32) of slopes the caller has already made safe (finite, within
@@ -244,8 +229,14 @@ class HeightMapper:
         return self._solve_reduced(np.ascontiguousarray(small[..., 0]), np.ascontiguousarray(small[..., 1]))
 
     def _solve_reduced(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
+        """Reduced slopes (modified in place): scaled per reduced pixel, solved, brought back bilinearly."""
         px *= self._sx
         py *= self._sy
+        z = self._solve(px, py)
+        return cv2.resize(z, (self.shape[1], self.shape[0]), interpolation=cv2.INTER_LINEAR)
+
+    def _solve(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
+        """Height steps per pixel -> heights (float32) by the configured solver."""
         solver = self.params.solver
         if solver == "dst":
             z = self._solve_dst(px, py)
@@ -253,7 +244,6 @@ class HeightMapper:
             z = self._solve_dct(px, py)
         else:
             z = self._solve_fc(px, py)
-        z = cv2.resize(z, (self.shape[1], self.shape[0]), interpolation=cv2.INTER_LINEAR)
         return z.astype(np.float32, copy=False)
 
     def _solve_dst(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
