@@ -259,20 +259,11 @@ def _blur(z: np.ndarray, sigma: float) -> np.ndarray:
     return cv2.blur(cv2.blur(z, (k, k)), (k, k))
 
 
-def _lowpass(z: np.ndarray, sigma_px: float, valid: np.ndarray | None) -> np.ndarray:
-    """Box-Gaussian low-pass; over ``valid`` only (normalised convolution) when given, so the zeros
-    outside a tactile map's coverage do not leak into its edge."""
-    if valid is None:
-        return _blur(z, sigma_px)
-    w = valid.astype(np.float32)
-    num = _blur(z * w, sigma_px)
-    den = _blur(w, sigma_px)
-    return num / np.maximum(den, 1e-3)
-
-
 def _lowpass_coarse(z: np.ndarray, sigma_px: float, valid: np.ndarray | None) -> np.ndarray:
-    """:func:`_lowpass` computed on the map area-reduced by up to 4 (to a sigma of >= 1.5 px there)
-    and brought back by bilinear resize: a wide low-pass at a fraction of the full-size cost."""
+    """Gaussian low-pass of sigma ``sigma_px``, over ``valid`` only when given (normalised
+    convolution: the zeros outside a tactile map's coverage do not leak into its edge), computed on the
+    map area-reduced by up to 4 (to a sigma of >= 1.5 px there) and brought back by bilinear resize:
+    a wide low-pass at a fraction of the full-size cost."""
     f = int(np.clip(sigma_px // 1.5, 1, 4))
     if f == 1 or min(z.shape) < 8 * f:
         w = None if valid is None else valid.astype(np.float32)
@@ -650,7 +641,7 @@ DENSE_MARGIN_PX = 2
 B_MARGIN_PX = 8.0
 
 
-def _zgb(smooth_b: np.ndarray, valid_b: np.ndarray | None) -> np.ndarray:
+def _b_image(smooth_b: np.ndarray, valid_b: np.ndarray | None) -> np.ndarray:
     """B's heights (and its known mask as a second channel): what the polish samples per step."""
     if valid_b is None:
         return smooth_b
@@ -789,7 +780,7 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
     if xy is None or za is None or len(xy) < 8:
         return DenseFit(matrix_px)
     h, w = smooth_b.shape
-    zgb = _zgb(smooth_b, valid_b)
+    zb_img = _b_image(smooth_b, valid_b)
     inv = cv2.invertAffineTransform(matrix_px)  # A px -> B px
     x, y = xy[:, 0].astype(np.float64), xy[:, 1].astype(np.float64)
     basis = _bias_basis(x, y, int(bias_order))
@@ -797,11 +788,11 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
                    np.zeros(basis.shape[1]))
     start = (st0.th, st0.t.copy())
     cx, cy = float(x.mean()), float(y.mean())
-    st = _gauss_newton(zgb, x, y, za, basis, st0, iters, gain_fit)
+    st = _gauss_newton(zb_img, x, y, za, basis, st0, iters, gain_fit)
     for _ in range(2):  # a start a few degrees off needs more than ``iters`` steps to settle
         if st.last_step_px < CONVERGED_STEP_PX or _wandered(st, start, cx, cy):
             break
-        st = _gauss_newton(zgb, x, y, za, basis, st, iters, gain_fit)
+        st = _gauss_newton(zb_img, x, y, za, basis, st, iters, gain_fit)
     wandered = _wandered(st, start, cx, cy)
     if wandered and coarse_retry and iters > 0 and fa.smooth is not None:
         # Coarse to fine: blurred heights have a basin of several px; A's samples keep their places
@@ -809,10 +800,10 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
         ia, ja = xy[:, 1].astype(np.intp), xy[:, 0].astype(np.intp)
         blur_a = cv2.GaussianBlur(fa.smooth, (0, 0), COARSE_SIGMA_PX)
         coarse_a = blur_a[ia, ja].astype(np.float64)
-        coarse_b = _zgb(cv2.GaussianBlur(smooth_b, (0, 0), COARSE_SIGMA_PX), valid_b)
+        coarse_b = _b_image(cv2.GaussianBlur(smooth_b, (0, 0), COARSE_SIGMA_PX), valid_b)
         st = _gauss_newton(coarse_b, x, y, coarse_a, basis, st0, 2 * iters, gain_fit)
         if not _wandered(st, start, cx, cy):
-            st = _gauss_newton(zgb, x, y, za, basis, st, iters, gain_fit)
+            st = _gauss_newton(zb_img, x, y, za, basis, st, iters, gain_fit)
         wandered = _wandered(st, start, cx, cy)
     if wandered:
         st = _GNState(start[0], start[1].copy(), 1.0, np.zeros(basis.shape[1]))
@@ -824,7 +815,7 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
     fit = DenseFit(cv2.invertAffineTransform(fwd).astype(np.float64),
                    overlap=_inside(u_all, v_all, w, h)[1] / len(x), wandered=bool(wandered),
                    converged=bool(not wandered and (iters == 0 or st.last_step_px < CONVERGED_STEP_PX)))
-    got = _gather(zgb, x, y, th, t, w, h)
+    got = _gather(zb_img, x, y, th, t, w, h)
     if got is None:
         return fit
     sel, _u, _v, zb, bx, by, _n = got
