@@ -11,9 +11,10 @@ pair by pair, so machine load hits both alike). ``--save`` writes
 
 ``--must-refuse [N]`` also registers pairs that must be refused, with every setting: N pairs of
 unrelated real ball-press tiles (default 480,
-:func:`~tactile_rig.rig.trade.registration_data.unrelated_tile_pairs`) and each part's re-touches
-against the other part's map; it prints how many each setting placed, by method (0 is the only
-right answer).
+:func:`~tactile_rig.rig.trade.registration_data.unrelated_tile_pairs`), each part's re-touches
+against the other part's map, and the re-touches of two other plates of the same kind (their own
+seeded features) against the plate's map; it prints how many each setting placed, by method (0 is
+the only right answer).
 """
 
 from __future__ import annotations
@@ -57,6 +58,9 @@ def must_refuse(n_tiles: int) -> dict:
     usb, plate = retouch_set("usb"), retouch_set("plate")
     groups["other part's re-touches"] = ([(plate.a.height_mm, t.height_mm, plate.mm_per_px) for t in usb.touches]
                                          + [(usb.a.height_mm, t.height_mm, usb.mm_per_px) for t in plate.touches])
+    groups["other plates' re-touches"] = [(plate.a.height_mm, t.height_mm, plate.mm_per_px)
+                                          for other in ("other_plate_8", "other_plate_9")
+                                          for t in retouch_set(other, seed=3).touches]
     out: dict = {}
     for group, pairs in groups.items():
         out[group] = {"pairs": len(pairs)}
@@ -102,8 +106,8 @@ def main() -> int:
     ap.add_argument("--seeds", default="0", help="comma-separated re-touch set seeds (default 0)")
     ap.add_argument("--repeats", type=int, default=3, help="timed calls per pair and setting (best kept)")
     ap.add_argument("--must-refuse", type=int, nargs="?", const=480, default=0, metavar="N",
-                    help="also count placements on N unrelated tile pairs (default 480) and the other part's "
-                    "re-touches")
+                    help="also count placements on N unrelated tile pairs (default 480), the other part's "
+                    "re-touches and two other plates' re-touches")
     add_save_args(ap, "registration_search.json")
     args = parse_args(ap)
     cv2.setNumThreads(1)

@@ -95,6 +95,9 @@ def _sensor_to_object(obj: objects.HeightField, pose: tuple[float, float, float]
 PARTS = {
     "plate": lambda: objects.plate_with_features(mm_per_px=0.05),
     "usb": lambda: objects.usb_connector_part(mm_per_px=0.05),
+    # Plates of the same kind with their own seeded features: parts a plate map never saw.
+    "other_plate_8": lambda: objects.plate_with_features(mm_per_px=0.05, seed=8),
+    "other_plate_9": lambda: objects.plate_with_features(mm_per_px=0.05, seed=9),
 }
 
 
