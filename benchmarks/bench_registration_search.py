@@ -110,6 +110,8 @@ def main() -> int:
                     "re-touches and two other plates' re-touches")
     add_save_args(ap, "registration_search.json")
     args = parse_args(ap)
+    if args.must_refuse < 0 or args.repeats < 1:
+        ap.error(f"--must-refuse N must be >= 1 (got {args.must_refuse}) and --repeats >= 1 (got {args.repeats})")
     cv2.setNumThreads(1)
     seeds = [int(s) for s in args.seeds.split(",")]
     rows = []

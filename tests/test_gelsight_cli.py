@@ -9,6 +9,7 @@ import pytest
 
 from tactile_rig.cli import main
 from tactile_rig.perception.gelsight import IntegrationParams, Reconstructor
+from tactile_rig.rig.live_perception import GelSightHeightStep
 from tactile_rig.rig.loaders import load_gelsight_calibration, read_frame
 from tactile_rig.perception.gelsight.synthetic import jig_move, tile, touch_at
 from tests._data import test_data
@@ -120,3 +121,19 @@ def test_height_downsample_flag(tmp_path, capsys, presses) -> None:
     with pytest.raises(SystemExit) as info:
         main(["gelsight", "height", str(cal), frame, "-o", str(tmp_path / "x.npy"), "--downsample", "0"])
     assert info.value.code == 2 and "downsample" in capsys.readouterr().err
+
+
+def test_live_height_step_takes_the_integration_knobs(tmp_path, presses) -> None:
+    # 'gelsight height --bench --solver/--downsample' builds its step with them (they were ignored).
+    cal = tmp_path / "cal"
+    assert main(["gelsight", "calibrate", str(presses), "--mm-per-px", MM, "--ball-radius-mm", "2.0",
+                 "--method", "lut", "-o", str(cal)]) == 0
+    calib = load_gelsight_calibration(str(cal))
+    frame = read_frame(str(presses / "press_05.png"))
+    step = GelSightHeightStep(calib, integration=IntegrationParams(downsample=2, solver="dst"))
+    step(frame, 0.0)
+    np.testing.assert_array_equal(step.last, Reconstructor(calib, IntegrationParams(downsample=2, solver="dst"))
+                                  .height_mm(frame))
+    plain = GelSightHeightStep(calib)
+    plain(frame, 0.0)
+    assert not np.array_equal(plain.last, step.last)

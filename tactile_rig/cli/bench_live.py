@@ -21,6 +21,7 @@ import numpy as np
 from tactile_rig.cli.args import any_int, finite_float
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.common import print_json
+from tactile_rig.perception.gelsight import IntegrationParams
 from tactile_rig.rig.bench_camera import camera_name
 from tactile_rig.rig.camera_calibrations import camera_calibrations, describe_files
 from tactile_rig.rig.live import DEFAULT_LIVE_PORT, LiveServer
@@ -156,7 +157,9 @@ def height(args: argparse.Namespace) -> int:
     cam = args.camera or next((k for k, c in bench.cameras.items() if c.sensor == "gelsight"), None)
     if cam is None:
         raise ValueError(f"{bench.source}: no camera with sensor = \"gelsight\"")
-    step = GelSightHeightStep(gelsight_calibration_for(bench, cam, args.calib))
+    knobs = {k: v for k in ("solver", "downsample") if (v := getattr(args, k, None))}
+    step = GelSightHeightStep(gelsight_calibration_for(bench, cam, args.calib),
+                              integration=IntegrationParams(**knobs) if knobs else None)
     args.camera = cam
 
     def line(r: dict[str, Any]) -> str:

@@ -21,7 +21,7 @@ import numpy as np
 
 from tactile_rig.core.errors import CalibrationError
 from tactile_rig.perception.fingervision import FingerVision, FingerVisionParams
-from tactile_rig.perception.gelsight import GelSightCalibration, Reconstructor
+from tactile_rig.perception.gelsight import GelSightCalibration, IntegrationParams, Reconstructor
 from tactile_rig.rig.bench import Bench
 from tactile_rig.rig.bench_camera import camera_name, open_camera
 from tactile_rig.rig.camera_calibrations import CameraCalibrations, FingerVisionCalibration
@@ -98,8 +98,9 @@ class GelSightHeightStep:
 
     name = "height"
 
-    def __init__(self, calibration: GelSightCalibration, *, contact_mm: float = 0.02) -> None:
-        self.rec = Reconstructor(calibration)
+    def __init__(self, calibration: GelSightCalibration, *, contact_mm: float = 0.02,
+                 integration: IntegrationParams | None = None) -> None:
+        self.rec = Reconstructor(calibration, integration)
         self.mm2_per_px = float(calibration.mm_per_px_x) * float(calibration.mm_per_px_y)
         self.contact_mm = float(contact_mm)
         self.last: np.ndarray | None = None

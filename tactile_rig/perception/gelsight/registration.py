@@ -130,8 +130,9 @@ class RegistrationParams:
     side and at least this many of them must carry relief (10 % of the strongest patch's) and
     correlate (NCC >= 0.5) at the pose: relief spread over the overlap, not two lone domes that a
     rigid move can always line up (such pairs agree on 6-8 patches of 24 px, plate re-touches on
-    11-30). A search answer must also pass min_overlap
-    and the pinning bars.
+    11-30); the same agreement is asked of a keypoint answer with a thin consensus (fewer than
+    WEAK_CONSENSUS_INLIERS inliers and a dense NCC under WEAK_CONSENSUS_NCC). A search answer must
+    also pass min_overlap and the pinning bars.
     """
 
     detector: str = "orb"

@@ -48,7 +48,7 @@ BALL_RADIUS_MM = 2.0
 MINI_DOWNSAMPLE = auto_downsample(MM_PER_PX / 2)
 
 
-def _presses_dir() -> Path:
+def presses_dir() -> Path:
     env = os.environ.get("TACTILE_RIG_GELSIGHT_PRESSES")
     if env:
         return Path(env)
@@ -166,7 +166,7 @@ def gs_sdk_style_height(model: object, background: np.ndarray, mm_per_px: float 
 def measure(*, quick: bool, seed: int = 0) -> TradeTable:
     """Held-out press error and 240x320 frames/s for every setting of :func:`settings`."""
     cv2.setNumThreads(1)
-    presses = load_presses(_presses_dir())
+    presses = load_presses(presses_dir())
     n = len(presses.frames)
     folds = 5 if quick else n
     rows_set = settings()

@@ -34,7 +34,7 @@ from tactile_rig.perception.gelsight import (
     register,
 )
 from tactile_rig.perception.gelsight.synthetic import tile
-from tactile_rig.rig.trade.gelsight import _presses_dir
+from tactile_rig.rig.trade.gelsight import presses_dir
 from tactile_rig.sim.render import gelsight as render
 from tactile_rig.sim.world import objects
 
@@ -206,7 +206,7 @@ TAXIM_MM_PER_PX = 0.1245
 @lru_cache(maxsize=1)
 def taxim_heights() -> tuple[np.ndarray, ...]:
     """Height maps (mm) of the 30 real Taxim ball presses, through a 32-bin LUT fitted on them all."""
-    presses = load_presses(_presses_dir())
+    presses = load_presses(presses_dir())
     rec = Reconstructor(calibrate_from_presses(presses, TAXIM_MM_PER_PX, 2.0, "lut", bins=32))
     return tuple(rec.height_mm(f) for f in presses.frames)
 
