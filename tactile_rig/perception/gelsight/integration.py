@@ -228,6 +228,20 @@ class HeightMapper:
         small = cv2.resize(gxy, (self._small[1], self._small[0]), interpolation=cv2.INTER_AREA)
         return self._solve_reduced(np.ascontiguousarray(small[..., 0]), np.ascontiguousarray(small[..., 1]))
 
+    def integrate_block_sums(self, sums: np.ndarray, count: int) -> np.ndarray:
+        """:meth:`integrate_reduced` of slopes given as their sums over each reduced pixel's block:
+        ``sums`` is complex (gx + 1j gy) of the reduced shape, each the sum of ``count`` full-size
+        slopes (made safe as for :meth:`integrate_reduced`); only where the blocks tile the map
+        exactly (rows and cols multiples of the factor), where it equals the area reduction."""
+        if self._k == 1 or self.shape != (self._small[0] * self._k, self._small[1] * self._k):
+            raise ValueError(f"integrate_block_sums needs a downsample that tiles {self.shape} exactly")
+        if sums.shape != self._small or count != self._k * self._k:
+            raise ValueError(f"block sums of shape {sums.shape} over {count} px do not match the reduced "
+                             f"shape {self._small} of {self._k} x {self._k} blocks")
+        mean = np.float32(1.0 / count)
+        return self._solve_reduced(np.multiply(sums.real, mean, dtype=np.float32),
+                                   np.multiply(sums.imag, mean, dtype=np.float32))
+
     def _solve_reduced(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
         """Reduced slopes (modified in place): scaled per reduced pixel, solved, brought back bilinearly."""
         px *= self._sx

@@ -178,8 +178,19 @@ class Reconstructor:
             key ^= zero
             key &= cv2.merge((mask,) * (4 if wide else 2)).view(kd).reshape(h, w)  # all ones in contact, else 0
             key ^= zero
-        slopes = np.take(p.table, np.add(key, p.cell_offset))
-        if self.mapper._k > 1:  # reduced, then scaled per reduced pixel, as the checked path does
+        index = np.add(key, p.cell_offset)
+        k = self.mapper._k
+        if k > 1 and h % k == 0 and w % k == 0:
+            # Each reduced pixel's slope is the mean of its k x k pixels' entries: gathered block
+            # phase by block phase and summed, the area reduction without the full-size slope image.
+            acc = np.take(p.table, index[0::k, 0::k])
+            for i in range(k):
+                for j in range(k):
+                    if i or j:
+                        acc += np.take(p.table, index[i::k, j::k])
+            return self._bounded(self.mapper.integrate_block_sums(acc, k * k))
+        slopes = np.take(p.table, index)
+        if k > 1:  # reduced, then scaled per reduced pixel, as the checked path does
             # The complex slopes as a two-channel float32 image: one area reduction for both.
             z = self.mapper.integrate_reduced_pair(slopes.view(np.float32).reshape(h, w, 2))
             return self._bounded(z)
