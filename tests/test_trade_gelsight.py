@@ -32,6 +32,7 @@ def test_gelsight_settings_have_one_default_and_cover_every_knob() -> None:
     assert {s.model for s in rows} == {"mlp", "poly", "lut"}
     assert {s.solver for s in rows} == {"dct", "dst", "fc"}
     assert {s.downsample for s in rows} >= {1, 2} and {s.crop_px for s in rows} >= {0, 3}
+    assert {s.lookup for s in rows} == {"full", "reduced"}
     assert {s.table for s in rows} >= {16, 32, 48, None}
 
 
