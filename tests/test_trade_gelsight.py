@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from tactile_rig.perception.gelsight import RegistrationParams
+from tactile_rig.perception.gelsight import IntegrationParams, RegistrationParams
 from tactile_rig.perception.gelsight.registration import RegistrationResult
 from tactile_rig.rig import trade
 from tactile_rig.rig.trade import gelsight as topic_gelsight
@@ -41,7 +41,7 @@ def test_registration_settings_are_valid_params_with_one_default() -> None:
     assert sum(not r for r in rows) == 1
     for over in rows:
         over = dict(over)
-        over.pop("heights_downsample", None)
+        IntegrationParams(downsample=over.pop("heights_downsample", None), lookup=over.pop("heights_lookup", "full"))
         RegistrationParams(**over)  # every override names a real knob with a valid value
 
 
