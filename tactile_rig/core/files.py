@@ -276,7 +276,9 @@ _ZIP_LOCAL_HEADER = struct.Struct("<4s22xHH")  # signature ... file name length,
 def _stored_member(path: Path, info: zipfile.ZipInfo, what: str) -> bytearray | None:
     """The bytes of an uncompressed zip member, read into a writable buffer and checked against its
     CRC-32 (ISA-L's with the ``fast`` extra); None when its local header is not where the directory
-    says (zipfile then reads it and names the damage)."""
+    says or its sizes disagree (zipfile then reads it and names the damage)."""
+    if info.compress_size != info.file_size:  # a stored member's two sizes are one: the bounded one counts
+        return None
     with open(path, "rb") as fh:
         fh.seek(info.header_offset)
         head = fh.read(_ZIP_LOCAL_HEADER.size)
