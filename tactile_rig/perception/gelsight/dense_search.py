@@ -249,3 +249,63 @@ def rotation_search(height_a_mm: np.ndarray, height_b_mm: np.ndarray, *, highpas
         cands.append(SearchCandidate(m_full, float(best_ncc[i]), float(best_n[i] / small),
                                      float((ang + 180.0) % 360.0 - 180.0)))
     return SearchResult(tuple(cands), f)
+
+
+# The spread agreement of a pose (agreeing_patches): a patch carries relief when its height variance
+# is at least SPREAD_ENERGY_SHARE of the SPREAD_REF_QUANTILE quantile of the overlap's patches (a
+# robust reference: one deep hole or tall ridge does not silence the rest, as a share of the single
+# strongest patch did), and agrees when the two touches' heights correlate there at least
+# SPREAD_AGREE_NCC.
+SPREAD_REF_QUANTILE = 0.9
+SPREAD_ENERGY_SHARE = 0.1
+SPREAD_AGREE_NCC = 0.6
+# A patch takes part when at least this share of it lies inside both maps' known pixels.
+SPREAD_FULL_SHARE = 0.9
+
+
+def agreeing_patches(height_a: np.ndarray, height_b: np.ndarray, matrix_px: np.ndarray, patch_px: int = 24,
+                     valid_a: np.ndarray | None = None, valid_b: np.ndarray | None = None) -> int:
+    """How many square patches (side ``patch_px``, on A's grid) of the overlap both carry relief and
+    agree when B is moved into A by ``matrix_px`` (B->A, px): independent local evidence for the pose.
+
+    height_a / height_b: the two maps' high-passed heights (mm; any unit, only correlations count);
+    valid_*: known pixels (None: all). A right re-touch of the plate agrees on 26-65 patches of 24 px,
+    the best wrong pose of unrelated maps (tiled real ball presses, other parts, other plates) on at
+    most 20 (docs/gelsight.md). Patch moments are area means (one OpenCV reduction per moment image).
+    """
+    za = np.asarray(height_a, np.float32)
+    zb = np.asarray(height_b, np.float32)
+    h, w = za.shape
+    p = int(patch_px)
+    rows, cols = h // p, w // p
+    if p < 1 or rows < 1 or cols < 1:
+        return 0
+    known_b = np.ones(zb.shape, np.float32) if valid_b is None else np.asarray(valid_b, np.float32)
+    wb = cv2.warpAffine(zb, matrix_px, (w, h), flags=cv2.INTER_LINEAR)
+    kb = cv2.warpAffine(known_b, matrix_px, (w, h), flags=cv2.INTER_LINEAR) > 0.999
+    if valid_a is not None:
+        kb &= np.asarray(valid_a, bool)
+    hh, ww = rows * p, cols * p
+    m = kb[:hh, :ww].astype(np.float32)
+    x = np.nan_to_num(za[:hh, :ww]) * m
+    y = np.nan_to_num(wb[:hh, :ww]) * m
+
+    def mean(v: np.ndarray) -> np.ndarray:  # per patch, over all its pixels
+        return cv2.resize(v, (cols, rows), interpolation=cv2.INTER_AREA).astype(np.float64)
+
+    n = mean(m)
+    full = n >= SPREAD_FULL_SHARE
+    if not full.any():
+        return 0
+    nn = np.maximum(n, 1.0 / (p * p))
+    xm, ym = mean(x) / nn, mean(y) / nn
+    sxx = mean(x * x) / nn - xm * xm
+    syy = mean(y * y) / nn - ym * ym
+    sxy = mean(x * y) / nn - xm * ym
+    energy = np.maximum(sxx, syy)
+    ref = float(np.quantile(energy[full], SPREAD_REF_QUANTILE))
+    if not np.isfinite(ref) or ref <= 0.0:
+        return 0
+    strong = full & (energy >= SPREAD_ENERGY_SHARE * ref)
+    ncc = sxy / np.sqrt(np.maximum(sxx * syy, 1e-30))
+    return int(np.count_nonzero(strong & (ncc >= SPREAD_AGREE_NCC)))

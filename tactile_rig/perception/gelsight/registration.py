@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from tactile_rig.core.errors import DegenerateTransform, HeightOutOfRange, NoContact, PerceptionError
-from tactile_rig.perception.gelsight.dense_search import rotation_search
+from tactile_rig.perception.gelsight.dense_search import agreeing_patches, rotation_search
 
 INSUFFICIENT_TEXTURE = "insufficient_texture"
 NO_CONSENSUS = "no_consensus"
@@ -120,19 +120,22 @@ class RegistrationParams:
     runs on maps reduced by this factor (full px per coarse px); search_step_deg: rotation step of
     the sweep over the full circle; search_candidates: best poses (local maxima over rotation)
     polished and checked; search_min_explained: the share of A's high-passed relief the polished
-    pose explains (NCC^2 x overlap) below this is refused (a search tries every pose, so it needs
-    more evidence than a keypoint consensus: at 0.5 a pose must cover at least half of A and
-    correlate at >= 0.71; unrelated dome fields reach 0.46, right plate re-touches 0.44-0.9);
-    search_min_ratio: the pose must explain this many times more of A's relief than any other
+    pose explains (NCC^2 x overlap) below this is refused (a floor: right plate re-touches explain
+    0.45-0.9); search_min_agreeing: the evidence a search pose needs, the overlap's square patches of
+    search_patch_px that carry relief and agree at the pose
+    (:func:`~tactile_rig.perception.gelsight.dense_search.agreeing_patches`: local evidence spread over
+    the overlap, which a rigid move cannot line up by chance: right plate re-touches agree on 26 or
+    more, the best wrong pose of 860 pairs that must be refused on at most 20);
+    search_min_ratio: the pose must agree on this many times more patches than any distinct
     candidate pose, else the content is ambiguous (blobs and domes fit several poses);
     search_min_support: at least this many of the keypoint matches must agree with the pose within
-    inlier_px; search_patch_px / search_min_patches: the overlap is cut into square patches of this
-    side and at least this many of them must carry relief (10 % of the strongest patch's) and
-    correlate (NCC >= 0.5) at the pose: relief spread over the overlap, not two lone domes that a
-    rigid move can always line up (such pairs agree on 6-8 patches of 24 px, plate re-touches on
-    11-30); the same agreement is asked of a keypoint answer with a thin consensus (fewer than
-    WEAK_CONSENSUS_INLIERS inliers and a dense NCC under WEAK_CONSENSUS_NCC). A search answer must
-    also pass min_overlap and the pinning bars.
+    inlier_px (0 by default: a right re-touch that keypoints failed on keeps 1-3 of them, a wrong
+    pose of tiled domes up to 15); search_patch_px / search_min_patches: a keypoint answer with a
+    thin consensus (fewer than WEAK_CONSENSUS_INLIERS inliers and a dense NCC under
+    WEAK_CONSENSUS_NCC) must agree on search_min_patches patches of this side that carry relief (10 %
+    of the strongest patch's) and correlate (NCC >= 0.5): relief spread over the overlap, not two
+    lone domes that a rigid move can always line up (such pairs agree on 6-8 patches of 24 px). A
+    search answer must also pass min_overlap and the pinning bars.
     """
 
     detector: str = "orb"
@@ -165,11 +168,12 @@ class RegistrationParams:
     search_coarse_px: int = 8
     search_step_deg: float = 6.0
     search_candidates: int = 5
-    search_min_explained: float = 0.5
-    search_min_ratio: float = 2.0
-    search_min_support: int = 2
+    search_min_explained: float = 0.3
+    search_min_ratio: float = 1.5
+    search_min_support: int = 0
     search_patch_px: int = 24
     search_min_patches: int = 10
+    search_min_agreeing: int = 23
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -184,7 +188,8 @@ class RegistrationParams:
         search_ranges = {"search_highpass_px": (0.5, 256.0), "search_coarse_px": (1, 64), "search_step_deg": (0.1, 45.0),
                          "search_candidates": (1, 32), "search_min_explained": (0.0, 1.0),
                          "search_min_ratio": (1.0, 1e6), "search_min_support": (0, 1_000_000),
-                         "search_patch_px": (4, 4096), "search_min_patches": (0, 1_000_000)}
+                         "search_patch_px": (4, 4096), "search_min_patches": (0, 1_000_000),
+                         "search_min_agreeing": (0, 1_000_000)}
         for name, (lo, hi) in search_ranges.items():
             value = getattr(self, name)
             if not lo <= value <= hi:  # also refuses NaN
@@ -918,11 +923,12 @@ def _dense_search(a: np.ndarray, b: np.ndarray, fa: Features, fb: Features, pa: 
                   params: RegistrationParams) -> tuple[DenseFit | None, float]:
     """The answer when keypoints fail: :func:`~tactile_rig.perception.gelsight.dense_search.rotation_search`
     on high-passed heights, each candidate polished by :func:`dense_refine` (fa's samples, fb's
-    heights, as the keypoint answer's). The best polished pose is accepted only when it passes
-    search_min_explained, min_overlap and the pinning bars, explains search_min_ratio times more of A's
-    relief (NCC^2 x overlap) than any distinct candidate (content that fits several poses is
-    ambiguous: blobs, domes), is confirmed by at least search_min_support of the keypoint matches
-    (pa in A, pb in B) within inlier_px and agrees on search_min_patches patches of the overlap.
+    heights, as the keypoint answer's). A polished pose is acceptable when it passes
+    search_min_explained, min_overlap and the pinning bars and agrees on search_min_agreeing patches
+    (:func:`~tactile_rig.perception.gelsight.dense_search.agreeing_patches`); the one agreeing on
+    most is accepted only when it agrees on search_min_ratio times more patches than any distinct
+    candidate (content that fits several poses is ambiguous: blobs, domes) and at least
+    search_min_support of the keypoint matches (pa in A, pb in B) lie within inlier_px of it.
     Returns (accepted fit or None, the best polished NCC)."""
     found = rotation_search(
         a, b, highpass_px=params.search_highpass_px, coarse_px=params.search_coarse_px,
@@ -935,26 +941,29 @@ def _dense_search(a: np.ndarray, b: np.ndarray, fa: Features, fb: Features, pa: 
     if not fits:
         return None, float("nan")
     best_ncc = max(f.ncc for f in fits)
-    passed = [f for f in fits if _search_bars(f, params)]
+    # Evidence per pose: the patches of the overlap that carry relief and agree (0 for a pose
+    # overlapping too little to count).
+    agree = [agreeing_patches(fa.smooth, fb.smooth, f.matrix_px, params.search_patch_px, fa.valid, fb.valid)  # type: ignore[arg-type]
+             if f.overlap >= params.min_overlap else 0 for f in fits]
+    passed = [i for i, f in enumerate(fits) if agree[i] >= params.search_min_agreeing and _search_bars(f, params)]
     if not passed:
         return None, best_ncc
-    top = max(passed, key=lambda f: f.ncc)
+    i_top = max(passed, key=lambda i: (agree[i], fits[i].ncc))
+    top = fits[i_top]
     centre_b = np.array([(b.shape[1] - 1) / 2.0, (b.shape[0] - 1) / 2.0])
-    explained = top.ncc * top.ncc * top.overlap
-    for other in fits:
-        if other is top or _same_pose(other.matrix_px, top.matrix_px, centre_b):
+    for j, other in enumerate(fits):
+        if j == i_top or _same_pose(other.matrix_px, top.matrix_px, centre_b):
             continue
-        if other.overlap >= params.min_overlap and explained < params.search_min_ratio * other.ncc ** 2 * other.overlap:
-            return None, best_ncc  # another pose fits nearly as well: ambiguous content
-    if len(pa):
-        res = pb @ top.matrix_px[:, :2].T + top.matrix_px[:, 2] - pa
-        support = int(np.count_nonzero(np.einsum("ij,ij->i", res, res) < params.inlier_px ** 2))
-    else:
-        support = 0
-    if support < params.search_min_support:
-        return None, best_ncc
-    if _agreeing_patches(fa, fb, top.matrix_px, params.search_patch_px) < params.search_min_patches:
-        return None, best_ncc  # the agreement rests on a few lone features
+        if agree[i_top] < params.search_min_ratio * agree[j]:
+            return None, best_ncc  # another pose is backed by nearly as much evidence: ambiguous content
+    if params.search_min_support > 0:
+        if len(pa):
+            res = pb @ top.matrix_px[:, :2].T + top.matrix_px[:, 2] - pa
+            support = int(np.count_nonzero(np.einsum("ij,ij->i", res, res) < params.inlier_px ** 2))
+        else:
+            support = 0
+        if support < params.search_min_support:
+            return None, best_ncc
     return top, top.ncc
 
 
