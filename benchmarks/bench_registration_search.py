@@ -15,6 +15,14 @@ unrelated real ball-press tiles (default 480,
 against the other part's map, and the re-touches of two other plates of the same kind (their own
 seeded features) against the plate's map; it prints how many each setting placed, by method (0 is
 the only right answer).
+
+``--margin`` (with ``--must-refuse``) measures the dense search's evidence on every pair, whatever
+the keypoints did: every candidate pose polished, its agreeing patches counted
+(:func:`~tactile_rig.perception.gelsight.dense_search.agreeing_patches`); it prints the worst right
+pose of the re-touches (fewest agreeing patches, and the smallest ratio to a wrong candidate of the
+same pair) against the best wrong pose anywhere (the re-touches' wrong candidates and every
+candidate of the pairs that must be refused): the margin the defaults
+(``search_min_agreeing``, ``search_min_ratio``) sit in.
 """
 
 from __future__ import annotations
@@ -38,9 +46,13 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from tactile_rig.perception.gelsight import RegistrationParams, register  # noqa: E402
+from tactile_rig.perception.gelsight.dense_search import agreeing_patches, rotation_search  # noqa: E402
+from tactile_rig.perception.gelsight.registration import dense_refine, detect_scale, extract_features  # noqa: E402
 from tactile_rig.rig.trade.registration_data import (  # noqa: E402
     TAXIM_MM_PER_PX,
     Score,
+    is_right,
+    pose_error,
     retouch_set,
     unrelated_tile_pairs,
 )
@@ -48,11 +60,13 @@ from tactile_rig.rig.trade.registration_data import (  # noqa: E402
 SETTINGS = {"defaults": RegistrationParams(), "keypoints only": RegistrationParams(dense_fallback=False)}
 # Looser settings measured on the must-refuse pairs beside the defaults (trade rows ahead of the default).
 LOOSER = {"inlier_px=6": RegistrationParams(inlier_px=6.0),
-          "search bars loosened": RegistrationParams(search_min_patches=0, search_min_explained=0.3)}
+          "search bars loosened": RegistrationParams(search_min_agreeing=15, search_min_ratio=1.0)}
+# A candidate this close to the truth is neither right nor wrong for the margin (deg, mm).
+NEAR_ROT_DEG, NEAR_TRANS_MM = 2.0, 0.2
 
 
-def must_refuse(n_tiles: int) -> dict:
-    """Placements (by method) of every setting on pairs with nothing to register."""
+def refuse_groups(n_tiles: int) -> dict[str, list[tuple[np.ndarray, np.ndarray, float]]]:
+    """The pairs that must be refused, by group: (A, B, mm per px)."""
     groups: dict[str, list[tuple[np.ndarray, np.ndarray, float]]] = {
         "unrelated ball-press tiles": [(a, b, TAXIM_MM_PER_PX) for a, b in unrelated_tile_pairs(n_tiles)]}
     usb, plate = retouch_set("usb"), retouch_set("plate")
@@ -61,6 +75,86 @@ def must_refuse(n_tiles: int) -> dict:
     groups["other plates' re-touches"] = [(plate.a.height_mm, t.height_mm, plate.mm_per_px)
                                           for other in ("other_plate_8", "other_plate_9")
                                           for t in retouch_set(other, seed=3).touches]
+    return groups
+
+
+def search_evidence(a: np.ndarray, b: np.ndarray, params: RegistrationParams) -> list[tuple[np.ndarray, int, float, bool]]:
+    """Every dense-search candidate of the pair as register polishes it: (B->A matrix px, agreeing
+    patches, 1-sigma translation px, passes the per-pose bars but the patch count), wandered
+    polishes left out, 0 patches below min_overlap."""
+    k = detect_scale(params, b.shape)
+    fa = extract_features(a, params, scale=k)
+    fb = extract_features(b, params, dense=False, scale=k)
+    found = rotation_search(a, b, highpass_px=params.search_highpass_px, coarse_px=params.search_coarse_px,
+                            step_deg=params.search_step_deg, max_candidates=params.search_candidates,
+                            valid_a=fa.valid, valid_b=fb.valid)
+    out = []
+    for c in found.candidates:
+        f = dense_refine(fa, fb.smooth, c.matrix_px, params.refine_iters, gain_fit=params.dense_gain,
+                         valid_b=fb.valid, bias_order=params.dense_bias_order)
+        if f.wandered or not np.isfinite(f.ncc):
+            continue
+        n = agreeing_patches(fa.smooth, fb.smooth, f.matrix_px, params.search_patch_px, fa.valid, fb.valid) \
+            if f.overlap >= params.min_overlap else 0
+        bars = (f.converged and f.overlap >= params.min_overlap and f.rotation_pinning >= params.min_rotation_pinning
+                and f.sigma_rot_deg <= params.max_sigma_rot_deg and f.sigma_px <= params.max_sigma_px
+                and max(f.ncc, 0.0) ** 2 * f.overlap >= params.search_min_explained)
+        out.append((f.matrix_px, n, f.sigma_px, bool(bars)))
+    return out
+
+
+def margin(seeds: list[int], n_tiles: int) -> dict:
+    """The worst right pose of the re-touches against the best wrong poses (agreeing patches; the
+    wrong poses agreeing on search_min_agreeing or more, by their 1-sigma translation)."""
+    params = RegistrationParams()
+    right_min = (10**9, "")
+    ratio_min = (float("inf"), "")
+    wrong_max = {}  # group -> (agreeing patches, where)
+    many = (float("inf"), "")  # smallest sigma px of a wrong pose agreeing on search_min_agreeing or more
+    passing = 0  # wrong poses passing every per-pose bar
+
+    def wrong(group: str, n: int, sigma: float, bars: bool, where: str) -> None:
+        nonlocal many, passing
+        wrong_max[group] = max(wrong_max.get(group, (-1, "")), (n, where))
+        if n >= params.search_min_agreeing:
+            many = min(many, (sigma, where))
+            passing += bars
+
+    for seed in seeds:
+        for part in ("usb", "plate"):
+            data = retouch_set(part, seed=seed)
+            for i, (t, truth) in enumerate(zip(data.touches, data.truth_px)):
+                right, other = [], []
+                where = f"{part} seed {seed} re-touch {i}"
+                for m, n, sigma, bars in search_evidence(data.a.height_mm, t.height_mm, params):
+                    err = pose_error(m, truth, t.height_mm.shape, data.mm_per_px)
+                    if is_right(*err):
+                        right.append(n)
+                    elif err[0] > NEAR_ROT_DEG or err[1] > NEAR_TRANS_MM:
+                        other.append(n)
+                        wrong(f"{part} re-touches' wrong candidates", n, sigma, bars, where)
+                if right:
+                    right_min = min(right_min, (max(right), where))
+                    ratio_min = min(ratio_min, (max(right) / max(max(other, default=0), 1), where))
+    for group, pairs in refuse_groups(n_tiles).items():
+        for i, (a, b, _mm) in enumerate(pairs):
+            for _m, n, sigma, bars in search_evidence(a, b, params):
+                wrong(group, n, sigma, bars, f"pair {i}")
+    print(f"margin: right poses agree on >= {right_min[0]} patches ({right_min[1]}) and on >= {ratio_min[0]:.2f}x "
+          f"their pair's best wrong candidate ({ratio_min[1]}); defaults search_min_agreeing="
+          f"{params.search_min_agreeing}, search_min_ratio={params.search_min_ratio}")
+    for group, (n, where) in wrong_max.items():
+        print(f"margin: best wrong pose, {group}: {n} agreeing patches ({where})")
+    print(f"margin: wrong poses agreeing on >= {params.search_min_agreeing} patches pin translation to "
+          f">= {many[0]:.3f} px 1-sigma ({many[1]}; max_sigma_px {params.max_sigma_px}); wrong poses passing every "
+          f"per-pose bar: {passing}")
+    return {"right_min_agreeing": right_min, "right_min_ratio": ratio_min, "wrong_max_agreeing": wrong_max,
+            "wrong_agreeing_min_sigma_px": many, "wrong_passing_pose_bars": passing}
+
+
+def must_refuse(n_tiles: int) -> dict:
+    """Placements (by method) of every setting on pairs with nothing to register."""
+    groups = refuse_groups(n_tiles)
     out: dict = {}
     for group, pairs in groups.items():
         out[group] = {"pairs": len(pairs)}
@@ -108,6 +202,9 @@ def main() -> int:
     ap.add_argument("--must-refuse", type=int, nargs="?", const=480, default=0, metavar="N",
                     help="also count placements on N unrelated tile pairs (default 480), the other part's "
                     "re-touches and two other plates' re-touches")
+    ap.add_argument("--margin", action="store_true",
+                    help="with --must-refuse: the dense search's agreeing patches, worst right pose against the "
+                    "best wrong pose on every pair")
     add_save_args(ap, "registration_search.json")
     args = parse_args(ap)
     if args.must_refuse < 0 or args.repeats < 1:
@@ -128,9 +225,10 @@ def main() -> int:
                       f"{r['rot_mae_deg']:>7.3f}° {r['trans_mae_mm']:>6.4f} mm {r['ms_per_pair_mean']:>8.2f} "
                       f"{row['pairs_searched'] if name == 'defaults' else '':>8}")
     refuse = must_refuse(args.must_refuse) if args.must_refuse else None
+    gap = margin(seeds, args.must_refuse) if args.margin and args.must_refuse else None
     save_json(args, {"opencv": cv2.__version__, "numpy": np.__version__, "quick": args.quick,
                      "load_average_start": load0, "load_average_end": os.getloadavg(), "rows": rows,
-                     "must_refuse": refuse})
+                     "must_refuse": refuse, "margin": gap})
     return 0
 
 

@@ -269,9 +269,12 @@ def agreeing_patches(height_a: np.ndarray, height_b: np.ndarray, matrix_px: np.n
     agree when B is moved into A by ``matrix_px`` (B->A, px): independent local evidence for the pose.
 
     height_a / height_b: the two maps' high-passed heights (mm; any unit, only correlations count);
-    valid_*: known pixels (None: all). A right re-touch of the plate agrees on 26-65 patches of 24 px,
-    the best wrong pose of unrelated maps (tiled real ball presses, other parts, other plates) on at
-    most 20 (docs/gelsight.md). Patch moments are area means (one OpenCV reduction per moment image).
+    valid_*: known pixels (None: all). Measured on 240x320 maps with 24 px patches (docs/gelsight.md):
+    the right pose of a plate or usb re-touch agrees on 26-68 patches; the best wrong pose of pairs
+    with nothing to register (tiled real ball presses, the other part, other plates) on at most 20;
+    a part's turned twin (the usb panel at 180 deg) on up to 33, which this count alone does not
+    refuse (the polish's pinning bars and the uniqueness ratio do). Patch moments are area means
+    (one OpenCV reduction per moment image).
     """
     za = np.asarray(height_a, np.float32)
     zb = np.asarray(height_b, np.float32)
@@ -280,15 +283,22 @@ def agreeing_patches(height_a: np.ndarray, height_b: np.ndarray, matrix_px: np.n
     rows, cols = h // p, w // p
     if p < 1 or rows < 1 or cols < 1:
         return 0
-    known_b = np.ones(zb.shape, np.float32) if valid_b is None else np.asarray(valid_b, np.float32)
-    wb = cv2.warpAffine(zb, matrix_px, (w, h), flags=cv2.INTER_LINEAR)
-    kb = cv2.warpAffine(known_b, matrix_px, (w, h), flags=cv2.INTER_LINEAR) > 0.999
+    # Non-finite and absurd heights (beyond MAX_ABS_HEIGHT_MM) count as unknown, as in the search.
+    known_a = np.abs(np.nan_to_num(za, nan=np.inf)) <= MAX_ABS_HEIGHT_MM
+    known_b = np.abs(np.nan_to_num(zb, nan=np.inf)) <= MAX_ABS_HEIGHT_MM
     if valid_a is not None:
-        kb &= np.asarray(valid_a, bool)
+        known_a &= np.asarray(valid_a, bool)
+    if valid_b is not None:
+        known_b &= np.asarray(valid_b, bool)
+    za = np.where(known_a, za, 0.0).astype(np.float32)
+    zb = np.where(known_b, zb, 0.0).astype(np.float32)
+    wb = cv2.warpAffine(zb, matrix_px, (w, h), flags=cv2.INTER_LINEAR)
+    kb = cv2.warpAffine(known_b.astype(np.float32), matrix_px, (w, h), flags=cv2.INTER_LINEAR) > 0.999
+    kb &= known_a
     hh, ww = rows * p, cols * p
     m = kb[:hh, :ww].astype(np.float32)
-    x = np.nan_to_num(za[:hh, :ww]) * m
-    y = np.nan_to_num(wb[:hh, :ww]) * m
+    x = za[:hh, :ww] * m
+    y = wb[:hh, :ww] * m
 
     def mean(v: np.ndarray) -> np.ndarray:  # per patch, over all its pixels
         return cv2.resize(v, (cols, rows), interpolation=cv2.INTER_AREA).astype(np.float64)

@@ -124,10 +124,12 @@ class RegistrationParams:
     0.45-0.9); search_min_agreeing: the evidence a search pose needs, the overlap's square patches of
     search_patch_px that carry relief and agree at the pose
     (:func:`~tactile_rig.perception.gelsight.dense_search.agreeing_patches`: local evidence spread over
-    the overlap, which a rigid move cannot line up by chance: right plate re-touches agree on 26 or
-    more, the best wrong pose of 860 pairs that must be refused on at most 20);
+    the overlap, which a rigid move cannot line up by chance: right re-touches agree on 26 or more,
+    the best wrong pose of 860 pairs that must be refused on at most 20; the usb panel's turned twin
+    agrees on up to 33 but fails the pinning bars, its translation 1-sigma >= 0.40 px);
     search_min_ratio: the pose must agree on this many times more patches than any distinct
-    candidate pose, else the content is ambiguous (blobs and domes fit several poses);
+    candidate pose, else the content is ambiguous (blobs and domes fit several poses; the usb's
+    right poses agree on >= 1.56x their turned twin);
     search_min_support: at least this many of the keypoint matches must agree with the pose within
     inlier_px (0 by default: a right re-touch that keypoints failed on keeps 1-3 of them, a wrong
     pose of tiled domes up to 15); search_patch_px / search_min_patches: a keypoint answer with a
