@@ -126,3 +126,39 @@ def test_every_numeric_option_refuses_nan_and_inf(capsys) -> None:
                 PARSER.parse_args([*path, opt, value])
             err = capsys.readouterr().err
             assert info.value.code == 2 and err.count("\n") == 1, (path, opt, value, err)
+
+
+def test_one_group_parser_reads_every_command_as_the_whole_parser_does(capsys) -> None:
+    # main() builds only the group its argv names: each subcommand path reads its defaults the same.
+    from tactile_rig.cli import COMMAND_MODULES, _command_of
+
+    assert _command_of(["--log-level", "DEBUG", "gelsight", "height"]) == "gelsight"
+    assert _command_of(["--log-level=DEBUG", "jig", "status"]) == "jig"
+    assert _command_of(["gelsigth", "height"]) is None and _command_of(["--version"]) is None
+    paths: list[list[str]] = []
+
+    def walk(parser: argparse.ArgumentParser, path: list[str]) -> None:
+        subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+        if not subs and path:
+            paths.append(path)
+        for action in subs:
+            for name, sub in action.choices.items():
+                walk(sub, [*path, name])
+
+    walk(PARSER, [])
+    assert {p[0] for p in paths} == set(COMMAND_MODULES) and len(paths) >= 40
+    for path in paths:
+        one = build_parser(_command_of(path))
+        assert set(one._subparsers._group_actions[0].choices) == {path[0]}
+        # Both parsers refuse the same way when required arguments are missing, or read the same.
+        got = []
+        for parser in (PARSER, one):
+            try:
+                got.append(vars(parser.parse_args(path)))
+            except SystemExit as e:
+                got.append(("exit", e.code, capsys.readouterr().err.splitlines()[-1:]))
+        assert got[0] == got[1], path
+    # A mistyped group still lists every group in its one-line error.
+    with pytest.raises(SystemExit) as info:
+        main(["gelsigth", "height"])
+    assert info.value.code == 2 and "fingervision" in capsys.readouterr().err

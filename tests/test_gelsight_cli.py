@@ -123,6 +123,26 @@ def test_height_downsample_flag(tmp_path, capsys, presses) -> None:
     assert info.value.code == 2 and "downsample" in capsys.readouterr().err
 
 
+def test_height_lookup_flag(tmp_path, capsys, presses) -> None:
+    cal = tmp_path / "cal"
+    assert main(["gelsight", "calibrate", str(presses), "--mm-per-px", MM, "--ball-radius-mm", "2.0",
+                 "-o", str(cal)]) == 0
+    frame = str(presses / "press_05.png")
+    outs = {}
+    for lookup in ("full", "reduced"):
+        out = tmp_path / f"z{lookup}.npy"
+        assert main(["gelsight", "height", str(cal), frame, "-o", str(out), "--downsample", "2", "--lookup",
+                     lookup]) == 0
+        outs[lookup] = np.load(out)
+    rec = Reconstructor(load_gelsight_calibration(str(cal)), IntegrationParams(downsample=2, lookup="reduced"))
+    np.testing.assert_array_equal(outs["reduced"], rec.height_mm(read_frame(frame)))
+    assert not np.array_equal(outs["full"], outs["reduced"])
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as info:
+        main(["gelsight", "height", str(cal), frame, "-o", str(tmp_path / "x.npy"), "--lookup", "half"])
+    assert info.value.code == 2 and "lookup" in capsys.readouterr().err
+
+
 def test_live_height_step_takes_the_integration_knobs(tmp_path, presses) -> None:
     # 'gelsight height --bench --solver/--downsample' builds its step with them (they were ignored).
     cal = tmp_path / "cal"

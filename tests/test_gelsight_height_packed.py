@@ -66,6 +66,8 @@ SETTINGS = [
     ("lut64", IntegrationParams(), ContactParams()),
     # Every downsampling (reduced, scaled and solved as the checked path does: the same heights).
     ("mlp", IntegrationParams(downsample=1), ContactParams()),
+    # 2 and 4 tile 120 x 160 (block sums gathered phase by phase); 3 does not (area resize).
+    ("mlp", IntegrationParams(downsample=2), ContactParams()),
     ("mlp", IntegrationParams(downsample=3, solver="dst"), ContactParams()),
     ("lut", IntegrationParams(downsample=4, solver="fc", border_px=2), ContactParams()),
     # The checked path: bins that are not a power of two, a threshold the saturated byte cannot

@@ -157,7 +157,7 @@ def height(args: argparse.Namespace) -> int:
     cam = args.camera or next((k for k, c in bench.cameras.items() if c.sensor == "gelsight"), None)
     if cam is None:
         raise ValueError(f"{bench.source}: no camera with sensor = \"gelsight\"")
-    knobs = {k: v for k in ("solver", "downsample") if (v := getattr(args, k, None))}
+    knobs = {k: v for k in ("solver", "downsample", "lookup") if (v := getattr(args, k, None))}
     step = GelSightHeightStep(gelsight_calibration_for(bench, cam, args.calib),
                               integration=IntegrationParams(**knobs) if knobs else None)
     args.camera = cam

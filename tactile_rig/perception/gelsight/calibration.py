@@ -397,6 +397,19 @@ class GelSightCalibration:
                 "bake_cells": list(self.bake_cells), "colour_range": self.colour_range,
                 "shape": list(self.shape), **({"extra": self.extra} if self.extra else {})}
 
+    def reduced(self, factor: int) -> "GelSightCalibration":
+        """This calibration for frames area-reduced by ``factor`` (rows // factor x cols // factor):
+        the background reduced the same way, the pitch scaled to match, the baked table shared (a
+        colour's slope does not depend on the resolution; no re-bake)."""
+        if int(factor) != factor or factor < 1:
+            raise ValueError(f"factor must be an integer >= 1, got {factor!r}")
+        h, w = self.shape
+        hs, ws = max(3, h // int(factor)), max(3, w // int(factor))
+        bg = cv2.resize(self.background, (ws, hs), interpolation=cv2.INTER_AREA)
+        return GelSightCalibration(self.model, bg, self.mm_per_px_x * w / ws, self.mm_per_px_y * h / hs,
+                                   self.ball_radius_mm, self.sensor, self.date, self.bake_bins, self.bake_cells,
+                                   self.colour_range, self.extra, baked_table=self._raw_table)
+
     def save(self, path: str | Path) -> Path:
         """Write ``<path>.npz`` (arrays) and ``<path>.json`` (metadata); returns the npz path."""
         base = Path(path)

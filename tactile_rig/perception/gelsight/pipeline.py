@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -61,8 +61,19 @@ class Reconstructor:
                                    params=self.integration)
         d = int(self.contact.dilate_px)
         self._kernel = (cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * d + 1, 2 * d + 1)) if d > 0 else None)
-        self._packed = self._packed_table()
         h, w = calibration.shape
+        k = self.mapper._k
+        self._reduced: Reconstructor | None = None
+        if self.integration.lookup == "reduced" and k > 1:
+            # The reduced frame through this calibration at the reduced pitch: its mask grown and its
+            # border zeroed over at least the same distance in mm; the thresholds on heights and the
+            # refusals of the whole frame stay here.
+            self._reduced = Reconstructor(
+                calibration.reduced(k),
+                replace(self.integration, downsample=1, lookup="full", border_px=-(-self.integration.border_px // k)),
+                replace(self.contact, dilate_px=-(-self.contact.dilate_px // k), min_height_mm=None,
+                        max_saturated_fraction=1.0, max_out_of_range_fraction=1.0))
+        self._packed = None if self._reduced is not None else self._packed_table()
         self._border_u8: np.ndarray | None = None
         if self.integration.border_px > 0:
             b = int(self.integration.border_px)
@@ -112,6 +123,8 @@ class Reconstructor:
         with the measured value and the bound from :class:`ContactParams`; ``ValueError`` for a wrong
         type, dtype or size. The result's range is at most ``max_height_range_mm``.
         """
+        if self._reduced is not None:
+            return self._height_reduced(frame_bgr)
         if self._packed is not None:
             return self._height_packed(frame_bgr)
         cal = self.calibration
@@ -136,6 +149,24 @@ class Reconstructor:
         if c.min_height_mm is not None:
             z = np.where(z > c.min_height_mm, z, np.float32(0))
         return z
+
+    def _height_reduced(self, frame_bgr: np.ndarray) -> np.ndarray:
+        """:meth:`height_mm` with ``lookup="reduced"``: the frame area-reduced, reconstructed at the
+        reduced pitch, brought back bilinearly. The refusals read the whole frame first (one clipped
+        pixel in four would average away)."""
+        cal = self.calibration
+        c = self.contact
+        h, w = cal.shape
+        _check_frame(frame_bgr, cal.shape, "frame_bgr")
+        lo, hi = cv2.minMaxLoc(frame_bgr.reshape(h, w * 3))[:2]
+        if (lo < 1 or hi > 254 or cv2.minMaxLoc(cv2.absdiff(frame_bgr, cal.background).reshape(h, w * 3))[1]
+                > min(int(cal.colour_range), 255)):
+            cal.check_range(frame_bgr, None, c.max_saturated_fraction, c.max_out_of_range_fraction)
+        inner = self._reduced
+        assert inner is not None
+        hs, ws = inner.calibration.shape
+        z = inner.height_mm(cv2.resize(frame_bgr, (ws, hs), interpolation=cv2.INTER_AREA))
+        return self._bounded(cv2.resize(z, (w, h), interpolation=cv2.INTER_LINEAR))
 
     def _height_packed(self, frame_bgr: np.ndarray) -> np.ndarray:
         """:meth:`height_mm` through the packed table: the same checks, errors and heights (the
@@ -178,8 +209,19 @@ class Reconstructor:
             key ^= zero
             key &= cv2.merge((mask,) * (4 if wide else 2)).view(kd).reshape(h, w)  # all ones in contact, else 0
             key ^= zero
-        slopes = np.take(p.table, np.add(key, p.cell_offset))
-        if self.mapper._k > 1:  # reduced, then scaled per reduced pixel, as the checked path does
+        index = np.add(key, p.cell_offset)
+        k = self.mapper._k
+        if k > 1 and h % k == 0 and w % k == 0:
+            # Each reduced pixel's slope is the mean of its k x k pixels' entries: gathered block
+            # phase by block phase and summed, the area reduction without the full-size slope image.
+            acc = np.take(p.table, index[0::k, 0::k])
+            for i in range(k):
+                for j in range(k):
+                    if i or j:
+                        acc += np.take(p.table, index[i::k, j::k])
+            return self._bounded(self.mapper.integrate_block_sums(acc, k * k))
+        slopes = np.take(p.table, index)
+        if k > 1:  # reduced, then scaled per reduced pixel, as the checked path does
             # The complex slopes as a two-channel float32 image: one area reduction for both.
             z = self.mapper.integrate_reduced_pair(slopes.view(np.float32).reshape(h, w, 2))
             return self._bounded(z)

@@ -228,6 +228,13 @@ def _check_height(h: object, name: str) -> np.ndarray:
 
 def _check_height_valid(h: object, name: str) -> tuple[np.ndarray, np.ndarray | None]:
     """:func:`_check_height` and the mask of known (finite) pixels, None when all are known."""
+    z, valid, _ = _check_height_ptp(h, name)
+    return z, valid
+
+
+def _check_height_ptp(h: object, name: str) -> tuple[np.ndarray, np.ndarray | None, float]:
+    """:func:`_check_height_valid` and the map's range (mm), from the one min/max pass the check
+    makes anyway."""
     if not isinstance(h, np.ndarray):
         raise ValueError(f"{name}: expected a numpy array, got {type(h).__name__}")
     if h.ndim != 2 or min(h.shape) < 16:
@@ -250,7 +257,10 @@ def _check_height_valid(h: object, name: str) -> tuple[np.ndarray, np.ndarray | 
         raise HeightOutOfRange(f"{name}: a height of {peak:.3g} mm; a gel height map stays within "
                                f"+-{MAX_ABS_HEIGHT_MM:g} mm (is it in mm?)", device="gelsight.registration",
                                value=float(peak), limit=MAX_ABS_HEIGHT_MM)
-    return (z if z.dtype == np.float32 else z.astype(np.float32)), valid
+    if z.dtype == np.float32:
+        return z, valid, float(hi - lo)
+    z = z.astype(np.float32)
+    return z, valid, _ptp(z)  # the range of what is used, after the rounding to float32
 
 
 def _ptp(z: np.ndarray) -> float:
@@ -347,9 +357,15 @@ def extract_features(height_mm: np.ndarray, params: RegistrationParams = Registr
     """Keypoints and descriptors of a height map (reuse for a map matched many times); with
     ``dense`` also the steep-pixel samples used when this map is the reference A. scale: detection
     resize factor (default from this map's own shape; pass the touch's for a large map)."""
-    z, known = _check_height_valid(height_mm, "height_mm")
+    z, known, ptp_mm = _check_height_ptp(height_mm, "height_mm")
     if known is not None:
         valid = known if valid is None else (valid & known)
+    return _features(z, ptp_mm, params, dense, scale, valid)
+
+
+def _features(z: np.ndarray, ptp_mm: float, params: RegistrationParams, dense: bool, scale: float | None,
+              valid: np.ndarray | None) -> Features:
+    """:func:`extract_features` of a map already checked (float32, finite) whose range is ``ptp_mm``."""
     smooth = cv2.GaussianBlur(z, (0, 0), 1.0)
     if params.dense_highpass_px > 0:
         # The dense polish compares high-passed heights: an independent re-touch pressed deeper or
@@ -357,7 +373,7 @@ def extract_features(height_mm: np.ndarray, params: RegistrationParams = Registr
         # the press, the integrator's offsets), which would bias the alignment by pixels.
         smooth = cv2.subtract(smooth, _lowpass_coarse(z, params.dense_highpass_px, valid))
     # The checked map and its range ride along, so register() need not re-check a cached reference.
-    feats = Features(smooth=smooth, height=z, ptp_mm=_ptp(z), valid=valid)
+    feats = Features(smooth=smooth, height=z, ptp_mm=ptp_mm, valid=valid)
     if dense:
         # A high-pass bends the heights within about two sigmas of a coverage edge (a tactile map's):
         # samples keep that far inside it.
@@ -1016,8 +1032,12 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
     elif knobs:
         raise ValueError("pass either params or individual knobs, not both")
     cached = features_a is not None and features_a.height is height_a_mm
-    a = height_a_mm if cached else _check_height(height_a_mm, "height_a_mm")
-    b = _check_height(height_b_mm, "height_b_mm")
+    # Non-finite pixels read 0 mm here (as documented): the checked maps go on without a known mask.
+    if cached:
+        a, ptp_a = height_a_mm, features_a.ptp_mm  # type: ignore[union-attr]
+    else:
+        a, _, ptp_a = _check_height_ptp(height_a_mm, "height_a_mm")
+    b, _, ptp_b = _check_height_ptp(height_b_mm, "height_b_mm")
     scale = (float(mm_per_px), float(mm_per_px)) if np.isscalar(mm_per_px) else tuple(map(float, mm_per_px))  # type: ignore[arg-type]
     if not all(np.isfinite(v) and v > 0 for v in scale):
         raise ValueError(f"mm_per_px must be positive, got {mm_per_px!r}")
@@ -1028,11 +1048,11 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
         return _result(False, None, *shapes, scale, conf, inl, method, reason, matches, ncc)  # type: ignore[arg-type]
 
     # A (near) flat map has nothing to register against.
-    if (features_a.ptp_mm if cached else _ptp(a)) < 1e-6 or _ptp(b) < 1e-6:  # type: ignore[union-attr]
+    if ptp_a < 1e-6 or ptp_b < 1e-6:
         return refuse(NO_CONTACT, "none")
     k = detect_scale(params, b.shape)
-    fa = features_a if features_a is not None and features_a.scale == k else extract_features(a, params, scale=k)
-    fb = extract_features(b, params, dense=False, scale=k)
+    fa = features_a if features_a is not None and features_a.scale == k else _features(a, ptp_a, params, True, k, None)
+    fb = _features(b, ptp_b, params, False, k, None)
     pa, pb = _match(fa, fb)
     method = params.detector
     keypoint_reason = INSUFFICIENT_TEXTURE
