@@ -22,7 +22,8 @@ the keypoints did: every candidate pose polished, its agreeing patches counted
 pose of the re-touches (fewest agreeing patches, and the smallest ratio to a wrong candidate of the
 same pair) against the best wrong pose anywhere (the re-touches' wrong candidates and every
 candidate of the pairs that must be refused): the margin the defaults
-(``search_min_agreeing``, ``search_min_ratio``) sit in.
+(``search_min_agreeing``, ``search_min_ratio``) sit in. ``--held-out`` swaps the pairs that must be
+refused for ones the defaults were not chosen on (run it with ``--seeds 3,4,5``).
 """
 
 from __future__ import annotations
@@ -65,16 +66,19 @@ LOOSER = {"inlier_px=6": RegistrationParams(inlier_px=6.0),
 NEAR_ROT_DEG, NEAR_TRANS_MM = 2.0, 0.2
 
 
-def refuse_groups(n_tiles: int) -> dict[str, list[tuple[np.ndarray, np.ndarray, float]]]:
-    """The pairs that must be refused, by group: (A, B, mm per px)."""
+def refuse_groups(n_tiles: int, held_out: bool = False) -> dict[str, list[tuple[np.ndarray, np.ndarray, float]]]:
+    """The pairs that must be refused, by group: (A, B, mm per px); ``held_out``: other tile draws,
+    other plates and other re-touch draws than the ones the defaults were chosen on."""
+    tiles = unrelated_tile_pairs(n_tiles, seed=2 if held_out else 1)
     groups: dict[str, list[tuple[np.ndarray, np.ndarray, float]]] = {
-        "unrelated ball-press tiles": [(a, b, TAXIM_MM_PER_PX) for a, b in unrelated_tile_pairs(n_tiles)]}
-    usb, plate = retouch_set("usb"), retouch_set("plate")
+        "unrelated ball-press tiles": [(a, b, TAXIM_MM_PER_PX) for a, b in tiles]}
+    usb, plate = retouch_set("usb", seed=3 if held_out else 0), retouch_set("plate", seed=3 if held_out else 0)
     groups["other part's re-touches"] = ([(plate.a.height_mm, t.height_mm, plate.mm_per_px) for t in usb.touches]
                                          + [(usb.a.height_mm, t.height_mm, usb.mm_per_px) for t in plate.touches])
     groups["other plates' re-touches"] = [(plate.a.height_mm, t.height_mm, plate.mm_per_px)
-                                          for other in ("other_plate_8", "other_plate_9")
-                                          for t in retouch_set(other, seed=3).touches]
+                                          for other in (("other_plate_10", "other_plate_11") if held_out
+                                                        else ("other_plate_8", "other_plate_9"))
+                                          for t in retouch_set(other, seed=4 if held_out else 3).touches]
     return groups
 
 
@@ -103,7 +107,7 @@ def search_evidence(a: np.ndarray, b: np.ndarray, params: RegistrationParams) ->
     return out
 
 
-def margin(seeds: list[int], n_tiles: int) -> dict:
+def margin(seeds: list[int], n_tiles: int, held_out: bool = False) -> dict:
     """The worst right pose of the re-touches against the best wrong poses (agreeing patches; the
     wrong poses agreeing on search_min_agreeing or more, by their 1-sigma translation)."""
     params = RegistrationParams()
@@ -136,7 +140,7 @@ def margin(seeds: list[int], n_tiles: int) -> dict:
                 if right:
                     right_min = min(right_min, (max(right), where))
                     ratio_min = min(ratio_min, (max(right) / max(max(other, default=0), 1), where))
-    for group, pairs in refuse_groups(n_tiles).items():
+    for group, pairs in refuse_groups(n_tiles, held_out).items():
         for i, (a, b, _mm) in enumerate(pairs):
             for _m, n, sigma, bars in search_evidence(a, b, params):
                 wrong(group, n, sigma, bars, f"pair {i}")
@@ -152,9 +156,9 @@ def margin(seeds: list[int], n_tiles: int) -> dict:
             "wrong_agreeing_min_sigma_px": many, "wrong_passing_pose_bars": passing}
 
 
-def must_refuse(n_tiles: int) -> dict:
+def must_refuse(n_tiles: int, held_out: bool = False) -> dict:
     """Placements (by method) of every setting on pairs with nothing to register."""
-    groups = refuse_groups(n_tiles)
+    groups = refuse_groups(n_tiles, held_out)
     out: dict = {}
     for group, pairs in groups.items():
         out[group] = {"pairs": len(pairs)}
@@ -205,6 +209,9 @@ def main() -> int:
     ap.add_argument("--margin", action="store_true",
                     help="with --must-refuse: the dense search's agreeing patches, worst right pose against the "
                     "best wrong pose on every pair")
+    ap.add_argument("--held-out", action="store_true",
+                    help="with --must-refuse: the held-out pairs (tile draw seed 2, plates seeded 10 and 11, "
+                    "re-touch draws seeds 3-4) instead of the ones the defaults were chosen on")
     add_save_args(ap, "registration_search.json")
     args = parse_args(ap)
     if args.must_refuse < 0 or args.repeats < 1:
@@ -224,8 +231,8 @@ def main() -> int:
                 print(f"{part:6} {seed:>4} {name:15} {r['right']:>5} {r['wrong']:>5} {r['refused']:>7} "
                       f"{r['rot_mae_deg']:>7.3f}° {r['trans_mae_mm']:>6.4f} mm {r['ms_per_pair_mean']:>8.2f} "
                       f"{row['pairs_searched'] if name == 'defaults' else '':>8}")
-    refuse = must_refuse(args.must_refuse) if args.must_refuse else None
-    gap = margin(seeds, args.must_refuse) if args.margin and args.must_refuse else None
+    refuse = must_refuse(args.must_refuse, args.held_out) if args.must_refuse else None
+    gap = margin(seeds, args.must_refuse, args.held_out) if args.margin and args.must_refuse else None
     save_json(args, {"opencv": cv2.__version__, "numpy": np.__version__, "quick": args.quick,
                      "load_average_start": load0, "load_average_end": os.getloadavg(), "rows": rows,
                      "must_refuse": refuse, "margin": gap})

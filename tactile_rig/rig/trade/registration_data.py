@@ -98,6 +98,9 @@ PARTS = {
     # Plates of the same kind with their own seeded features: parts a plate map never saw.
     "other_plate_8": lambda: objects.plate_with_features(mm_per_px=0.05, seed=8),
     "other_plate_9": lambda: objects.plate_with_features(mm_per_px=0.05, seed=9),
+    # Two more, held out: the search's thresholds were chosen without them.
+    "other_plate_10": lambda: objects.plate_with_features(mm_per_px=0.05, seed=10),
+    "other_plate_11": lambda: objects.plate_with_features(mm_per_px=0.05, seed=11),
 }
 
 
