@@ -263,6 +263,19 @@ SPREAD_AGREE_NCC = 0.6
 SPREAD_FULL_SHARE = 0.9
 
 
+def _sane(z: np.ndarray, valid: np.ndarray | None) -> tuple[np.ndarray | None, np.ndarray]:
+    """(known mask or None for all known, heights with the unknown ones zeroed): non-finite and
+    absurd heights (beyond MAX_ABS_HEIGHT_MM) count as unknown, as in the search. Two reductions
+    when every height is sane (the polish's maps), no masks built."""
+    lo, hi = float(z.min()), float(z.max())  # NaN propagates: then the masked path
+    if valid is None and np.isfinite(lo) and np.isfinite(hi) and max(hi, -lo) <= MAX_ABS_HEIGHT_MM:
+        return None, z
+    known = np.abs(np.nan_to_num(z, nan=np.inf)) <= MAX_ABS_HEIGHT_MM
+    if valid is not None:
+        known &= np.asarray(valid, bool)
+    return known, np.where(known, z, 0.0).astype(np.float32)
+
+
 def agreeing_patches(height_a: np.ndarray, height_b: np.ndarray, matrix_px: np.ndarray, patch_px: int = 24,
                      valid_a: np.ndarray | None = None, valid_b: np.ndarray | None = None) -> int:
     """How many square patches (side ``patch_px``, on A's grid) of the overlap both carry relief and
@@ -283,18 +296,13 @@ def agreeing_patches(height_a: np.ndarray, height_b: np.ndarray, matrix_px: np.n
     rows, cols = h // p, w // p
     if p < 1 or rows < 1 or cols < 1:
         return 0
-    # Non-finite and absurd heights (beyond MAX_ABS_HEIGHT_MM) count as unknown, as in the search.
-    known_a = np.abs(np.nan_to_num(za, nan=np.inf)) <= MAX_ABS_HEIGHT_MM
-    known_b = np.abs(np.nan_to_num(zb, nan=np.inf)) <= MAX_ABS_HEIGHT_MM
-    if valid_a is not None:
-        known_a &= np.asarray(valid_a, bool)
-    if valid_b is not None:
-        known_b &= np.asarray(valid_b, bool)
-    za = np.where(known_a, za, 0.0).astype(np.float32)
-    zb = np.where(known_b, zb, 0.0).astype(np.float32)
+    known_a, za = _sane(za, valid_a)
+    known_b, zb = _sane(zb, valid_b)
     wb = cv2.warpAffine(zb, matrix_px, (w, h), flags=cv2.INTER_LINEAR)
-    kb = cv2.warpAffine(known_b.astype(np.float32), matrix_px, (w, h), flags=cv2.INTER_LINEAR) > 0.999
-    kb &= known_a
+    cover = np.ones(zb.shape, np.float32) if known_b is None else known_b.astype(np.float32)
+    kb = cv2.warpAffine(cover, matrix_px, (w, h), flags=cv2.INTER_LINEAR) > 0.999
+    if known_a is not None:
+        kb &= known_a
     hh, ww = rows * p, cols * p
     m = kb[:hh, :ww].astype(np.float32)
     x = za[:hh, :ww] * m
@@ -313,7 +321,11 @@ def agreeing_patches(height_a: np.ndarray, height_b: np.ndarray, matrix_px: np.n
     syy = mean(y * y) / nn - ym * ym
     sxy = mean(x * y) / nn - xm * ym
     energy = np.maximum(sxx, syy)
-    ref = float(np.quantile(energy[full], SPREAD_REF_QUANTILE))
+    # The reference quantile (linear interpolation, as np.quantile) by one sort of a few hundred values.
+    e = np.sort(energy[full])
+    pos = SPREAD_REF_QUANTILE * (e.size - 1)
+    lo = int(pos)
+    ref = float(e[lo] + (e[min(lo + 1, e.size - 1)] - e[lo]) * (pos - lo))
     if not np.isfinite(ref) or ref <= 0.0:
         return 0
     strong = full & (energy >= SPREAD_ENERGY_SHARE * ref)
