@@ -17,12 +17,13 @@ seeded features) against the plate's map; it prints how many each setting placed
 the only right answer).
 
 ``--margin`` (with ``--must-refuse``) measures the dense search's evidence on every pair, whatever
-the keypoints did: every candidate pose polished, its agreeing patches counted
+the keypoints did (and that of every thin keypoint consensus, the patch count turned off): every
+candidate pose polished, its agreeing patches counted
 (:func:`~tactile_rig.perception.gelsight.dense_search.agreeing_patches`); it prints the worst right
 pose of the re-touches (fewest agreeing patches, and the smallest ratio to a wrong candidate of the
 same pair) against the best wrong pose anywhere (the re-touches' wrong candidates and every
 candidate of the pairs that must be refused): the margin the defaults
-(``search_min_agreeing``, ``search_min_ratio``) sit in. ``--held-out`` swaps the pairs that must be
+(``search_min_patches``, ``search_min_ratio``) sit in. ``--held-out`` swaps the pairs that must be
 refused for ones the defaults were not chosen on (run it with ``--seeds 3,4,5``).
 """
 
@@ -48,7 +49,13 @@ sys.path.insert(0, str(ROOT))
 
 from tactile_rig.perception.gelsight import RegistrationParams, register  # noqa: E402
 from tactile_rig.perception.gelsight.dense_search import agreeing_patches, rotation_search  # noqa: E402
-from tactile_rig.perception.gelsight.registration import dense_refine, detect_scale, extract_features  # noqa: E402
+from tactile_rig.perception.gelsight.registration import (  # noqa: E402
+    WEAK_CONSENSUS_INLIERS,
+    WEAK_CONSENSUS_NCC,
+    dense_refine,
+    detect_scale,
+    extract_features,
+)
 from tactile_rig.rig.trade.registration_data import (  # noqa: E402
     TAXIM_MM_PER_PX,
     Score,
@@ -61,7 +68,7 @@ from tactile_rig.rig.trade.registration_data import (  # noqa: E402
 SETTINGS = {"defaults": RegistrationParams(), "keypoints only": RegistrationParams(dense_fallback=False)}
 # Looser settings measured on the must-refuse pairs beside the defaults (trade rows ahead of the default).
 LOOSER = {"inlier_px=6": RegistrationParams(inlier_px=6.0),
-          "search bars loosened": RegistrationParams(search_min_agreeing=15, search_min_ratio=1.0)}
+          "search bars loosened": RegistrationParams(search_min_patches=15, search_min_ratio=1.0)}
 # A candidate this close to the truth is neither right nor wrong for the margin (deg, mm).
 NEAR_ROT_DEG, NEAR_TRANS_MM = 2.0, 0.2
 
@@ -109,18 +116,31 @@ def search_evidence(a: np.ndarray, b: np.ndarray, params: RegistrationParams) ->
 
 def margin(seeds: list[int], n_tiles: int, held_out: bool = False) -> dict:
     """The worst right pose of the re-touches against the best wrong poses (agreeing patches; the
-    wrong poses agreeing on search_min_agreeing or more, by their 1-sigma translation)."""
+    wrong poses agreeing on search_min_patches or more, by their 1-sigma translation)."""
     params = RegistrationParams()
     right_min = (10**9, "")
     ratio_min = (float("inf"), "")
     wrong_max = {}  # group -> (agreeing patches, where)
-    many = (float("inf"), "")  # smallest sigma px of a wrong pose agreeing on search_min_agreeing or more
+    many = (float("inf"), "")  # smallest sigma px of a wrong pose agreeing on search_min_patches or more
     passing = 0  # wrong poses passing every per-pose bar
+
+    thin: dict[str, list[int]] = {"right": [], "wrong": []}  # agreeing patches of thin keypoint answers
+
+    def thin_answer(a: np.ndarray, b: np.ndarray, mm: float, truth: np.ndarray | None) -> None:
+        # A keypoint answer with a thin consensus, the patch count off: its agreeing patches.
+        res = register(a, b, mm, RegistrationParams(search_min_patches=0, dense_fallback=False))
+        if not res.ok or res.inliers >= WEAK_CONSENSUS_INLIERS or res.ncc >= WEAK_CONSENSUS_NCC:
+            return
+        k = detect_scale(params, b.shape)
+        fa, fb = extract_features(a, params, scale=k), extract_features(b, params, dense=False, scale=k)
+        n = agreeing_patches(fa.smooth, fb.smooth, res.matrix_px, params.search_patch_px, fa.valid, fb.valid)
+        ok = truth is not None and is_right(*pose_error(res.matrix_px, truth, b.shape, mm))
+        thin["right" if ok else "wrong"].append(n)
 
     def wrong(group: str, n: int, sigma: float, bars: bool, where: str) -> None:
         nonlocal many, passing
         wrong_max[group] = max(wrong_max.get(group, (-1, "")), (n, where))
-        if n >= params.search_min_agreeing:
+        if n >= params.search_min_patches:
             many = min(many, (sigma, where))
             passing += bars
 
@@ -137,22 +157,27 @@ def margin(seeds: list[int], n_tiles: int, held_out: bool = False) -> dict:
                     elif err[0] > NEAR_ROT_DEG or err[1] > NEAR_TRANS_MM:
                         other.append(n)
                         wrong(f"{part} re-touches' wrong candidates", n, sigma, bars, where)
+                thin_answer(data.a.height_mm, t.height_mm, data.mm_per_px, truth)
                 if right:
                     right_min = min(right_min, (max(right), where))
                     ratio_min = min(ratio_min, (max(right) / max(max(other, default=0), 1), where))
     for group, pairs in refuse_groups(n_tiles, held_out).items():
-        for i, (a, b, _mm) in enumerate(pairs):
+        for i, (a, b, mm) in enumerate(pairs):
+            thin_answer(a, b, mm, None)
             for _m, n, sigma, bars in search_evidence(a, b, params):
                 wrong(group, n, sigma, bars, f"pair {i}")
     print(f"margin: right poses agree on >= {right_min[0]} patches ({right_min[1]}) and on >= {ratio_min[0]:.2f}x "
-          f"their pair's best wrong candidate ({ratio_min[1]}); defaults search_min_agreeing="
-          f"{params.search_min_agreeing}, search_min_ratio={params.search_min_ratio}")
+          f"their pair's best wrong candidate ({ratio_min[1]}); defaults search_min_patches="
+          f"{params.search_min_patches}, search_min_ratio={params.search_min_ratio}")
     for group, (n, where) in wrong_max.items():
         print(f"margin: best wrong pose, {group}: {n} agreeing patches ({where})")
-    print(f"margin: wrong poses agreeing on >= {params.search_min_agreeing} patches pin translation to "
+    print(f"margin: wrong poses agreeing on >= {params.search_min_patches} patches pin translation to "
           f">= {many[0]:.3f} px 1-sigma ({many[1]}; max_sigma_px {params.max_sigma_px}); wrong poses passing every "
           f"per-pose bar: {passing}")
-    return {"right_min_agreeing": right_min, "right_min_ratio": ratio_min, "wrong_max_agreeing": wrong_max,
+    print(f"margin: thin keypoint answers (< {WEAK_CONSENSUS_INLIERS} inliers, NCC < {WEAK_CONSENSUS_NCC}, patch count "
+          f"off): {len(thin['right'])} right agree on >= {min(thin['right'], default=0)} patches, {len(thin['wrong'])} "
+          f"wrong on <= {max(thin['wrong'], default=0)} (search_min_patches={params.search_min_patches})")
+    return {"thin_keypoint_right": thin["right"], "thin_keypoint_wrong": thin["wrong"], "right_min_agreeing": right_min, "right_min_ratio": ratio_min, "wrong_max_agreeing": wrong_max,
             "wrong_agreeing_min_sigma_px": many, "wrong_passing_pose_bars": passing}
 
 

@@ -187,9 +187,8 @@ _REG_FLAGS: tuple[tuple[str, Callable[[str], Any], str], ...] = (
      "dense search: refuse unless the pose agrees on this many times more patches than any other pose"),
     ("search_min_support", int_in(0, 100_000), "dense search: keypoint matches that must agree with the pose"),
     ("search_min_patches", int_in(0, 1_000_000),
-     "a thin keypoint consensus: patches of the overlap (search_patch_px square) that must carry relief and agree"),
-    ("search_min_agreeing", int_in(0, 1_000_000),
-     "dense search: patches of the overlap (search_patch_px square) carrying relief that must agree with the pose"),
+     "dense search and a thin keypoint consensus: patches of the overlap (search_patch_px square) "
+     "carrying relief that must agree with the pose"),
 )
 
 
