@@ -11,10 +11,10 @@ from hypothesis.extra.numpy import arrays
 
 from tactile_rig.perception.gelsight import (
     Reconstructor, RegistrationParams, calibrate_from_presses, load_presses, register)
-from tactile_rig.perception.gelsight.dense_search import SearchResult, rotation_search
+from tactile_rig.perception.gelsight.dense_search import SearchResult, agreeing_patches, rotation_search
 from tactile_rig.perception.gelsight.registration import REASONS
 from tactile_rig.perception.gelsight.synthetic import jig_move, tile
-from tactile_rig.rig.trade.registration_data import retouch_set, score_pairs
+from tactile_rig.rig.trade.registration_data import retouch_set, score_pairs, unrelated_tile_pairs
 from tests._data import test_data
 
 MM = 0.1245
@@ -60,6 +60,73 @@ def test_a_search_answer_says_so(plate_retouches) -> None:
         res = register(plate_retouches.a.height_mm, t.height_mm, plate_retouches.mm_per_px)
         methods.add(res.method if res.ok else res.reason)
     assert "dense_search" in methods
+
+
+def test_plate_retouches_turned_60_to_80_deg_are_localized() -> None:
+    # A 240x320 touch turned by 60-90 deg overlaps the map on at most ~75 %: the former bars (explained
+    # share >= 0.5, a second pose explaining less than half as much, two agreeing keypoint matches)
+    # refused most of the ones keypoints fail on; the spread agreement places them.
+    d = retouch_set("plate", rotations_deg=(60.0, 70.0, 80.0), shifts_mm=(-2.0, -1.0, 0.0, 1.0, 2.0), seed=0)
+    keypoints_only = score_pairs(d, RegistrationParams(dense_fallback=False))
+    sc = score_pairs(d)
+    assert keypoints_only.right <= 3 and keypoints_only.wrong == 0, keypoints_only.as_dict()
+    assert sc.wrong == 0 and sc.right >= 14, sc.as_dict()
+    assert sc.rot_mae_deg <= 0.3 and sc.trans_mae_mm <= 0.05
+    # The same pairs need the spread evidence: asking for more agreeing patches than a touch holds
+    # refuses what keypoints do not place (and a thin keypoint consensus as well).
+    strict = score_pairs(d, RegistrationParams(search_min_patches=10_000))
+    assert strict.right <= keypoints_only.right and strict.wrong == 0
+
+
+def test_a_turned_twin_of_a_symmetric_part_is_not_placed_through_the_search() -> None:
+    # The usb panel turned by 180 deg agrees on as many patches as a right pose (up to 33); with the
+    # keypoint path made to refuse, every answer is the search's: right or refused, never the twin.
+    usb = retouch_set("usb", rotations_deg=(-60.0, 0.0, 30.0, 90.0), shifts_mm=(-1.0, 1.0), seed=6)
+    sc = score_pairs(usb, RegistrationParams(min_inliers=10_000))
+    assert sc.wrong == 0 and sc.right >= 6, sc.as_dict()
+
+
+def test_a_thin_keypoint_consensus_on_held_out_tiles_is_refused(heights) -> None:
+    # Pair 328 of this draw was placed by 13 ORB inliers (NCC 0.89) while a thin consensus was held
+    # to the former patch count (11 patches against a bar of 10); it agrees on 19 of the spread count.
+    a, b = unrelated_tile_pairs(329, seed=2, heights=tuple(heights))[328]
+    res = register(a, b, MM)
+    assert not res.ok and res.reason in REASONS
+    loose = register(a, b, MM, search_min_patches=0, dense_fallback=False)
+    assert loose.ok and loose.method == "orb"  # the case the patch test catches
+
+
+def test_unrelated_tiles_are_not_placed_by_the_search(heights) -> None:
+    # The keypoint path made to refuse: the search alone must place none of these pairs.
+    for a, b in unrelated_tile_pairs(40, seed=7, heights=tuple(heights)):
+        res = register(a, b, MM, min_inliers=10_000)
+        assert not res.ok and res.reason in REASONS
+
+
+def test_agreeing_patches_counts_spread_evidence(textured, heights) -> None:
+    ident = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    rows, cols = textured.shape[0] // 24, textured.shape[1] // 24
+    same = agreeing_patches(textured, textured, ident, 24)
+    assert 20 <= same <= rows * cols
+    other = tile([heights[i] for i in (1, 7, 13, 27)])
+    assert agreeing_patches(textured, other, ident, 24) < same // 2
+    # Nothing to agree on: a flat or unknown B, a B moved out of A, a map smaller than one patch.
+    assert agreeing_patches(textured, np.zeros_like(textured), ident, 24) == 0
+    assert agreeing_patches(textured, textured, ident, 24, valid_b=np.zeros(textured.shape, bool)) == 0
+    far = np.array([[1.0, 0.0, 5_000.0], [0.0, 1.0, 0.0]])
+    assert agreeing_patches(textured, textured, far, 24) == 0
+    assert agreeing_patches(textured[:10, :10], textured[:10, :10], ident, 24) == 0
+
+
+@settings(deadline=None, max_examples=30)
+@given(arrays(np.float32, st.tuples(st.integers(1, 80), st.integers(1, 80)), elements=st.floats(
+    allow_nan=True, allow_infinity=True, width=32)), st.floats(-180, 180), st.integers(4, 40))
+def test_agreeing_patches_is_bounded_on_arbitrary_maps(z, rotation_deg, patch_px) -> None:
+    t = np.radians(rotation_deg)
+    m = np.array([[np.cos(t), -np.sin(t), 3.0], [np.sin(t), np.cos(t), -2.0]])
+    valid = np.isfinite(z)
+    n = agreeing_patches(z, z, m, patch_px, valid, valid)
+    assert 0 <= n <= (z.shape[0] // patch_px) * (z.shape[1] // patch_px)
 
 
 def test_another_part_is_refused_not_placed(plate_retouches) -> None:

@@ -184,10 +184,11 @@ _REG_FLAGS: tuple[tuple[str, Callable[[str], Any], str], ...] = (
     ("search_min_explained", float_in(0.0, 1.0),
      "dense search: refuse a pose explaining less of the map's relief (NCC^2 x overlap) than this"),
     ("search_min_ratio", float_in(1.0, 1000.0),
-     "dense search: refuse unless the pose explains this many times more relief than any other pose"),
+     "dense search: refuse unless the pose agrees on this many times more patches than any other pose"),
     ("search_min_support", int_in(0, 100_000), "dense search: keypoint matches that must agree with the pose"),
     ("search_min_patches", int_in(0, 1_000_000),
-     "dense search: patches of the overlap (search_patch_px square) that must carry relief and agree"),
+     "dense search and a thin keypoint consensus: patches of the overlap (search_patch_px square) "
+     "carrying relief that must agree with the pose"),
 )
 
 

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from tactile_rig.core.errors import DegenerateTransform, HeightOutOfRange, NoContact, PerceptionError
-from tactile_rig.perception.gelsight.dense_search import rotation_search
+from tactile_rig.perception.gelsight.dense_search import agreeing_patches, rotation_search
 
 INSUFFICIENT_TEXTURE = "insufficient_texture"
 NO_CONSENSUS = "no_consensus"
@@ -43,8 +43,8 @@ MAX_ABS_HEIGHT_MM = 50.0
 # Li's confidence is computed on the inliers within this residual (px) of the rigid fit.
 CONFIDENCE_PX = 2.0
 # A keypoint answer with fewer RANSAC inliers than this and a dense NCC below WEAK_CONSENSUS_NCC must
-# also pass the patch agreement of the dense search (search_min_patches): 9-10 inliers lined up
-# unrelated ball-press tiles (3 of 240 pairs, NCC 0.84-0.96), while the USB re-touches the fast path
+# also pass the patch agreement of the dense search (search_min_patches): 8-15 inliers lined up
+# unrelated ball-press tiles (6 of 960 pairs, NCC 0.84-0.98), while the USB re-touches the fast path
 # localizes carry 25-120 and a small touch on a tactile map (too few patches to count) reads 0.999.
 WEAK_CONSENSUS_INLIERS = 20
 WEAK_CONSENSUS_NCC = 0.98
@@ -120,19 +120,23 @@ class RegistrationParams:
     runs on maps reduced by this factor (full px per coarse px); search_step_deg: rotation step of
     the sweep over the full circle; search_candidates: best poses (local maxima over rotation)
     polished and checked; search_min_explained: the share of A's high-passed relief the polished
-    pose explains (NCC^2 x overlap) below this is refused (a search tries every pose, so it needs
-    more evidence than a keypoint consensus: at 0.5 a pose must cover at least half of A and
-    correlate at >= 0.71; unrelated dome fields reach 0.46, right plate re-touches 0.44-0.9);
-    search_min_ratio: the pose must explain this many times more of A's relief than any other
-    candidate pose, else the content is ambiguous (blobs and domes fit several poses);
+    pose explains (NCC^2 x overlap) below this is refused (a floor: right plate re-touches explain
+    0.45-0.9); search_patch_px / search_min_patches: the evidence a pose needs, the overlap's square
+    patches of this side that carry relief and agree at the pose
+    (:func:`~tactile_rig.perception.gelsight.dense_search.agreeing_patches`: local evidence spread over
+    the overlap, which a rigid move cannot line up by chance: right re-touches agree on 24 or more,
+    the best wrong pose of 1,720 pairs that must be refused on at most 20; the usb panel's turned twin
+    agrees on up to 35 but fails the pinning bars, its translation 1-sigma >= 0.40 px); asked of every
+    search answer and of a keypoint answer with a thin consensus (fewer than WEAK_CONSENSUS_INLIERS
+    inliers and a dense NCC under WEAK_CONSENSUS_NCC: such answers on plate and usb re-touches agree on
+    26 or more, on unrelated tiled ball presses on at most 19); 0 turns the count off;
+    search_min_ratio: the pose must agree on this many times more patches than any distinct
+    candidate pose, else the content is ambiguous (blobs and domes fit several poses; the usb's
+    right poses agree on >= 1.55x their turned twin);
     search_min_support: at least this many of the keypoint matches must agree with the pose within
-    inlier_px; search_patch_px / search_min_patches: the overlap is cut into square patches of this
-    side and at least this many of them must carry relief (10 % of the strongest patch's) and
-    correlate (NCC >= 0.5) at the pose: relief spread over the overlap, not two lone domes that a
-    rigid move can always line up (such pairs agree on 6-8 patches of 24 px, plate re-touches on
-    11-30); the same agreement is asked of a keypoint answer with a thin consensus (fewer than
-    WEAK_CONSENSUS_INLIERS inliers and a dense NCC under WEAK_CONSENSUS_NCC). A search answer must
-    also pass min_overlap and the pinning bars.
+    inlier_px (0 by default: a right re-touch that keypoints failed on keeps 1-3 of them, a wrong
+    pose of tiled domes up to 15). A
+    search answer must also pass min_overlap and the pinning bars.
     """
 
     detector: str = "orb"
@@ -165,11 +169,11 @@ class RegistrationParams:
     search_coarse_px: int = 8
     search_step_deg: float = 6.0
     search_candidates: int = 5
-    search_min_explained: float = 0.5
-    search_min_ratio: float = 2.0
-    search_min_support: int = 2
+    search_min_explained: float = 0.3
+    search_min_ratio: float = 1.5
+    search_min_support: int = 0
     search_patch_px: int = 24
-    search_min_patches: int = 10
+    search_min_patches: int = 23
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -888,61 +892,16 @@ def _search_bars(fit: DenseFit, params: RegistrationParams) -> bool:
     return bool(explained >= params.search_min_explained and fit.overlap >= params.min_overlap and _pinned(fit, params))
 
 
-# A patch counts when its relief energy is at least this share of the strongest patch's, and agrees
-# when the two touches' heights correlate there at least this well.
-PATCH_ENERGY_SHARE = 0.1
-PATCH_AGREE_NCC = 0.5
-
-
-def _agreeing_patches(fa: Features, fb: Features, matrix_px: np.ndarray, patch_px: int) -> int:
-    """Square patches of A (side ``patch_px``) inside the overlap where the polished heights of A
-    and of B warped by ``matrix_px`` both carry relief and correlate (see search_min_patches). The
-    patch moments are area means (one OpenCV reduction per moment image, float32)."""
-    za, zb = fa.smooth, fb.smooth
-    if za is None or zb is None:
-        return 0
-    h, w = za.shape
-    p = int(patch_px)
-    rows, cols = h // p, w // p
-    if rows < 1 or cols < 1:
-        return 0
-    known_b = np.ones(zb.shape, np.float32) if fb.valid is None else fb.valid.astype(np.float32)
-    wb = cv2.warpAffine(zb, matrix_px, (w, h), flags=cv2.INTER_LINEAR)
-    kb = cv2.warpAffine(known_b, matrix_px, (w, h), flags=cv2.INTER_LINEAR) > 0.999
-    if fa.valid is not None:
-        kb &= fa.valid
-    hh, ww = rows * p, cols * p
-    m = kb[:hh, :ww].astype(np.float32)
-    x = za[:hh, :ww] * m
-    y = wb[:hh, :ww] * m
-
-    def mean(v: np.ndarray) -> np.ndarray:  # per patch, over all its pixels
-        return cv2.resize(v, (cols, rows), interpolation=cv2.INTER_AREA).astype(np.float64)
-
-    n = mean(m)  # the known fraction of each patch
-    full = n >= 0.9  # patches (nearly) all inside the overlap
-    if not full.any():
-        return 0
-    nn = np.maximum(n, 1.0 / (p * p))
-    xm, ym = mean(x) / nn, mean(y) / nn
-    sxx = mean(x * x) / nn - xm * xm
-    syy = mean(y * y) / nn - ym * ym
-    sxy = mean(x * y) / nn - xm * ym
-    energy = np.maximum(sxx, syy)
-    strong = full & (energy >= PATCH_ENERGY_SHARE * float(energy[full].max()))
-    ncc = sxy / np.sqrt(np.maximum(sxx * syy, 1e-30))
-    return int(np.count_nonzero(strong & (ncc >= PATCH_AGREE_NCC)))
-
-
 def _dense_search(a: np.ndarray, b: np.ndarray, fa: Features, fb: Features, pa: np.ndarray, pb: np.ndarray,
                   params: RegistrationParams) -> tuple[DenseFit | None, float]:
     """The answer when keypoints fail: :func:`~tactile_rig.perception.gelsight.dense_search.rotation_search`
     on high-passed heights, each candidate polished by :func:`dense_refine` (fa's samples, fb's
-    heights, as the keypoint answer's). The best polished pose is accepted only when it passes
-    search_min_explained, min_overlap and the pinning bars, explains search_min_ratio times more of A's
-    relief (NCC^2 x overlap) than any distinct candidate (content that fits several poses is
-    ambiguous: blobs, domes), is confirmed by at least search_min_support of the keypoint matches
-    (pa in A, pb in B) within inlier_px and agrees on search_min_patches patches of the overlap.
+    heights, as the keypoint answer's). A polished pose is acceptable when it passes
+    search_min_explained, min_overlap and the pinning bars and agrees on search_min_patches patches
+    (:func:`~tactile_rig.perception.gelsight.dense_search.agreeing_patches`); the one agreeing on
+    most is accepted only when it agrees on search_min_ratio times more patches than any distinct
+    candidate (content that fits several poses is ambiguous: blobs, domes) and at least
+    search_min_support of the keypoint matches (pa in A, pb in B) lie within inlier_px of it.
     Returns (accepted fit or None, the best polished NCC)."""
     found = rotation_search(
         a, b, highpass_px=params.search_highpass_px, coarse_px=params.search_coarse_px,
@@ -955,26 +914,29 @@ def _dense_search(a: np.ndarray, b: np.ndarray, fa: Features, fb: Features, pa: 
     if not fits:
         return None, float("nan")
     best_ncc = max(f.ncc for f in fits)
-    passed = [f for f in fits if _search_bars(f, params)]
+    # Evidence per pose: the patches of the overlap that carry relief and agree (0 for a pose
+    # overlapping too little to count).
+    agree = [agreeing_patches(fa.smooth, fb.smooth, f.matrix_px, params.search_patch_px, fa.valid, fb.valid)  # type: ignore[arg-type]
+             if f.overlap >= params.min_overlap else 0 for f in fits]
+    passed = [i for i, f in enumerate(fits) if agree[i] >= params.search_min_patches and _search_bars(f, params)]
     if not passed:
         return None, best_ncc
-    top = max(passed, key=lambda f: f.ncc)
+    i_top = max(passed, key=lambda i: (agree[i], fits[i].ncc))
+    top = fits[i_top]
     centre_b = np.array([(b.shape[1] - 1) / 2.0, (b.shape[0] - 1) / 2.0])
-    explained = top.ncc * top.ncc * top.overlap
-    for other in fits:
-        if other is top or _same_pose(other.matrix_px, top.matrix_px, centre_b):
+    for j, other in enumerate(fits):
+        if j == i_top or _same_pose(other.matrix_px, top.matrix_px, centre_b):
             continue
-        if other.overlap >= params.min_overlap and explained < params.search_min_ratio * other.ncc ** 2 * other.overlap:
-            return None, best_ncc  # another pose fits nearly as well: ambiguous content
-    if len(pa):
-        res = pb @ top.matrix_px[:, :2].T + top.matrix_px[:, 2] - pa
-        support = int(np.count_nonzero(np.einsum("ij,ij->i", res, res) < params.inlier_px ** 2))
-    else:
-        support = 0
-    if support < params.search_min_support:
-        return None, best_ncc
-    if _agreeing_patches(fa, fb, top.matrix_px, params.search_patch_px) < params.search_min_patches:
-        return None, best_ncc  # the agreement rests on a few lone features
+        if agree[i_top] < params.search_min_ratio * agree[j]:
+            return None, best_ncc  # another pose is backed by nearly as much evidence: ambiguous content
+    if params.search_min_support > 0:
+        if len(pa):
+            res = pb @ top.matrix_px[:, :2].T + top.matrix_px[:, 2] - pa
+            support = int(np.count_nonzero(np.einsum("ij,ij->i", res, res) < params.inlier_px ** 2))
+        else:
+            support = 0
+        if support < params.search_min_support:
+            return None, best_ncc
     return top, top.ncc
 
 
@@ -1070,8 +1032,8 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
                         # must also agree patch by patch, as a dense-search pose must.
                         if (n_inl >= WEAK_CONSENSUS_INLIERS or fit.ncc >= WEAK_CONSENSUS_NCC
                                 or params.search_min_patches <= 0
-                                or _agreeing_patches(fa, fb, fit.matrix_px, params.search_patch_px)
-                                >= params.search_min_patches):
+                                or agreeing_patches(fa.smooth, fb.smooth, fit.matrix_px, params.search_patch_px,  # type: ignore[arg-type]
+                                                    fa.valid, fb.valid) >= params.search_min_patches):
                             return _result(True, fit.matrix_px, *shapes, scale, conf, n_inl, method, None,  # type: ignore[arg-type]
                                            len(pa), fit.ncc)
                         keypoint_reason = MISMATCH
