@@ -142,7 +142,7 @@ class RegistrationParams:
     detector: str = "orb"
     brisk_threshold: int = 20
     brisk_octaves: int = 3
-    orb_features: int = 250
+    orb_features: int = 300
     orb_levels: int = 6
     orb_scale: float = 1.2
     orb_fast_threshold: int = 5

@@ -52,7 +52,7 @@ def settings() -> list[dict[str, Any]]:
         {"detector": "brisk", "brisk_threshold": 10},
         {"detector": "both", "brisk_threshold": 10},
         {"orb_features": 150},
-        {"orb_features": 300},
+        {"orb_features": 250},
         {"orb_features": 500},
         {"orb_levels": 4},
         {"orb_levels": 8},
