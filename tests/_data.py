@@ -6,8 +6,10 @@ the tests that use them skip cleanly when that folder is absent.
 
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -46,3 +48,25 @@ def test_data(name: str) -> Path:
 
 
 test_data.__test__ = False  # type: ignore[attr-defined]  # not a pytest test
+
+
+TAXIM_MM_PER_PX = 0.1245  # the Taxim ball presses' pixel pitch
+TAXIM_BALL_RADIUS_MM = 2.0
+
+
+@functools.lru_cache(maxsize=None)
+def taxim_presses() -> Any:
+    """The 30 real Taxim GelSight ball presses (MIT), loaded once per test session: treat as read-only."""
+    from tactile_rig.perception.gelsight import load_presses
+
+    return load_presses(test_data("taxim_gelsight_ball") / "presses")
+
+
+@functools.lru_cache(maxsize=None)
+def taxim_calibration(method: str = "lut", bins: int = 32) -> Any:
+    """A calibration fitted on all the Taxim presses (``bins`` for the LUT method), fitted once per
+    test session (an MLP fit costs seconds): treat as read-only."""
+    from tactile_rig.perception.gelsight import calibrate_from_presses
+
+    hyper = {"bins": bins} if method == "lut" else {}
+    return calibrate_from_presses(taxim_presses(), TAXIM_MM_PER_PX, TAXIM_BALL_RADIUS_MM, method, **hyper)

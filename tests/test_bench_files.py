@@ -66,3 +66,14 @@ def test_the_latency_timer_and_retries_reach_the_bus() -> None:
         assert rig.gripper.bus.latency_timer_ms == 4.0 and rig.gripper.bus.retries == 5
     default = load_bench(text='[gripper]\nport = "rigsim://dynamixel"\n', env={}).devices["gripper"]
     assert default.latency_timer_ms == 16.0 and default.retries == 2
+
+
+@pytest.mark.parametrize("text", ["", "# a bench to fill in\n", '[bench]\nname = "lab 3"\n'])
+def test_a_bench_without_devices_is_refused_not_checked_as_passing(tmp_path: Path, text: str, capsys) -> None:
+    # An empty bench.toml once made 'bench check' print an empty table and exit 0.
+    with pytest.raises(BenchError, match=r"declares no device.*\[gripper\].*\[camera_<name>\]"):
+        load_bench(text=text, env={})
+    (tmp_path / "bench.toml").write_text(text)
+    assert main(["bench", "check", "--bench", str(tmp_path / "bench.toml")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "declares no device" in err

@@ -31,6 +31,12 @@ def _npz(**arrays: np.ndarray) -> bytes:
     return b.getvalue()
 
 
+def _npz_stored(**arrays: np.ndarray) -> bytes:
+    b = io.BytesIO()
+    np.savez(b, **arrays)  # uncompressed members: read by files.load_npz itself, CRC and all
+    return b.getvalue()
+
+
 def _png(img: np.ndarray) -> bytes:
     import cv2
 
@@ -40,12 +46,14 @@ def _png(img: np.ndarray) -> bytes:
 GOOD = {
     "npy": _npy(np.linspace(0, 1, 64 * 48, dtype=np.float32).reshape(48, 64)),
     "npz": _npz(a=np.arange(100, dtype=np.float64), b=np.ones((4, 4), np.int16)),
+    "npz_stored": _npz_stored(a=np.arange(100, dtype=np.float64), f=np.asfortranarray(np.ones((3, 5), np.int16))),
     "json": b'{"a": [1, 2, {"b": 3.5}], "c": "text"}',
     "png": _png(np.arange(48 * 64 * 3, dtype=np.uint8).reshape(48, 64, 3)),
 }
 LOAD = {
     "npy": lambda p: files.load_npy(p, "array", ndim=2),
     "npz": lambda p: files.load_npz(p, "archive"),
+    "npz_stored": lambda p: files.load_npz(p, "archive"),
     "json": lambda p: files.load_json(p, "doc"),
     "png": lambda p: files.read_image(p, "frame"),
 }
@@ -82,6 +90,26 @@ def test_arbitrary_bytes_are_a_badfile(tmp_path: Path, data: bytes, kind: str) -
         LOAD[kind](p)
     except BadFile:
         pass
+
+
+def test_uncompressed_npz_members_read_in_place_and_every_data_flip_is_refused(tmp_path: Path) -> None:
+    a = np.linspace(-1.0, 1.0, 600, dtype=np.float32).reshape(20, 30)
+    f = np.asfortranarray(np.arange(15, dtype=np.int64).reshape(3, 5))
+    p = tmp_path / "s.npz"
+    np.savez(p, a=a, f=f, t=np.array("meta"))
+    got = files.load_npz(p, "archive", arrays={"t": {"kinds": "U", "ndim": 0, "finite": False}})
+    np.testing.assert_array_equal(got["a"], a)
+    np.testing.assert_array_equal(got["f"], f)
+    assert str(got["t"]) == "meta" and got["a"].dtype == np.float32
+    assert got["a"].flags.writeable and got["f"].flags.writeable  # callers may work on them in place
+    data = p.read_bytes()
+    start = data.index(a.tobytes()[:64])
+    for i in range(start, start + a.nbytes, 37):  # flips inside the member's data: its CRC-32 catches each
+        b = bytearray(data)
+        b[i] ^= 0x10
+        p.write_bytes(bytes(b))
+        with pytest.raises(BadFile, match="CRC"):
+            files.load_npz(p, "archive", arrays={"t": {"kinds": "U", "ndim": 0, "finite": False}})
 
 
 def test_png_flips_never_reach_the_decoder(tmp_path: Path) -> None:

@@ -30,14 +30,12 @@ from tactile_rig.perception.gelsight import (
     HeightMapper,
     Reconstructor,
     TactileMap,
-    calibrate_from_presses,
     height_map_mm,
-    load_presses,
     register,
 )
 from tactile_rig.perception.gelsight.registration import DEGENERATE, NO_CONTACT, REASONS
 from tactile_rig.perception.gelsight.synthetic import jig_move, tile
-from tests._data import test_data
+from tests._data import taxim_calibration, taxim_presses, test_data
 
 MM = 0.1245
 PRESSES = test_data("taxim_gelsight_ball") / "presses"
@@ -45,12 +43,12 @@ PRESSES = test_data("taxim_gelsight_ball") / "presses"
 
 @pytest.fixture(scope="module")
 def presses():
-    return load_presses(PRESSES)
+    return taxim_presses()
 
 
 @pytest.fixture(scope="module")
-def rec(presses):
-    return Reconstructor(calibrate_from_presses(presses, MM, 2.0, "lut", bins=32))
+def rec():
+    return Reconstructor(taxim_calibration("lut", 32))
 
 
 @pytest.fixture(scope="module")

@@ -14,26 +14,22 @@ from tactile_rig.perception.gelsight import (
     ContactParams,
     IntegrationParams,
     Reconstructor,
-    calibrate_from_presses,
-    load_presses,
 )
-from tests._data import test_data
+from tests._data import taxim_calibration, taxim_presses
 
-MM = 0.1245
-PRESSES = test_data("taxim_gelsight_ball") / "presses"
 
 
 @pytest.fixture(scope="module")
 def presses():
-    return load_presses(PRESSES)
+    return taxim_presses()
 
 
 @pytest.fixture(scope="module")
-def cals(presses):
-    return {"lut": calibrate_from_presses(presses, MM, 2.0, "lut", bins=32),
-            "lut20": calibrate_from_presses(presses, MM, 2.0, "lut", bins=20),  # bins no shift can make
-            "lut64": calibrate_from_presses(presses, MM, 2.0, "lut", bins=64),  # keys beyond 16 bits
-            "mlp": calibrate_from_presses(presses, MM, 2.0, "mlp")}
+def cals():
+    return {"lut": taxim_calibration("lut", 32),
+            "lut20": taxim_calibration("lut", 20),  # bins no shift can make
+            "lut64": taxim_calibration("lut", 64),  # keys beyond 16 bits
+            "mlp": taxim_calibration("mlp")}
 
 
 def plain_height(rec: Reconstructor, frame: np.ndarray) -> np.ndarray:

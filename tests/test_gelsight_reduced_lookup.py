@@ -13,29 +13,19 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from tactile_rig.core.errors import RigError, SaturatedFrame
-from tactile_rig.perception.gelsight import (
-    ContactParams,
-    IntegrationParams,
-    Reconstructor,
-    calibrate_from_presses,
-    load_presses,
-)
-from tests._data import test_data
-
-MM = 0.1245
-PRESSES = test_data("taxim_gelsight_ball") / "presses"
+from tactile_rig.perception.gelsight import ContactParams, IntegrationParams, Reconstructor
+from tests._data import taxim_calibration, taxim_presses
 
 
 @pytest.fixture(scope="module")
 def presses():
-    return load_presses(PRESSES)
+    return taxim_presses()
 
 
 @pytest.fixture(scope="module")
-def cals(presses):
-    return {"mlp": calibrate_from_presses(presses, MM, 2.0, "mlp"),
-            "lut": calibrate_from_presses(presses, MM, 2.0, "lut", bins=32),
-            "lut20": calibrate_from_presses(presses, MM, 2.0, "lut", bins=20)}  # the checked (unpacked) path
+def cals():
+    # lut20: bins no shift can make, the checked (unpacked) path
+    return {"mlp": taxim_calibration("mlp"), "lut": taxim_calibration("lut", 32), "lut20": taxim_calibration("lut", 20)}
 
 
 @pytest.mark.parametrize("model", ["mlp", "lut", "lut20"])

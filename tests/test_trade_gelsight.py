@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from tactile_rig.perception.gelsight import RegistrationParams
+from tactile_rig.perception.gelsight import IntegrationParams, RegistrationParams
 from tactile_rig.perception.gelsight.registration import RegistrationResult
 from tactile_rig.rig import trade
 from tactile_rig.rig.trade import gelsight as topic_gelsight
@@ -32,6 +32,7 @@ def test_gelsight_settings_have_one_default_and_cover_every_knob() -> None:
     assert {s.model for s in rows} == {"mlp", "poly", "lut"}
     assert {s.solver for s in rows} == {"dct", "dst", "fc"}
     assert {s.downsample for s in rows} >= {1, 2} and {s.crop_px for s in rows} >= {0, 3}
+    assert {s.lookup for s in rows} == {"full", "reduced"}
     assert {s.table for s in rows} >= {16, 32, 48, None}
 
 
@@ -40,7 +41,7 @@ def test_registration_settings_are_valid_params_with_one_default() -> None:
     assert sum(not r for r in rows) == 1
     for over in rows:
         over = dict(over)
-        over.pop("heights_downsample", None)
+        IntegrationParams(downsample=over.pop("heights_downsample", None), lookup=over.pop("heights_lookup", "full"))
         RegistrationParams(**over)  # every override names a real knob with a valid value
 
 

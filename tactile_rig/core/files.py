@@ -50,7 +50,7 @@ def check_file(path: str | Path, what: str = "file", *, suffixes: Sequence[str] 
                max_bytes: int = MAX_FILE_BYTES, allow_empty: bool = False) -> Path:
     """The path of an existing, non-empty regular file of at most ``max_bytes`` (and, with
     ``suffixes``, one of those suffixes); else :class:`MissingFile` or :class:`BadFile`."""
-    p = Path(path)
+    p = path if isinstance(path, Path) else Path(path)
     if suffixes is not None and p.suffix.lower() not in tuple(s.lower() for s in suffixes):
         raise BadFile(p, f"{what} has the suffix {p.suffix or '(none)'!r}", "one of " + ", ".join(suffixes))
     try:
@@ -245,14 +245,21 @@ def load_npz(path: str | Path, what: str = "archive", *,
                 with zf.open(info) as fh:
                     head = fh.read(min(info.file_size, 65536 + 12))
                     hb = io.BytesIO(head)
-                    shp, _f, dtype = read_npy_header(hb, member, p)
+                    shp, fortran, dtype = read_npy_header(hb, member, p)
                     nbytes = _check_header(p, member, shp, dtype, kinds=kinds, ndim=spec.get("ndim"),
                                            shape_spec=spec.get("shape"), max_elements=max_elements)
                     if info.file_size - hb.tell() < nbytes:
                         raise BadFile(p, f"{member} is truncated ({info.file_size - hb.tell()} of {nbytes} "
                                       "bytes)", "a complete array")
-                with zf.open(info) as fh:
-                    arr = np.load(io.BytesIO(fh.read(info.file_size)), allow_pickle=False)
+                stored = _stored_member(p, info, member) if info.compress_type == zipfile.ZIP_STORED else None
+                if stored is not None:
+                    # np.savez's uncompressed members (a calibration's 12.6 MB table) are read once into
+                    # a writable buffer, their CRC checked, and viewed in place: no copies.
+                    arr = np.frombuffer(stored, dtype, count=math.prod(shp), offset=hb.tell())
+                    arr = arr.reshape(shp[::-1]).T if fortran else arr.reshape(shp)
+                else:
+                    with zf.open(info) as fh:
+                        arr = np.load(io.BytesIO(fh.read(info.file_size)), allow_pickle=False)
             except BadFile:
                 raise
             except (zipfile.BadZipFile, EOFError, OSError, ValueError, zlib.error, NotImplementedError) as exc:
@@ -261,6 +268,32 @@ def load_npz(path: str | Path, what: str = "archive", *,
             out[key] = check_array(arr, p, member, kinds=kinds, ndim=spec.get("ndim"), shape=spec.get("shape"),
                                    finite=spec.get("finite", True), min_size=spec.get("min_size", 1))
     return out
+
+
+_ZIP_LOCAL_HEADER = struct.Struct("<4s22xHH")  # signature ... file name length, extra field length
+
+
+def _stored_member(path: Path, info: zipfile.ZipInfo, what: str) -> bytearray | None:
+    """The bytes of an uncompressed zip member, read into a writable buffer and checked against its
+    CRC-32 (ISA-L's with the ``fast`` extra); None when its local header is not where the directory
+    says or its sizes disagree (zipfile then reads it and names the damage)."""
+    if info.compress_size != info.file_size:  # a stored member's two sizes are one: the bounded one counts
+        return None
+    with open(path, "rb") as fh:
+        fh.seek(info.header_offset)
+        head = fh.read(_ZIP_LOCAL_HEADER.size)
+        if len(head) != _ZIP_LOCAL_HEADER.size:
+            return None
+        sig, name_len, extra_len = _ZIP_LOCAL_HEADER.unpack(head)
+        if sig != b"PK\x03\x04":
+            return None
+        fh.seek(name_len + extra_len, io.SEEK_CUR)
+        data = bytearray(info.compress_size)
+        if fh.readinto(data) != len(data):
+            raise BadFile(path, f"{what} is truncated", "a complete .npz archive")
+    if _crc32()(data) != info.CRC:
+        raise BadFile(path, f"{what} fails its CRC-32", "an intact .npz archive")
+    return data
 
 
 # -- text -------------------------------------------------------------------------------------

@@ -285,8 +285,8 @@ class GelSightCalibration:
             return None
         if self._packed is None:
             t = self._table
-            # All entries finite (checkRange) and their largest magnitude: both in C, once per load.
-            finite = bool(cv2.checkRange(t)[0]) if t.size else True
+            # All entries finite and their largest magnitude, once per load.
+            finite = bool(np.isfinite(t).all())
             lo, hi = cv2.minMaxLoc(t)[:2] if t.size else (0.0, 0.0)
             bins = self._bins
             self._packed = PackedTable(shift=self._packed_shift, bits=bins.bit_length() - 1,

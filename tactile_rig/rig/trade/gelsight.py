@@ -71,10 +71,12 @@ class Setting:
     solver: str = "dct"
     downsample: int = MINI_DOWNSAMPLE
     crop_px: int = 0
+    lookup: str = "full"
 
     def label(self) -> dict[str, Any]:
         return {"model": self.model, "table": self.table if self.table is not None else "exact",
-                "solver": self.solver, "downsample": self.downsample, "crop_px": self.crop_px}
+                "solver": self.solver, "downsample": self.downsample, "crop_px": self.crop_px,
+                "lookup": self.lookup}
 
     @property
     def fit_key(self) -> tuple[str, int | None]:
@@ -96,6 +98,7 @@ def settings() -> list[Setting]:
              Setting("poly", 32, downsample=1)]
     rows += [Setting("mlp", 32, crop_px=c) for c in (3, 6)]
     rows += [Setting("mlp", 32, downsample=1, crop_px=3)]
+    rows += [Setting("mlp", 32, lookup="reduced"), Setting("mlp", 32, downsample=3, lookup="reduced")]
     return rows
 
 
@@ -115,8 +118,8 @@ def _reconstructor(model: object, s: Setting, background: np.ndarray, mm_per_px:
         cal = GelSightCalibration(model, background, mm_per_px, ball_radius_mm=BALL_RADIUS_MM, bake_bins=bake)
         if cache is not None:
             cache[key] = cal
-    return Reconstructor(cal, IntegrationParams(solver=s.solver, downsample=s.downsample, border_px=s.crop_px),
-                         ContactParams())
+    return Reconstructor(cal, IntegrationParams(solver=s.solver, downsample=s.downsample, border_px=s.crop_px,
+                                                lookup=s.lookup), ContactParams())
 
 
 def interleaved_best_s(fns: list[Callable[[], Any]], calls: list[int], rounds: int = 5) -> list[float]:
@@ -207,7 +210,7 @@ def measure(*, quick: bool, seed: int = 0) -> TradeTable:
                              "per-pixel model" if s.table is None else ""))
     per = per_s[-1]
     rows.append(TradeRow({"model": "BASELINE gs_sdk-style", "table": "exact", "solver": "dct", "downsample": 1,
-                          "crop_px": 0}, 1.0 / per, float("nan"), False, {"ms_per_frame": per * 1e3},
+                          "crop_px": 0, "lookup": "full"}, 1.0 / per, float("nan"), False, {"ms_per_frame": per * 1e3},
                          "speed baseline (no contact mask: its error is not comparable)"))
     protocol = "leave-one-press-out" if folds == n else f"{folds}-fold by press (press i held out in fold i mod {folds})"
     return TradeTable(
@@ -217,12 +220,16 @@ def measure(*, quick: bool, seed: int = 0) -> TradeTable:
         knobs={"model": "colour->slope model (mlp, poly = cubic poly, lut = Li 2014 table)",
                "table": "bake bins per colour channel (lut: its bins); exact = model per pixel",
                "solver": "Poisson solver (dct Neumann, dst Dirichlet, fc Frankot-Chellappa)",
-               "downsample": "gradients downsampled before the solve", "crop_px": "border slopes zeroed (px)"},
+               "downsample": "gradients downsampled before the solve", "crop_px": "border slopes zeroed (px)",
+               "lookup": "full: every pixel's colour looked up; reduced: the frame area-reduced, then looked up"},
         default_note=("the rows beside it on the speed axis run the same per-frame work or more (a crop zeroes a "
                       "border after the same lookup; a 16-bin or LUT table is the same gather) and differ from it by "
                       "timing noise, at equal or worse error; downsample 3 reads the presses' normals ~0.3 deg "
                       "better but its registration of independent re-touches is not measured, and the automatic "
-                      "downsample keeps the reduced pixel within 0.13 mm (2 on a GelSight Mini)"),
+                      "downsample keeps the reduced pixel within 0.13 mm (2 on a GelSight Mini); the reduced "
+                      "lookup is faster at a slightly larger error and stays opt-in (gelsight height --lookup reduced) "
+                      "because every registration figure (re-touches, pairs that must be refused) is measured on "
+                      "full-lookup heights"),
         notes=["a 48-bin table gains ~0.2 deg but its saved table is 42 MB (32 bins: 12.6 MB)",
                f"machine load average {os.getloadavg()[0]:.1f} at the end of the run (2 shared cores)"],
     )

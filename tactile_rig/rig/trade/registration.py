@@ -45,7 +45,8 @@ PLAIN_HEIGHTS = {"dense_highpass_px": 0.0, "min_ncc": 0.9, "detect_short_px": 16
 
 def settings() -> list[dict[str, Any]]:
     """Overrides of :class:`RegistrationParams` per row ({} is the default); ``heights_downsample``
-    reconstructs the touches with that integration downsample instead of the default."""
+    and ``heights_lookup`` reconstruct the touches with that integration downsample or colour lookup
+    (:class:`IntegrationParams`) instead of the defaults."""
     return [
         {},
         {"detector": "brisk", "brisk_threshold": 10},
@@ -76,6 +77,7 @@ def settings() -> list[dict[str, Any]]:
         {"search_min_patches": 0, "search_min_explained": 0.3},
         dict(OLD_DEFAULTS),
         {"heights_downsample": 1},
+        {"heights_lookup": "reduced"},
     ]
 
 
@@ -129,8 +131,8 @@ def _score_baseline(data: RetouchSet) -> Score:
     return sc
 
 
-def _with_heights(data: RetouchSet, downsample: int) -> RetouchSet:
-    rec = Reconstructor(mini_calibration(), IntegrationParams(downsample=downsample))
+def _with_heights(data: RetouchSet, downsample: int, lookup: str = "full") -> RetouchSet:
+    rec = Reconstructor(mini_calibration(), IntegrationParams(downsample=downsample, lookup=lookup))
     out = RetouchSet(data.part, replace(data.a, height_mm=rec.height_mm(data.a.frame_bgr)), mm_per_px=data.mm_per_px)
     out.touches = [replace(t, height_mm=rec.height_mm(t.frame_bgr)) for t in data.touches]
     out.truth_px = list(data.truth_px)
@@ -163,18 +165,19 @@ def measure(*, quick: bool, seed: int = 0) -> TradeTable:
     rots = tuple(float(r) for r in range(-90, 91, 20)) if quick else tuple(float(r) for r in range(-90, 91, 10))
     shifts = (-2.0, 0.0, 2.0) if quick else (-2.0, -1.0, 0.0, 1.0, 2.0)
     sets = [retouch_set(part, rotations_deg=rots, shifts_mm=shifts, seed=seed) for part in ("usb", "plate")]
-    sets_other_ds: list[RetouchSet] | None = None
+    sets_other: dict[tuple[int, str], list[RetouchSet]] = {}
     rows_set = settings()
     scores: list[Score] = []
     timers: list[Callable[[], Any]] = []
     for over in rows_set:
         over = dict(over)
-        ds = int(over.pop("heights_downsample", HEIGHTS_DOWNSAMPLE))
+        how = (int(over.pop("heights_downsample", HEIGHTS_DOWNSAMPLE)), str(over.pop("heights_lookup", "full")))
         params = RegistrationParams(**over)
         data = sets
-        if ds != HEIGHTS_DOWNSAMPLE:
-            sets_other_ds = sets_other_ds or [_with_heights(s, ds) for s in sets]
-            data = sets_other_ds
+        if how != (HEIGHTS_DOWNSAMPLE, "full"):
+            if how not in sets_other:
+                sets_other[how] = [_with_heights(s, *how) for s in sets]
+            data = sets_other[how]
         sc = Score()
         for d in data:
             for t, truth in zip(d.touches, d.truth_px):
@@ -219,7 +222,8 @@ def measure(*, quick: bool, seed: int = 0) -> TradeTable:
                "search_step_deg": "rotation step of the dense search (deg)",
                "search_min_patches/search_min_explained": "the dense search's evidence bars (one row loosened)",
                "heights_downsample": "the touches reconstructed with this integration downsample (default "
-                                     f"{HEIGHTS_DOWNSAMPLE})"},
+                                     f"{HEIGHTS_DOWNSAMPLE})",
+               "heights_lookup": "the touches reconstructed with this colour lookup (default full)"},
         default_note=("the front ignores answers to pairs that must be refused, which this table does not hold: "
                       "on 480 pairs of unrelated real ball-press tiles (tests/test_gelsight_registration.py, "
                       "tests/test_gelsight_dense_search.py) the defaults place none, inlier_px=6.0 places 1 and "
