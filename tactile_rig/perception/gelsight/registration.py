@@ -135,8 +135,7 @@ class RegistrationParams:
     right poses agree on >= 1.53x their turned twin);
     search_min_support: at least this many of the keypoint matches must agree with the pose within
     inlier_px (0 by default: a right re-touch that keypoints failed on keeps 1-3 of them, a wrong
-    pose of tiled domes up to 15). A
-    search answer must also pass min_overlap and the pinning bars.
+    pose of tiled domes up to 15). A search answer must also pass min_overlap and the pinning bars.
     """
 
     detector: str = "orb"
