@@ -283,9 +283,9 @@ def agreeing_patches(height_a: np.ndarray, height_b: np.ndarray, matrix_px: np.n
 
     height_a / height_b: the two maps' high-passed heights (mm; any unit, only correlations count);
     valid_*: known pixels (None: all). Measured on 240x320 maps with 24 px patches (docs/gelsight.md):
-    the right pose of a plate or usb re-touch agrees on 26-68 patches; the best wrong pose of pairs
+    the right pose of a plate or usb re-touch agrees on 24-68 patches; the best wrong pose of pairs
     with nothing to register (tiled real ball presses, the other part, other plates) on at most 20;
-    a part's turned twin (the usb panel at 180 deg) on up to 33, which this count alone does not
+    a part's turned twin (the usb panel at 180 deg) on up to 35, which this count alone does not
     refuse (the polish's pinning bars and the uniqueness ratio do). Patch moments are area means
     (one OpenCV reduction per moment image).
     """

@@ -126,17 +126,16 @@ class RegistrationParams:
     (:func:`~tactile_rig.perception.gelsight.dense_search.agreeing_patches`: local evidence spread over
     the overlap, which a rigid move cannot line up by chance: right re-touches agree on 24 or more,
     the best wrong pose of 1,720 pairs that must be refused on at most 20; the usb panel's turned twin
-    agrees on up to 35 but fails the pinning bars, its translation 1-sigma >= 0.40 px); asked of every
+    agrees on up to 35 but fails the pinning bars, its translation 1-sigma >= 0.39 px); asked of every
     search answer and of a keypoint answer with a thin consensus (fewer than WEAK_CONSENSUS_INLIERS
     inliers and a dense NCC under WEAK_CONSENSUS_NCC: such answers on plate and usb re-touches agree on
     26 or more, on unrelated tiled ball presses on at most 19); 0 turns the count off;
     search_min_ratio: the pose must agree on this many times more patches than any distinct
     candidate pose, else the content is ambiguous (blobs and domes fit several poses; the usb's
-    right poses agree on >= 1.55x their turned twin);
+    right poses agree on >= 1.53x their turned twin);
     search_min_support: at least this many of the keypoint matches must agree with the pose within
     inlier_px (0 by default: a right re-touch that keypoints failed on keeps 1-3 of them, a wrong
-    pose of tiled domes up to 15). A
-    search answer must also pass min_overlap and the pinning bars.
+    pose of tiled domes up to 15). A search answer must also pass min_overlap and the pinning bars.
     """
 
     detector: str = "orb"
