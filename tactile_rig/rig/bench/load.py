@@ -157,8 +157,8 @@ def load_bench(
             bench.devices[table] = cfg
     if not problems and not bench.devices:
         # An empty (or comments-only) file would pass every check by checking nothing.
-        tables = ", ".join(f"[{k}]" for k in DEVICE_CLASSES if k != "camera")
-        problems.append((None, f"declares no device; expected at least one of the tables {tables} or "
+        device_tables = ", ".join(f"[{k}]" for k in DEVICE_CLASSES if k != "camera")
+        problems.append((None, f"declares no device; expected at least one of the tables {device_tables} or "
                                f"[camera_<name>] (an example: {mock_bench_path()})"))
     if problems:
         raise BenchError(source, problems)
