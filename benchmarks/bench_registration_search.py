@@ -68,7 +68,9 @@ from tactile_rig.rig.trade.registration_data import (  # noqa: E402
 SETTINGS = {"defaults": RegistrationParams(), "keypoints only": RegistrationParams(dense_fallback=False)}
 # Looser settings measured on the must-refuse pairs beside the defaults (trade rows ahead of the default).
 LOOSER = {"inlier_px=6": RegistrationParams(inlier_px=6.0),
-          "search bars loosened": RegistrationParams(search_min_patches=15, search_min_ratio=1.0)}
+          "search bars loosened": RegistrationParams(search_min_patches=15, search_min_ratio=1.0),
+          "orb_features=150": RegistrationParams(orb_features=150),
+          "max_sigma=0.5": RegistrationParams(max_sigma_px=0.5, max_sigma_rot_deg=0.5)}
 # A candidate this close to the truth is neither right nor wrong for the margin (deg, mm).
 NEAR_ROT_DEG, NEAR_TRANS_MM = 2.0, 0.2
 
