@@ -142,6 +142,8 @@ def main() -> int:
                     "e.g. /dev/shm to take a disk's state out of the figure (both sides write the same files)")
     add_save_args(ap, "gelsight_height.json")
     args = parse_args(ap)
+    if args.dir is not None and not Path(args.dir).is_dir():
+        ap.error(f"--dir {args.dir}: no such folder")
     cpu_pinned = None if args.no_pin else _pin_one_core()
     cv2.setNumThreads(1)
     load0 = os.getloadavg()

@@ -13,6 +13,8 @@ from typing import Any
 
 import pytest
 
+from tactile_rig.perception.gelsight import calibrate_from_presses, load_presses
+
 TESTS_DATA = Path(__file__).resolve().parent / "data"
 
 
@@ -57,8 +59,6 @@ TAXIM_BALL_RADIUS_MM = 2.0
 @functools.lru_cache(maxsize=None)
 def taxim_presses() -> Any:
     """The 30 real Taxim GelSight ball presses (MIT), loaded once per test session: treat as read-only."""
-    from tactile_rig.perception.gelsight import load_presses
-
     return load_presses(test_data("taxim_gelsight_ball") / "presses")
 
 
@@ -66,7 +66,5 @@ def taxim_presses() -> Any:
 def taxim_calibration(method: str = "lut", bins: int = 32) -> Any:
     """A calibration fitted on all the Taxim presses (``bins`` for the LUT method), fitted once per
     test session (an MLP fit costs seconds): treat as read-only."""
-    from tactile_rig.perception.gelsight import calibrate_from_presses
-
     hyper = {"bins": bins} if method == "lut" else {}
     return calibrate_from_presses(taxim_presses(), TAXIM_MM_PER_PX, TAXIM_BALL_RADIUS_MM, method, **hyper)
