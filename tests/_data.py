@@ -11,6 +11,7 @@ import os
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from tactile_rig.perception.gelsight import calibrate_from_presses, load_presses
@@ -68,3 +69,33 @@ def taxim_calibration(method: str = "lut", bins: int = 32) -> Any:
     test session (an MLP fit costs seconds): treat as read-only."""
     hyper = {"bins": bins} if method == "lut" else {}
     return calibrate_from_presses(taxim_presses(), TAXIM_MM_PER_PX, TAXIM_BALL_RADIUS_MM, method, **hyper)
+
+
+EXTREME_KINDS = ("patch", "noise", "constant", "gain", "clip")
+
+
+def extreme_frame(base: Any, kind: str, value: int, rng: Any) -> Any:
+    """A BGR uint8 frame of ``base``'s size pushed to an extreme: a random block of one colour
+    (patch), sensor noise of sigma ``value``/4 (noise), one grey level everywhere (constant), an
+    exposure gain of ``value``/128 (gain), or up to a third of the pixels' one channel set to
+    ``value`` (clip: below or above the refusal fractions)."""
+    h, w = base.shape[:2]
+    if kind == "patch":
+        frame = base.copy()
+        bh, bw = int(rng.integers(1, h)), int(rng.integers(1, w))
+        y, x = int(rng.integers(0, h - bh + 1)), int(rng.integers(0, w - bw + 1))
+        frame[y:y + bh, x:x + bw] = rng.integers(0, 256, 3)
+        return frame
+    if kind == "noise":
+        return np.clip(base.astype(int) + rng.normal(0, value / 4 + 0.1, base.shape), 0, 255).astype(np.uint8)
+    if kind == "constant":
+        return np.full_like(base, value)
+    if kind == "gain":
+        return np.clip(base.astype(np.float32) * (value / 128.0), 0, 255).astype(np.uint8)
+    if kind == "clip":
+        frame = base.copy()
+        n = int(rng.integers(1, h * w // 3))
+        ys, xs = rng.integers(0, h, n), rng.integers(0, w, n)
+        frame[ys, xs, int(rng.integers(0, 3))] = value
+        return frame
+    raise ValueError(f"kind must be one of {EXTREME_KINDS}, got {kind!r}")

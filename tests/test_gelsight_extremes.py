@@ -35,7 +35,7 @@ from tactile_rig.perception.gelsight import (
 )
 from tactile_rig.perception.gelsight.registration import DEGENERATE, NO_CONTACT, REASONS
 from tactile_rig.perception.gelsight.synthetic import jig_move, tile
-from tests._data import taxim_calibration, taxim_presses, test_data
+from tests._data import extreme_frame, taxim_calibration, taxim_presses, test_data
 
 MM = 0.1245
 PRESSES = test_data("taxim_gelsight_ball") / "presses"
@@ -90,17 +90,7 @@ def test_one_pixel_and_wrong_size_frames_are_value_errors(rec) -> None:
 def test_any_frame_gives_a_bounded_height_or_a_typed_error(rec, kind, value, seed) -> None:
     rng = np.random.default_rng(seed)
     bg = rec.calibration.background
-    if kind == "patch":
-        frame = bg.copy()
-        h, w = int(rng.integers(1, 120)), int(rng.integers(1, 160))
-        y, x = int(rng.integers(0, 120 - h + 1)), int(rng.integers(0, 160 - w + 1))
-        frame[y:y + h, x:x + w] = rng.integers(0, 256, 3)
-    elif kind == "noise":
-        frame = np.clip(bg.astype(int) + rng.normal(0, value / 4 + 0.1, bg.shape), 0, 255).astype(np.uint8)
-    elif kind == "constant":
-        frame = np.full_like(bg, value)
-    else:
-        frame = np.clip(bg.astype(np.float32) * (value / 128.0), 0, 255).astype(np.uint8)
+    frame = extreme_frame(bg, kind, value, rng)
     try:
         z = rec.height_mm(frame)
     except PerceptionError as exc:

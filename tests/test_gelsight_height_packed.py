@@ -15,7 +15,7 @@ from tactile_rig.perception.gelsight import (
     IntegrationParams,
     Reconstructor,
 )
-from tests._data import taxim_calibration, taxim_presses
+from tests._data import EXTREME_KINDS, extreme_frame, taxim_calibration, taxim_presses
 
 
 
@@ -90,29 +90,13 @@ def test_packed_path_gives_the_plain_heights_on_presses(cals, presses, model, in
 
 
 @settings(deadline=None, max_examples=60, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(st.sampled_from(["patch", "noise", "constant", "gain", "clip"]), st.integers(0, 255),
+@given(st.sampled_from(EXTREME_KINDS), st.integers(0, 255),
        st.integers(0, 2**31 - 1), st.sampled_from(range(len(SETTINGS))))
 def test_packed_path_refuses_and_reads_like_the_plain_one(cals, presses, kind, value, seed, which) -> None:
     model, integration, contact = SETTINGS[which]
     rec = Reconstructor(cals[model], integration, contact)
     rng = np.random.default_rng(seed)
-    base = presses.frames[seed % len(presses.frames)]
-    if kind == "patch":
-        frame = base.copy()
-        h, w = int(rng.integers(1, 120)), int(rng.integers(1, 160))
-        y, x = int(rng.integers(0, 120 - h + 1)), int(rng.integers(0, 160 - w + 1))
-        frame[y:y + h, x:x + w] = rng.integers(0, 256, 3)
-    elif kind == "noise":
-        frame = np.clip(base.astype(int) + rng.normal(0, value / 4 + 0.1, base.shape), 0, 255).astype(np.uint8)
-    elif kind == "constant":
-        frame = np.full_like(base, value)
-    elif kind == "gain":
-        frame = np.clip(base.astype(np.float32) * (value / 128.0), 0, 255).astype(np.uint8)
-    else:  # a few clipped or far-off pixels, below or above the refusal fractions
-        frame = base.copy()
-        n = int(rng.integers(1, frame.shape[0] * frame.shape[1] // 3))
-        ys, xs = rng.integers(0, frame.shape[0], n), rng.integers(0, frame.shape[1], n)
-        frame[ys, xs, int(rng.integers(0, 3))] = value
+    frame = extreme_frame(presses.frames[seed % len(presses.frames)], kind, value, rng)
     got, want = outcome(rec.height_mm, frame), outcome(plain_height, rec, frame)
     if isinstance(want, tuple):
         assert isinstance(got, tuple) and got[0] is want[0]

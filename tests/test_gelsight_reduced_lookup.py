@@ -12,9 +12,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tactile_rig.core.errors import RigError, SaturatedFrame
+from tactile_rig.core.errors import GradientOutOfRange, HeightOutOfRange, PerceptionError, SaturatedFrame
 from tactile_rig.perception.gelsight import ContactParams, IntegrationParams, Reconstructor
-from tests._data import taxim_calibration, taxim_presses
+from tests._data import EXTREME_KINDS, extreme_frame, taxim_calibration, taxim_presses
 
 
 @pytest.fixture(scope="module")
@@ -73,26 +73,19 @@ def test_reduced_lookup_keeps_the_whole_frame_refusals(cals, presses) -> None:
 
 
 @settings(deadline=None, max_examples=40, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(st.sampled_from(["noise", "constant", "gain", "patch"]), st.integers(0, 255), st.integers(0, 2**31 - 1),
-       st.sampled_from([2, 3, 4]), st.sampled_from(["mlp", "lut20"]))
+@given(st.sampled_from(EXTREME_KINDS), st.integers(0, 255), st.integers(0, 2**31 - 1), st.sampled_from([2, 3, 4]),
+       st.sampled_from(["mlp", "lut20"]))
 def test_reduced_lookup_at_the_extremes_is_bounded_or_refused(cals, presses, kind, value, seed, downsample,
                                                                  model) -> None:
     rng = np.random.default_rng(seed)
-    frame = presses.frames[seed % len(presses.frames)].copy()
-    if kind == "noise":
-        frame = rng.integers(0, 256, frame.shape, dtype=np.uint8)
-    elif kind == "constant":
-        frame[:] = value
-    elif kind == "gain":
-        frame = np.clip(frame.astype(np.float32) * (value / 64.0), 0, 255).astype(np.uint8)
-    else:
-        y, x = rng.integers(0, frame.shape[0] - 8), rng.integers(0, frame.shape[1] - 8)
-        frame[y:y + 8, x:x + 8] = value
+    frame = extreme_frame(presses.frames[seed % len(presses.frames)], kind, value, rng)
     contact = ContactParams()
     red = Reconstructor(cals[model], IntegrationParams(downsample=downsample, lookup="reduced"), contact)
     try:
         z = red.height_mm(frame)
-    except RigError:
-        return  # a typed refusal names its reason
+    except PerceptionError as exc:  # a typed refusal names its reason, its value and the bound it broke
+        assert isinstance(exc, (SaturatedFrame, GradientOutOfRange, HeightOutOfRange))
+        assert exc.value is not None and exc.limit is not None and exc.value > exc.limit
+        return
     assert np.isfinite(z).all() and z.shape == frame.shape[:2]
     assert float(z.max() - z.min()) <= contact.max_height_range_mm

@@ -224,7 +224,7 @@ def load_npz(path: str | Path, what: str = "archive", *,
     except (zipfile.BadZipFile, EOFError, OSError, ValueError) as exc:
         raise BadFile(p, f"{what} is not a readable .npz archive ({str(exc)[:120] or type(exc).__name__}; "
                       "truncated?)", "a NumPy .npz archive") from None
-    with zf:
+    with zf, open(p, "rb") as raw:  # raw: the stored members' bytes, read by _stored_member
         names = [i for i in zf.infolist() if i.filename.endswith(".npy")]
         if len(names) != len(zf.infolist()):
             extra = [i.filename for i in zf.infolist() if not i.filename.endswith(".npy")][:3]
@@ -251,7 +251,7 @@ def load_npz(path: str | Path, what: str = "archive", *,
                     if info.file_size - hb.tell() < nbytes:
                         raise BadFile(p, f"{member} is truncated ({info.file_size - hb.tell()} of {nbytes} "
                                       "bytes)", "a complete array")
-                stored = _stored_member(p, info, member) if info.compress_type == zipfile.ZIP_STORED else None
+                stored = _stored_member(raw, p, info, member) if info.compress_type == zipfile.ZIP_STORED else None
                 if stored is not None:
                     # np.savez's uncompressed members (a calibration's 12.6 MB table) are read once into
                     # a writable buffer, their CRC checked, and viewed in place: no copies.
@@ -273,24 +273,24 @@ def load_npz(path: str | Path, what: str = "archive", *,
 _ZIP_LOCAL_HEADER = struct.Struct("<4s22xHH")  # signature ... file name length, extra field length
 
 
-def _stored_member(path: Path, info: zipfile.ZipInfo, what: str) -> bytearray | None:
-    """The bytes of an uncompressed zip member, read into a writable buffer and checked against its
-    CRC-32 (ISA-L's with the ``fast`` extra); None when its local header is not where the directory
-    says or its sizes disagree (zipfile then reads it and names the damage)."""
+def _stored_member(fh: Any, path: Path, info: zipfile.ZipInfo, what: str) -> bytearray | None:
+    """The bytes of an uncompressed zip member of the archive open as ``fh`` (binary, seekable),
+    read into a writable buffer and checked against its CRC-32 (ISA-L's with the ``fast`` extra);
+    None when its local header is not where the directory says or its sizes disagree (zipfile then
+    reads it and names the damage)."""
     if info.compress_size != info.file_size:  # a stored member's two sizes are one: the bounded one counts
         return None
-    with open(path, "rb") as fh:
-        fh.seek(info.header_offset)
-        head = fh.read(_ZIP_LOCAL_HEADER.size)
-        if len(head) != _ZIP_LOCAL_HEADER.size:
-            return None
-        sig, name_len, extra_len = _ZIP_LOCAL_HEADER.unpack(head)
-        if sig != b"PK\x03\x04":
-            return None
-        fh.seek(name_len + extra_len, io.SEEK_CUR)
-        data = bytearray(info.compress_size)
-        if fh.readinto(data) != len(data):
-            raise BadFile(path, f"{what} is truncated", "a complete .npz archive")
+    fh.seek(info.header_offset)
+    head = fh.read(_ZIP_LOCAL_HEADER.size)
+    if len(head) != _ZIP_LOCAL_HEADER.size:
+        return None
+    sig, name_len, extra_len = _ZIP_LOCAL_HEADER.unpack(head)
+    if sig != b"PK\x03\x04":
+        return None
+    fh.seek(name_len + extra_len, io.SEEK_CUR)
+    data = bytearray(info.compress_size)
+    if fh.readinto(data) != len(data):
+        raise BadFile(path, f"{what} is truncated", "a complete .npz archive")
     if _crc32()(data) != info.CRC:
         raise BadFile(path, f"{what} fails its CRC-32", "an intact .npz archive")
     return data

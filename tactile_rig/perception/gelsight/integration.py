@@ -80,7 +80,7 @@ class IntegrationParams:
     (20 = 87 deg; a calibration's slopes stay below tan 1.5 rad ~ 14); a steeper one raises
     :class:`~tactile_rig.core.errors.GradientOutOfRange` instead of being integrated into a height
     of hundreds of mm. lookup (with a downsample > 1; :class:`~.pipeline.Reconstructor`): "full"
-    looks every pixel's colour up and area-reduces the slopes; "reduced" area-reduces the frame and
+    (default) looks every pixel's colour up and area-reduces the slopes; "reduced" area-reduces the frame and
     looks up the reduced pixels only: about 40 % less work a frame at downsample 2, heights within
     1 % of the press depth RMS of "full" on the real presses (the table is not linear in colour, so
     not equal), normals ~0.1 deg worse on presses the calibration never saw (docs/speed_and_accuracy.md).

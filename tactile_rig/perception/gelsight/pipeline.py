@@ -87,7 +87,6 @@ class Reconstructor:
         ``max_slope`` (checked here, once), no frame can carry a slope the integration would refuse,
         so its per-frame check (a copy and a min/max of each slope map) is proven and skipped.
         """
-        m = self.mapper
         thr = self.contact.colour_threshold
         if thr is not None and not thr < 127:
             return None  # a threshold >= 127 needs |d| > 127, which the key's clipped colours cannot show
@@ -150,18 +149,27 @@ class Reconstructor:
             z = np.where(z > c.min_height_mm, z, np.float32(0))
         return z
 
+    def _refusals(self, frame_bgr: np.ndarray, *diffs: np.ndarray) -> None:
+        """The whole-frame refusals (:meth:`GelSightCalibration.check_range`): a frame with no clipped
+        byte and no byte of ``diffs`` (|frame - background|, whole or as its positive and negative
+        parts) beyond the colour range passes both after a few min/max passes; any other frame is
+        counted pixel by pixel."""
+        cal = self.calibration
+        c = self.contact
+        h, w = cal.shape
+        limit = min(int(cal.colour_range), 255)
+        lo, hi = cv2.minMaxLoc(frame_bgr.reshape(h, w * 3))[:2]
+        if lo < 1 or hi > 254 or any(cv2.minMaxLoc(d.reshape(h, w * 3))[1] > limit for d in diffs):
+            cal.check_range(frame_bgr, None, c.max_saturated_fraction, c.max_out_of_range_fraction)
+
     def _height_reduced(self, frame_bgr: np.ndarray) -> np.ndarray:
         """:meth:`height_mm` with ``lookup="reduced"``: the frame area-reduced, reconstructed at the
         reduced pitch, brought back bilinearly. The refusals read the whole frame first (one clipped
         pixel in four would average away)."""
         cal = self.calibration
-        c = self.contact
         h, w = cal.shape
         _check_frame(frame_bgr, cal.shape, "frame_bgr")
-        lo, hi = cv2.minMaxLoc(frame_bgr.reshape(h, w * 3))[:2]
-        if (lo < 1 or hi > 254 or cv2.minMaxLoc(cv2.absdiff(frame_bgr, cal.background).reshape(h, w * 3))[1]
-                > min(int(cal.colour_range), 255)):
-            cal.check_range(frame_bgr, None, c.max_saturated_fraction, c.max_out_of_range_fraction)
+        self._refusals(frame_bgr, cv2.absdiff(frame_bgr, cal.background))
         inner = self._reduced
         assert inner is not None
         hs, ws = inner.calibration.shape
@@ -180,13 +188,7 @@ class Reconstructor:
         bg = cal.background
         pos = cv2.subtract(frame_bgr, bg)  # the positive and negative parts of frame - background
         neg = cv2.subtract(bg, frame_bgr)
-        # The refusals: a frame with no clipped byte and no difference beyond the colour range passes
-        # both (three min/max over bytes); any other frame is counted pixel by pixel as before.
-        limit = min(int(cal.colour_range), 255)
-        lo, hi = cv2.minMaxLoc(frame_bgr.reshape(h, w * 3))[:2]
-        if (lo < 1 or hi > 254 or cv2.minMaxLoc(pos.reshape(h, w * 3))[1] > limit
-                or cv2.minMaxLoc(neg.reshape(h, w * 3))[1] > limit):
-            cal.check_range(frame_bgr, None, c.max_saturated_fraction, c.max_out_of_range_fraction)
+        self._refusals(frame_bgr, pos, neg)
         # clip(d + 128, 0, 255) per channel, the table's colour coordinate
         b, g, r = cv2.split(cv2.subtract(cv2.add(pos, (128, 128, 128, 0)), neg))
         mask = None
