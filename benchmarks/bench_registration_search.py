@@ -110,7 +110,7 @@ def search_evidence(a: np.ndarray, b: np.ndarray, params: RegistrationParams) ->
         n = agreeing_patches(fa.smooth, fb.smooth, f.matrix_px, params.search_patch_px, fa.valid, fb.valid) \
             if f.overlap >= params.min_overlap else 0
         bars = (f.converged and f.overlap >= params.min_overlap and f.rotation_pinning >= params.min_rotation_pinning
-                and f.sigma_rot_deg <= params.max_sigma_rot_deg and f.sigma_px <= params.max_sigma_px
+                and f.sigma_rot_deg <= params.max_sigma_rot_deg and f.sigma_px <= params.search_max_sigma_px
                 and max(f.ncc, 0.0) ** 2 * f.overlap >= params.search_min_explained)
         out.append((f.matrix_px, n, f.sigma_px, bool(bars)))
     return out
@@ -124,6 +124,7 @@ def margin(seeds: list[int], n_tiles: int, held_out: bool = False) -> dict:
     ratio_min = (float("inf"), "")
     wrong_max = {}  # group -> (agreeing patches, where)
     many = (float("inf"), "")  # smallest sigma px of a wrong pose agreeing on search_min_patches or more
+    right_sigma = (0.0, "")  # largest sigma px of a right pose
     passing = 0  # wrong poses passing every per-pose bar
 
     thin: dict[str, list[int]] = {"right": [], "wrong": []}  # agreeing patches of thin keypoint answers
@@ -156,6 +157,7 @@ def margin(seeds: list[int], n_tiles: int, held_out: bool = False) -> dict:
                     err = pose_error(m, truth, t.height_mm.shape, data.mm_per_px)
                     if is_right(*err):
                         right.append(n)
+                        right_sigma = max(right_sigma, (sigma, where))
                     elif err[0] > NEAR_ROT_DEG or err[1] > NEAR_TRANS_MM:
                         other.append(n)
                         wrong(f"{part} re-touches' wrong candidates", n, sigma, bars, where)
@@ -174,13 +176,14 @@ def margin(seeds: list[int], n_tiles: int, held_out: bool = False) -> dict:
     for group, (n, where) in wrong_max.items():
         print(f"margin: best wrong pose, {group}: {n} agreeing patches ({where})")
     print(f"margin: wrong poses agreeing on >= {params.search_min_patches} patches pin translation to "
-          f">= {many[0]:.3f} px 1-sigma ({many[1]}; max_sigma_px {params.max_sigma_px}); wrong poses passing every "
+          f">= {many[0]:.3f} px 1-sigma ({many[1]}), right poses to <= {right_sigma[0]:.3f} px ({right_sigma[1]}); "
+          f"search_max_sigma_px {params.search_max_sigma_px}; wrong poses passing every "
           f"per-pose bar: {passing}")
     print(f"margin: thin keypoint answers (< {WEAK_CONSENSUS_INLIERS} inliers, NCC < {WEAK_CONSENSUS_NCC}, patch count "
           f"off): {len(thin['right'])} right agree on >= {min(thin['right'], default=0)} patches, {len(thin['wrong'])} "
           f"wrong on <= {max(thin['wrong'], default=0)} (search_min_patches={params.search_min_patches})")
     return {"thin_keypoint_right": thin["right"], "thin_keypoint_wrong": thin["wrong"], "right_min_agreeing": right_min, "right_min_ratio": ratio_min, "wrong_max_agreeing": wrong_max,
-            "wrong_agreeing_min_sigma_px": many, "wrong_passing_pose_bars": passing}
+            "wrong_agreeing_min_sigma_px": many, "right_max_sigma_px": right_sigma, "wrong_passing_pose_bars": passing}
 
 
 def must_refuse(n_tiles: int, held_out: bool = False) -> dict:

@@ -262,7 +262,7 @@ def test_cli_documents_every_threshold(capsys, sub) -> None:
     text = capsys.readouterr().out
     for flag in ("--ransac-iters", "--inlier-px", "--min-inliers", "--min-confidence", "--min-ncc",
                  "--min-overlap", "--max-sigma-rot-deg", "--max-sigma-px", "--detect-short-px",
-                 "--orb-features", "--min-rotation-pinning", "--no-dense-fallback"):
+                 "--orb-features", "--min-rotation-pinning", "--search-max-sigma-px", "--no-dense-fallback"):
         assert flag in text, flag
 
 

@@ -177,6 +177,9 @@ _REG_FLAGS: tuple[tuple[str, Callable[[str], Any], str], ...] = (
      "refuse when the dense fit pins rotation worse than this (1 sigma, deg)"),
     ("max_sigma_px", float_in(0.0, 10_000.0, "px", low_open=True),
      "refuse when the dense fit pins translation worse than this (1 sigma, px)"),
+    ("search_max_sigma_px", float_in(0.0, 10_000.0, "px", low_open=True),
+     "dense search: refuse a pose pinning translation worse than this (1 sigma, px); the pose must also "
+     "win the patch count and the uniqueness ratio"),
     ("min_rotation_pinning", float_in(0.0, 100.0),
      "refuse rotation-symmetric content (rotation vs translation information)"),
     ("detect_short_px", int_in(16, 8192, "px"), "keypoints are found on the map resized to this short side (px)"),

@@ -135,7 +135,13 @@ class RegistrationParams:
     right poses agree on >= 1.53x their turned twin);
     search_min_support: at least this many of the keypoint matches must agree with the pose within
     inlier_px (0 by default: a right re-touch that keypoints failed on keeps 1-3 of them, a wrong
-    pose of tiled domes up to 15). A search answer must also pass min_overlap and the pinning bars.
+    pose of tiled domes up to 15). A search answer must also pass min_overlap and the pinning bars,
+    with search_max_sigma_px in place of max_sigma_px: a search pose has also won the patch count
+    and the uniqueness ratio, so its translation bar only has to keep out content that cannot pin
+    and a turned twin whose right pose is not among the candidates. Its 1-sigma comes from the
+    residual, which grows with how differently two touches were pressed: right plate re-touches
+    read up to 0.355 px (a 0.66 mm deep press at the widest gel blur), the usb's turned twin (the
+    only wrong pose agreeing on search_min_patches) 0.393 px or more (re-touch seeds 0-5).
     """
 
     detector: str = "orb"
@@ -173,6 +179,7 @@ class RegistrationParams:
     search_min_support: int = 0
     search_patch_px: int = 24
     search_min_patches: int = 23
+    search_max_sigma_px: float = 0.375
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -335,6 +342,7 @@ class Features:
     smooth: np.ndarray | None = None
     sample_xy: np.ndarray | None = None
     sample_z: np.ndarray | None = None
+    sample_slope: np.ndarray | None = None
     height: np.ndarray | None = None
     ptp_mm: float = float("nan")
     valid: np.ndarray | None = None
@@ -374,7 +382,7 @@ def _features(z: np.ndarray, ptp_mm: float, params: RegistrationParams, dense: b
         # A high-pass bends the heights within about two sigmas of a coverage edge (a tactile map's):
         # samples keep that far inside it.
         edge = max(3, int(round(2.0 * params.dense_highpass_px)))
-        feats.sample_xy, feats.sample_z = _dense_samples(smooth, params.dense_samples, valid, edge)
+        feats.sample_xy, feats.sample_z, feats.sample_slope = _dense_samples(smooth, params.dense_samples, valid, edge)
     k = detect_scale(params, z.shape) if scale is None else float(scale)
     small = z if k == 1.0 else cv2.resize(z, None, fx=k, fy=k, interpolation=cv2.INTER_AREA)
     if valid is not None and k != 1.0:
@@ -560,16 +568,16 @@ def _upper_quartile(x: np.ndarray) -> float:
 
 
 def _dense_samples(smooth: np.ndarray, count: int, valid: np.ndarray | None = None, edge_px: int = 3
-                   ) -> tuple[np.ndarray, np.ndarray]:
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pixels of A that constrain alignment: the steepest quarter of every other pixel of every other
     row (DENSE_MARGIN_PX from the edge and inside ``valid`` shrunk by ``edge_px``), thinned to at most
     ``count`` on a regular stride (deterministic). The half-density grid finds the same structure at
     a quarter of the cost; the polish samples B bilinearly wherever A's samples land. Returns the
-    samples (N, 2) px and A's heights there (N,)."""
+    samples (N, 2) px, A's heights there (N,) and A's central-difference slopes there (N, 2) (x, y)."""
     h, w = smooth.shape
     ys0, xs0 = 2 * np.arange(1, (h - 1) // 2), 2 * np.arange(1, (w - 1) // 2)  # even rows/columns, not the edge
     if len(ys0) < 2 or len(xs0) < 2:
-        return np.zeros((0, 2), np.float32), np.zeros(0)
+        return np.zeros((0, 2), np.float32), np.zeros(0), np.zeros((0, 2))
     r0, r1, c0, c1 = ys0[0], ys0[-1] + 1, xs0[0], xs0[-1] + 1
     # Central differences on the even grid (as _grad, whose slopes are half the neighbour difference).
     gx = 0.5 * (smooth[r0:r1:2, c0 + 1:c1 + 1:2] - smooth[r0:r1:2, c0 - 1:c1 - 1:2])
@@ -585,12 +593,13 @@ def _dense_samples(smooth: np.ndarray, count: int, valid: np.ndarray | None = No
     thr = _upper_quartile(mag[::2, ::2])  # a sparse grid estimates the quartile well enough
     pts = cv2.findNonZero((mag > max(float(thr), 1e-10)).view(np.uint8))  # row-major, as np.nonzero
     if pts is None:
-        return np.zeros((0, 2), np.float32), np.zeros(0)
+        return np.zeros((0, 2), np.float32), np.zeros(0), np.zeros((0, 2))
     pts = pts.reshape(-1, 2)  # (N, 1, 2) on OpenCV 4, (N, 2) on 5
     if len(pts) > count:
         pts = pts[np.linspace(0, len(pts) - 1, count).astype(np.int64)]
     xs, ys = xs0[pts[:, 0]], ys0[pts[:, 1]]
-    return np.stack([xs, ys], 1).astype(np.float32), smooth[ys, xs].astype(np.float64)
+    slope = np.stack([gx[pts[:, 1], pts[:, 0]], gy[pts[:, 1], pts[:, 0]]], 1).astype(np.float64)
+    return np.stack([xs, ys], 1).astype(np.float32), smooth[ys, xs].astype(np.float64), slope
 
 
 def _grad(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -600,12 +609,23 @@ def _grad(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return gx, gy
 
 
+# Points per row of the map handed to cv2.remap (which refuses a side of 32767 or more).
+_REMAP_ROW = 8192
+
+
 def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Bilinear samples of a C-channel float32 image at (x, y) px: (N, C) float64."""
-    uv = np.empty((len(x), 1, 2), np.float32)
-    uv[:, 0, 0], uv[:, 0, 1] = x, y
-    out = cv2.remap(img, uv, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(len(x), -1).astype(np.float64)
+    n = len(x)
+    if n == 0:
+        return np.zeros((0, 1 if img.ndim == 2 else img.shape[2]))
+    # The points laid out as rows of a map, not as a column: remap's cost is per map row, and a
+    # column of 10,000 one-pixel rows cost 3.5x the same points in one row (the same samples).
+    cols = min(n, _REMAP_ROW)
+    rows = -(-n // cols)
+    uv = np.zeros((rows * cols, 2), np.float32)  # the padding reads pixel (0, 0) and is dropped
+    uv[:n, 0], uv[:n, 1] = x, y
+    out = cv2.remap(img, uv.reshape(rows, cols, 2), None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(rows * cols, -1)[:n].astype(np.float64)
 
 
 def _inside(u: np.ndarray, v: np.ndarray, w: int, h: int, margin: float = 0.0) -> tuple[np.ndarray, int]:
@@ -682,10 +702,16 @@ class _GNState:
 
 
 def _gauss_newton(zb_img: np.ndarray, x: np.ndarray, y: np.ndarray, za: np.ndarray, basis: np.ndarray,
-                  st: _GNState, iters: int, gain_fit: bool) -> _GNState:
+                  st: _GNState, iters: int, gain_fit: bool, slope_a: np.ndarray | None = None) -> _GNState:
     """Gauss–Newton iterations of the B->A pose (A px -> B px as rotation ``th`` and translation
     ``t``), height gain and bias surface, on A's samples (x, y) and heights ``za`` against B's heights
-    ``zb_img`` (B's slopes from bilinear samples 1 px either side: no slope images of B)."""
+    ``zb_img`` (B's slopes from bilinear samples 1 px either side: no slope images of B).
+
+    slope_a: A's slopes (N, 2) at its samples. Given, the pose columns use the mean of B's slopes
+    (times the gain) and A's turned into B's frame, as efficient second-order minimisation does: on
+    an independent re-touch (another depth, blur and gain) the B-only Jacobian overshot and the steps
+    alternated in sign, shrinking by ~0.8 a step, so a right pose could stop short of the
+    convergence bar; with the mean the same pose settles in one call."""
     h, w = zb_img.shape[:2]
     nb = basis.shape[1]
     th, t, gain, coef = st.th, st.t.copy(), st.gain, st.coef.copy()
@@ -701,6 +727,12 @@ def _gauss_newton(zb_img: np.ndarray, x: np.ndarray, y: np.ndarray, za: np.ndarr
         sel, u, v, zb, bx, by, _n = got
         zo, bas = za[sel], basis[sel]
         gbx, gby = gain * bx, gain * by
+        if slope_a is not None:
+            # A's slope in A's frame, turned by the current rotation into B's frame.
+            c_th, s_th = np.cos(th), np.sin(th)
+            ax, ay = slope_a[sel, 0], slope_a[sel, 1]
+            gbx = 0.5 * (gbx + c_th * ax - s_th * ay)
+            gby = 0.5 * (gby + s_th * ax + c_th * ay)
         npar = 3 + nb + (1 if gain_fit else 0)
         j = np.empty((len(zb), npar))
         # d(u, v)/d(theta) = (-(v - t_y), u - t_x): no second rotation of the samples.
@@ -812,11 +844,12 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
                    np.zeros(basis.shape[1]))
     start = (st0.th, st0.t.copy())
     cx, cy = float(x.mean()), float(y.mean())
-    st = _gauss_newton(zb_img, x, y, za, basis, st0, iters, gain_fit)
+    slope_a = fa.sample_slope if fa.sample_slope is not None and len(fa.sample_slope) == len(x) else None
+    st = _gauss_newton(zb_img, x, y, za, basis, st0, iters, gain_fit, slope_a)
     for _ in range(2):  # a start a few degrees off needs more than ``iters`` steps to settle
         if st.last_step_px < CONVERGED_STEP_PX or _wandered(st, start, cx, cy):
             break
-        st = _gauss_newton(zb_img, x, y, za, basis, st, iters, gain_fit)
+        st = _gauss_newton(zb_img, x, y, za, basis, st, iters, gain_fit, slope_a)
     wandered = _wandered(st, start, cx, cy)
     if wandered and coarse_retry and iters > 0 and fa.smooth is not None:
         # Coarse to fine: blurred heights have a basin of several px; A's samples keep their places
@@ -824,10 +857,14 @@ def dense_refine(fa: "Features", smooth_b: np.ndarray, matrix_px: np.ndarray, it
         ia, ja = xy[:, 1].astype(np.intp), xy[:, 0].astype(np.intp)
         blur_a = cv2.GaussianBlur(fa.smooth, (0, 0), COARSE_SIGMA_PX)
         coarse_a = blur_a[ia, ja].astype(np.float64)
+        # Samples lie >= 2 px inside A (DENSE_MARGIN_PX): their neighbours exist.
+        coarse_slope = np.stack([0.5 * (blur_a[ia, ja + 1] - blur_a[ia, ja - 1]),
+                                 0.5 * (blur_a[ia + 1, ja] - blur_a[ia - 1, ja])], 1).astype(np.float64)
         coarse_b = _b_image(cv2.GaussianBlur(smooth_b, (0, 0), COARSE_SIGMA_PX), valid_b)
-        st = _gauss_newton(coarse_b, x, y, coarse_a, basis, st0, 2 * iters, gain_fit)
+        st = _gauss_newton(coarse_b, x, y, coarse_a, basis, st0, 2 * iters, gain_fit,
+                           None if slope_a is None else coarse_slope)
         if not _wandered(st, start, cx, cy):
-            st = _gauss_newton(zb_img, x, y, za, basis, st, iters, gain_fit)
+            st = _gauss_newton(zb_img, x, y, za, basis, st, iters, gain_fit, slope_a)
         wandered = _wandered(st, start, cx, cy)
     if wandered:
         st = _GNState(start[0], start[1].copy(), 1.0, np.zeros(basis.shape[1]))
@@ -888,7 +925,8 @@ def _search_bars(fit: DenseFit, params: RegistrationParams) -> bool:
     """A search pose, polished: it explains search_min_explained of A's relief (NCC^2 x overlap),
     passes min_overlap and pins the pose."""
     explained = fit.ncc * fit.ncc * fit.overlap if fit.ncc > 0.0 else 0.0
-    return bool(explained >= params.search_min_explained and fit.overlap >= params.min_overlap and _pinned(fit, params))
+    return bool(explained >= params.search_min_explained and fit.overlap >= params.min_overlap
+                and _pinned(fit, params, params.search_max_sigma_px))
 
 
 def _dense_search(a: np.ndarray, b: np.ndarray, fa: Features, fb: Features, pa: np.ndarray, pb: np.ndarray,
@@ -939,10 +977,11 @@ def _dense_search(a: np.ndarray, b: np.ndarray, fa: Features, fb: Features, pa: 
     return top, top.ncc
 
 
-def _pinned(fit: DenseFit, params: RegistrationParams) -> bool:
+def _pinned(fit: DenseFit, params: RegistrationParams, max_sigma_px: float | None = None) -> bool:
     """The dense fit pins the pose: it converged (did not wander, last step small), small 1-sigma
     errors and content that is not rotation-symmetric."""
-    return (fit.converged and fit.sigma_rot_deg <= params.max_sigma_rot_deg and fit.sigma_px <= params.max_sigma_px
+    bar_px = params.max_sigma_px if max_sigma_px is None else max_sigma_px
+    return (fit.converged and fit.sigma_rot_deg <= params.max_sigma_rot_deg and fit.sigma_px <= bar_px
             and fit.rotation_pinning >= params.min_rotation_pinning)
 
 
