@@ -28,6 +28,7 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from tactile_rig.core.memory import keep_freed_memory  # noqa: E402
 from tactile_rig.perception.gelsight import (  # noqa: E402
     ContactParams, IntegrationParams, Reconstructor, RegistrationParams, TactileMap, calibrate_from_presses,
     clamp_radius_px, load_presses, press_error, register, sphere_cap)
@@ -287,6 +288,9 @@ def main() -> int:
     args = parse_args(ap)
     globals()["ROUNDS"] = max(1, args.rounds)
     cv2.setNumThreads(1)
+    # As the CLI's per-frame commands and the trade tables do: freed buffers stay in the heap. Without
+    # it this machine's figures for the same code spread by up to 30 % between runs.
+    keep_freed_memory()
     if args.speed_only:
         load0 = os.getloadavg()
         rows = registration_speed(_test_maps()[1][0], args.quick)

@@ -73,6 +73,7 @@ def settings() -> list[dict[str, Any]]:
         {"min_ncc": 0.5},
         {"min_ncc": 0.7},
         {"max_sigma_px": 0.5, "max_sigma_rot_deg": 0.5},
+        {"search_max_sigma_px": 0.25},
         {"dense_fallback": False},
         {"search_step_deg": 10.0},
         {"search_min_patches": 15, "search_min_ratio": 1.0},
@@ -222,21 +223,24 @@ def measure(*, quick: bool, seed: int = 0) -> TradeTable:
                "dense_fallback": "the dense search when keypoints fail (False: refuse instead)",
                "search_step_deg": "rotation step of the dense search (deg)",
                "search_min_patches/search_min_ratio": "the dense search's evidence bars (one row loosened)",
+               "search_max_sigma_px": "the dense search's translation 1-sigma bar (px; one row at the keypoint "
+                                      "path's 0.25)",
                "heights_downsample": "the touches reconstructed with this integration downsample (default "
                                      f"{HEIGHTS_DOWNSAMPLE})",
                "heights_lookup": "the touches reconstructed with this colour lookup (default full)"},
         default_note=("the front ignores answers to pairs that must be refused, which this table does not hold "
                       "(python benchmarks/bench_registration_search.py --seeds 0,1,2 --must-refuse: 480 unrelated real "
-                      "ball-press tile pairs, 190 re-touches of the other part, 190 of two other plates): the defaults "
-                      "place none; max_sigma_px=0.5 max_sigma_rot_deg=0.5 localizes all 190 here but places 1 tile "
-                      "pair; orb_features=150 answers as the defaults do and places none, but the plate's keypoint "
-                      "path then fails on 69-76 of 95 re-touches (40-46 with 300) and the slower dense search takes "
-                      "them: a plate pair costs 24-26 ms against 18-19 (usb 4.5-5.3 against 5.0-5.3), so the two "
-                      "parts together are slower; the search bars loosened (search_min_patches=15 "
-                      "search_min_ratio=1.0) place 27 tile pairs; detect_short_px=96 halves the detail of a 120x160 "
-                      "touch (a map touch fell under the paper's c > 0.98); the other rows ahead of it run the same "
-                      "work within timing noise (RANSAC samples, pyramid levels, thresholds nothing here reaches) or "
-                      "answer confidently wrong (see their notes)"),
+                      "ball-press tile pairs, 190 re-touches of the other part, 190 of two other plates; --seeds 3,4,5 "
+                      "--held-out: 860 more): the defaults place none; max_sigma_px=0.5 max_sigma_rot_deg=0.5 places "
+                      "none of the first 860 but 1 held-out tile pair (a keypoint answer); orb_features=150 answers "
+                      "as the defaults do and places none, but the plate's keypoint path then fails on 69-76 of 95 "
+                      "re-touches (40-46 with 300) and the slower dense search takes them: a plate pair costs 29-35 "
+                      "ms against 20-23 (usb 4.7-7.9 against 5.2-7.0, one pass each), so the two parts together are "
+                      "slower; the search bars loosened (search_min_patches=15 search_min_ratio=1.0) place 39 tile "
+                      "pairs (60 held out); detect_short_px=96 halves the detail of a 120x160 touch (a map touch fell "
+                      "under the paper's c > 0.98); the other rows ahead of it run the same work within timing noise "
+                      "(RANSAC samples, pyramid levels, thresholds nothing here reaches) or answer confidently wrong "
+                      "(see their notes)"),
         notes=["a row with confident wrong answers says so in its note: the front alone does not make it usable",
                f"machine load average {os.getloadavg()[0]:.1f} at the end of the run (2 shared cores)"],
     )
