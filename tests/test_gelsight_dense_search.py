@@ -158,7 +158,8 @@ def test_two_lone_domes_that_line_up_are_not_a_placement(heights) -> None:
 def test_search_knobs_are_checked_by_name() -> None:
     for bad in ({"search_step_deg": 0.0}, {"search_coarse_px": 0}, {"search_min_ratio": 0.5},
                 {"search_highpass_px": -1.0}, {"search_candidates": 0}, {"search_min_explained": 2.0},
-                {"search_patch_px": 1}, {"search_min_patches": -1}):
+                {"search_patch_px": 1}, {"search_min_patches": -1}, {"search_max_sigma_px": -0.1},
+                {"search_max_sigma_px": float("nan")}):
         with pytest.raises(ValueError, match=next(iter(bad))):
             RegistrationParams(**bad)
 

@@ -194,7 +194,8 @@ class RegistrationParams:
         search_ranges = {"search_highpass_px": (0.5, 256.0), "search_coarse_px": (1, 64), "search_step_deg": (0.1, 45.0),
                          "search_candidates": (1, 32), "search_min_explained": (0.0, 1.0),
                          "search_min_ratio": (1.0, 1e6), "search_min_support": (0, 1_000_000),
-                         "search_patch_px": (4, 4096), "search_min_patches": (0, 1_000_000)}
+                         "search_patch_px": (4, 4096), "search_min_patches": (0, 1_000_000),
+                         "search_max_sigma_px": (0.0, 1e4)}
         for name, (lo, hi) in search_ranges.items():
             value = getattr(self, name)
             if not lo <= value <= hi:  # also refuses NaN
