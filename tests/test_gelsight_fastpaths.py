@@ -10,7 +10,8 @@ from hypothesis import strategies as st
 
 from tactile_rig.perception.gelsight import HeightMapper, TactileMap, extract_features, register, render_u8
 from tactile_rig.perception.gelsight.registration import (
-    RegistrationParams, _dense_samples, _grad, _sample, hamming_cross_matches, ransac_rigid)
+    RegistrationParams, _dense_samples, _even_picks, _grad, _ransac_samples, _sample, hamming_cross_matches,
+    ransac_rigid)
 from tactile_rig.perception.gelsight.synthetic import jig_move
 
 MM = 0.1245
@@ -114,6 +115,24 @@ def test_dense_samples_carry_the_central_difference_slopes_there() -> None:
     np.testing.assert_allclose(zs, z[r, c])
     np.testing.assert_allclose(slope[:, 0], gx[r, c], rtol=1e-6, atol=1e-7)
     np.testing.assert_allclose(slope[:, 1], gy[r, c], rtol=1e-6, atol=1e-7)
+
+
+@settings(max_examples=200, deadline=None)
+@given(n=st.integers(1, 10**7), count=st.integers(0, 5000))
+def test_even_picks_are_linspaces_indices(n, count) -> None:
+    # The dense samples are thinned on linspace's indices; _even_picks computes them without its
+    # overhead and must give the very same ones.
+    np.testing.assert_array_equal(_even_picks(n, count), np.linspace(0, n - 1, count).astype(np.int64))
+
+
+def test_ransac_samples_are_seeded_shared_and_read_only() -> None:
+    i, j = _ransac_samples(0, 57, 256)
+    rng = np.random.default_rng(0)
+    np.testing.assert_array_equal(i, rng.integers(0, 57, 256))
+    np.testing.assert_array_equal(j, rng.integers(0, 57, 256))
+    assert _ransac_samples(0, 57, 256)[0] is i
+    with pytest.raises(ValueError):
+        i[0] = 1
 
 
 @settings(max_examples=40, deadline=None)

@@ -16,6 +16,7 @@ by ``matrix_mm``; ``matrix_px`` does the same in pixel (column, row) coordinates
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -371,6 +372,14 @@ def extract_features(height_mm: np.ndarray, params: RegistrationParams = Registr
 def _features(z: np.ndarray, ptp_mm: float, params: RegistrationParams, dense: bool, scale: float | None,
               valid: np.ndarray | None) -> Features:
     """:func:`extract_features` of a map already checked (float32, finite) whose range is ``ptp_mm``."""
+    feats = _prepare(z, ptp_mm, params, dense, scale, valid)
+    _detect(feats, params)
+    return feats
+
+
+def _prepare(z: np.ndarray, ptp_mm: float, params: RegistrationParams, dense: bool, scale: float | None,
+             valid: np.ndarray | None) -> Features:
+    """:func:`_features` up to the keypoints: the polish's heights, A's samples and the 8-bit image."""
     smooth = cv2.GaussianBlur(z, (0, 0), 1.0)
     if params.dense_highpass_px > 0:
         # The dense polish compares high-passed heights: an independent re-touch pressed deeper or
@@ -389,9 +398,15 @@ def _features(z: np.ndarray, ptp_mm: float, params: RegistrationParams, dense: b
     if valid is not None and k != 1.0:
         valid = cv2.resize(valid.astype(np.uint8), (small.shape[1], small.shape[0]),
                            interpolation=cv2.INTER_NEAREST).astype(bool)
-    img = render_u8(small, tuple(b * k for b in params.band_px), valid)  # type: ignore[arg-type]
-    feats.image = img
+    feats.image = render_u8(small, tuple(b * k for b in params.band_px), valid)  # type: ignore[arg-type]
     feats.scale = k
+    return feats
+
+
+def _detect(feats: Features, params: RegistrationParams) -> None:
+    """Keypoints and descriptors of a prepared map's 8-bit image, into ``feats``."""
+    img, k = feats.image, feats.scale
+    assert img is not None
     names = ("brisk", "orb") if params.detector == "both" else (params.detector,)
     # Keep the keypoint density of a touch-sized image on a larger map.
     per_area = params.orb_features / (params.detect_short_px ** 2 * 4.0 / 3.0)
@@ -405,7 +420,6 @@ def _features(z: np.ndarray, ptp_mm: float, params: RegistrationParams, dense: b
         pts = (np.asarray(cv2.KeyPoint_convert(kps), np.float64).reshape(-1, 2) + 0.5) / k - 0.5
         feats.points[name] = pts
         feats.descriptors[name] = desc if desc is not None else np.zeros((0, 32), np.uint8)
-    return feats
 
 
 def _train_bits(desc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -469,6 +483,18 @@ def rigid_fit(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 _RANSAC_BLOCK = 64
 
 
+@lru_cache(maxsize=512)
+def _ransac_samples(seed: int, n: int, iters: int) -> tuple[np.ndarray, np.ndarray]:
+    """The two match indices of every RANSAC sample (seeded: the same for the same n), read-only;
+    kept because seeding a generator costs as much as scoring a block of samples."""
+    rng = np.random.default_rng(seed)
+    i = rng.integers(0, n, iters)
+    j = rng.integers(0, n, iters)
+    i.flags.writeable = False
+    j.flags.writeable = False
+    return i, j
+
+
 def ransac_rigid(src: np.ndarray, dst: np.ndarray, iters: int = 256, inlier_px: float = 2.0,
                  seed: int = 0) -> tuple[np.ndarray | None, np.ndarray]:
     """Two-pair sampling RANSAC (Li 2014): each sample of two matches fixes a rotation and a
@@ -479,9 +505,7 @@ def ransac_rigid(src: np.ndarray, dst: np.ndarray, iters: int = 256, inlier_px: 
     n = len(src)
     if n < 2:
         return None, np.zeros(n, bool)
-    rng = np.random.default_rng(seed)
-    i = rng.integers(0, n, iters)
-    j = rng.integers(0, n, iters)
+    i, j = _ransac_samples(seed, n, iters)
     # Points as complex numbers: a rotation is a unit complex factor, so every hypothesis and its
     # residuals are a few complex array operations (no trigonometry).
     zs = src[:, 0] + 1j * src[:, 1]
@@ -597,10 +621,22 @@ def _dense_samples(smooth: np.ndarray, count: int, valid: np.ndarray | None = No
         return np.zeros((0, 2), np.float32), np.zeros(0), np.zeros((0, 2))
     pts = pts.reshape(-1, 2)  # (N, 1, 2) on OpenCV 4, (N, 2) on 5
     if len(pts) > count:
-        pts = pts[np.linspace(0, len(pts) - 1, count).astype(np.int64)]
+        pts = pts[_even_picks(len(pts), count)]
     xs, ys = xs0[pts[:, 0]], ys0[pts[:, 1]]
-    slope = np.stack([gx[pts[:, 1], pts[:, 0]], gy[pts[:, 1], pts[:, 0]]], 1).astype(np.float64)
-    return np.stack([xs, ys], 1).astype(np.float32), smooth[ys, xs].astype(np.float64), slope
+    on_grid = pts[:, 1] * gx.shape[1] + pts[:, 0]  # gx and gy are fresh C-ordered arrays
+    slope = np.stack([gx.ravel().take(on_grid), gy.ravel().take(on_grid)], 1).astype(np.float64)
+    heights = np.take(smooth, ys * smooth.shape[1] + xs) if smooth.flags.c_contiguous else smooth[ys, xs]
+    return np.stack([xs, ys], 1).astype(np.float32), heights.astype(np.float64), slope
+
+
+def _even_picks(n: int, count: int) -> np.ndarray:
+    """``np.linspace(0, n - 1, count).astype(np.int64)`` (the same numbers: index i times the step,
+    the last index exact) without linspace's overhead; count >= 0."""
+    if count < 2:
+        return np.linspace(0, n - 1, count).astype(np.int64)
+    picks = (np.arange(count, dtype=np.float64) * ((n - 1) / (count - 1))).astype(np.int64)
+    picks[-1] = n - 1
+    return picks
 
 
 def _grad(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -616,17 +652,27 @@ _REMAP_ROW = 8192
 
 def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Bilinear samples of a C-channel float32 image at (x, y) px: (N, C) float64."""
-    n = len(x)
+    uv = _point_buffer(len(x))
+    uv[:len(x), 0], uv[:len(x), 1] = x, y
+    return _remap_points(img, uv, len(x))
+
+
+def _point_buffer(n: int) -> np.ndarray:
+    """A zeroed (M, 2) float32 buffer for n points, M padded to whole rows of _REMAP_ROW."""
+    cols = max(1, min(n, _REMAP_ROW))
+    return np.zeros((-(-n // cols) * cols, 2), np.float32)  # the padding reads pixel (0, 0) and is dropped
+
+
+def _remap_points(img: np.ndarray, uv: np.ndarray, n: int) -> np.ndarray:
+    """Bilinear samples (n, C) float64 of a float32 image at the first n points of a
+    :func:`_point_buffer`."""
     if n == 0:
         return np.zeros((0, 1 if img.ndim == 2 else img.shape[2]))
     # The points laid out as rows of a map, not as a column: remap's cost is per map row, and a
     # column of 10,000 one-pixel rows cost 3.5x the same points in one row (the same samples).
     cols = min(n, _REMAP_ROW)
-    rows = -(-n // cols)
-    uv = np.zeros((rows * cols, 2), np.float32)  # the padding reads pixel (0, 0) and is dropped
-    uv[:n, 0], uv[:n, 1] = x, y
-    out = cv2.remap(img, uv.reshape(rows, cols, 2), None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(rows * cols, -1)[:n].astype(np.float64)
+    out = cv2.remap(img, uv.reshape(-1, cols, 2), None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(len(uv), -1)[:n].astype(np.float64)
 
 
 def _inside(u: np.ndarray, v: np.ndarray, w: int, h: int, margin: float = 0.0) -> tuple[np.ndarray, int]:
@@ -718,6 +764,7 @@ def _gauss_newton(zb_img: np.ndarray, x: np.ndarray, y: np.ndarray, za: np.ndarr
     th, t, gain, coef = st.th, st.t.copy(), st.gain, st.coef.copy()
     last = float("inf")
     frozen = None
+    picked: tuple = ()  # (selection, A's heights, basis rows, A's slopes) of the frozen selection
     for k in range(iters):
         # After two steps the samples in play are frozen: samples crossing B's margin or coverage
         # edge at every step would otherwise keep the fit cycling by a fraction of a pixel.
@@ -726,12 +773,16 @@ def _gauss_newton(zb_img: np.ndarray, x: np.ndarray, y: np.ndarray, za: np.ndarr
             break
         frozen = got[0]
         sel, u, v, zb, bx, by, _n = got
-        zo, bas = za[sel], basis[sel]
+        if picked and picked[0] is sel:
+            zo, bas, ax, ay = picked[1:]
+        else:
+            zo, bas = za[sel], basis[sel]
+            ax, ay = (slope_a[sel, 0], slope_a[sel, 1]) if slope_a is not None else (None, None)
+            picked = (sel, zo, bas, ax, ay)
         gbx, gby = gain * bx, gain * by
         if slope_a is not None:
             # A's slope in A's frame, turned by the current rotation into B's frame.
             c_th, s_th = np.cos(th), np.sin(th)
-            ax, ay = slope_a[sel, 0], slope_a[sel, 1]
             gbx = 0.5 * (gbx + c_th * ax - s_th * ay)
             gby = 0.5 * (gby + s_th * ax + c_th * ay)
         npar = 3 + nb + (1 if gain_fit else 0)
@@ -798,9 +849,13 @@ def _sample5(zb_img: np.ndarray, u: np.ndarray, v: np.ndarray
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     """B's height, x and y slopes at (u, v) and, for a two-channel image, its known mask there."""
     n = len(u)
-    uu = np.concatenate([u, u + 1.0, u - 1.0, u, u])
-    vv = np.concatenate([v, v, v, v + 1.0, v - 1.0])
-    smp = _sample(zb_img, uu, vv)
+    uv = _point_buffer(5 * n)
+    # The five points of each sample: itself, 1 px right, left, down, up (offsets added in float64,
+    # then rounded to the map's float32, as a concatenation of the offset coordinates would be).
+    for i, (du, dv) in enumerate(((0.0, 0.0), (1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0))):
+        uv[i * n:(i + 1) * n, 0] = u + du if du else u
+        uv[i * n:(i + 1) * n, 1] = v + dv if dv else v
+    smp = _remap_points(zb_img, uv, 5 * n)
     z5 = smp[:, 0]
     known = smp[:n, 1] if smp.shape[1] > 1 else None
     return z5[:n], 0.5 * (z5[n:2 * n] - z5[2 * n:3 * n]), 0.5 * (z5[3 * n:4 * n] - z5[4 * n:]), known
@@ -1045,8 +1100,15 @@ def register(height_a_mm: np.ndarray, height_b_mm: np.ndarray, mm_per_px: float 
     if ptp_a < 1e-6 or ptp_b < 1e-6:
         return refuse(NO_CONTACT, "none")
     k = detect_scale(params, b.shape)
-    fa = features_a if features_a is not None and features_a.scale == k else _features(a, ptp_a, params, True, k, None)
-    fb = _features(b, ptp_b, params, False, k, None)
+    if features_a is not None and features_a.scale == k:
+        fa = features_a
+        fb = _features(b, ptp_b, params, False, k, None)
+    else:
+        # Both maps prepared, then both detected: the detector's two calls back to back find its code
+        # and buffers warm (~0.09 ms a fresh pair).
+        fa, fb = _prepare(a, ptp_a, params, True, k, None), _prepare(b, ptp_b, params, False, k, None)
+        _detect(fa, params)
+        _detect(fb, params)
     pa, pb = _match(fa, fb)
     method = params.detector
     keypoint_reason = INSUFFICIENT_TEXTURE
