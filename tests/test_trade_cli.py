@@ -96,7 +96,7 @@ def test_rates_are_interleaved_and_count_every_call():
     rates = rates_per_s({"a": lambda: order.append("a"), "b": lambda: order.append("b")},
                         rounds=3, min_time_s=0.0, min_calls=2)
     assert set(rates) == {"a", "b"} and all(r > 0 for r in rates.values())
-    # warm-up a, b; then three rounds of a a b b
-    assert order == ["a", "b"] + ["a", "a", "b", "b"] * 3
+    # warm-up a, b; then three rounds, each starting one setting further on
+    assert order == ["a", "b"] + ["a", "a", "b", "b"] + ["b", "b", "a", "a"] + ["a", "a", "b", "b"]
     with pytest.raises(ValueError, match="rounds"):
         rates_per_s({"a": lambda: None}, rounds=0)

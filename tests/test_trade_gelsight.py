@@ -70,6 +70,8 @@ def test_interleaved_timing_returns_one_figure_per_function() -> None:
     calls = []
     per = topic_gelsight.interleaved_best_s([lambda: calls.append("a"), lambda: calls.append("b")], [2, 3], rounds=2)
     assert len(per) == 2 and all(p >= 0 for p in per)
-    # Warm-up once each, then the rounds interleave the functions, each batch after one untimed call.
+    # Warm-up once each, then the rounds interleave the functions, each batch after one untimed call;
+    # each round starts one function further on, so no function always follows the same one.
     assert calls[:2] == ["a", "b"] and calls[2:5] == ["a", "a", "a"] and calls[5:9] == ["b"] * 4
+    assert calls[9:13] == ["b"] * 4 and calls[13:16] == ["a"] * 3
     assert len(calls) == 2 + 2 * (3 + 4)
