@@ -137,7 +137,7 @@ class RegistrationParams:
     search_min_support: at least this many of the keypoint matches must agree with the pose within
     inlier_px (0 by default: a right re-touch that keypoints failed on keeps 1-3 of them, a wrong
     pose of tiled domes up to 15). A search answer must also pass min_overlap and the pinning bars,
-    with search_max_sigma_px in place of max_sigma_px: a search pose has also won the patch count
+    with search_max_sigma_px (0.375 px) in place of max_sigma_px: a search pose has also won the patch count
     and the uniqueness ratio, so its translation bar only has to keep out content that cannot pin
     and a turned twin whose right pose is not among the candidates. Its 1-sigma comes from the
     residual, which grows with how differently two touches were pressed: right plate re-touches
