@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tactile_rig.cli import build_parser, main
+from tactile_rig.cli import COMMAND_MODULES, _command_of, build_parser, main
 from tactile_rig.cli.args import float_in, int_in, output_dir, output_file
 from tactile_rig.cli.common import EXIT_INTERNAL, run_handler
 from tactile_rig.core.errors import BadFile, DeviceFault
@@ -130,7 +130,6 @@ def test_every_numeric_option_refuses_nan_and_inf(capsys) -> None:
 
 def test_one_group_parser_reads_every_command_as_the_whole_parser_does(capsys) -> None:
     # main() builds only the group its argv names: each subcommand path reads its defaults the same.
-    from tactile_rig.cli import COMMAND_MODULES, _command_of
 
     assert _command_of(["--log-level", "DEBUG", "gelsight", "height"]) == "gelsight"
     assert _command_of(["--log-level=DEBUG", "jig", "status"]) == "jig"

@@ -406,7 +406,8 @@ def _prepare(z: np.ndarray, ptp_mm: float, params: RegistrationParams, dense: bo
 def _detect(feats: Features, params: RegistrationParams) -> None:
     """Keypoints and descriptors of a prepared map's 8-bit image, into ``feats``."""
     img, k = feats.image, feats.scale
-    assert img is not None
+    if img is None:  # an assert would vanish under python -O
+        raise ValueError("gelsight.registration: features without their 8-bit image; _prepare them first")
     names = ("brisk", "orb") if params.detector == "both" else (params.detector,)
     # Keep the keypoint density of a touch-sized image on a larger map.
     per_area = params.orb_features / (params.detect_short_px ** 2 * 4.0 / 3.0)
