@@ -43,8 +43,8 @@ from tactile_rig.perception.fingervision import (  # noqa: E402
 from tactile_rig.perception.fingervision.lattice import fit_lattice  # noqa: E402
 from tactile_rig.rig.trade.fingervision import labelled_real_frames, score_real  # noqa: E402
 from tests._data import SHARED_REAL  # noqa: E402
-from tests.test_fingervision_real import load_gt, score, track_real  # noqa: E402
-from tests.test_fingervision_synth import Ellipse, lattice, render  # noqa: E402
+from tests._fingervision_real import load_gt, score, track_real  # noqa: E402
+from tests._fingervision_synth import Ellipse, lattice, render  # noqa: E402
 
 
 def _mask(e: Ellipse) -> np.ndarray:

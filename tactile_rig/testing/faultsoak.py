@@ -15,7 +15,7 @@ real time, :class:`~tactile_rig.mocks.relay.PtyRelay` in between). Each operatio
 * a **hang**: an operation that took longer than ``hang_s`` (on the port's clock).
 
 :func:`soak_row` runs one cell of the table, :func:`soak` the whole table; ``benchmarks/bench_faults.py``
-prints it and saves it; ``tests/test_fault_soak.py`` runs a short deterministic subset.
+prints it and saves it; ``tests/testing/test_fault_soak.py`` runs a short deterministic subset.
 """
 
 from __future__ import annotations
