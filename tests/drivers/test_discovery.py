@@ -1,9 +1,8 @@
-"""USB discovery on a fake pyusb backend and a fake sysfs + /dev tree."""
+"""USB discovery on the fake pyusb backend and the plain sysfs + /dev tree (no umockdev needed)."""
 
 from __future__ import annotations
 
-import json
-import os
+import logging
 import tempfile
 
 import pytest
@@ -11,9 +10,11 @@ import usb.core
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tactile_rig.cli import main
-from tactile_rig.drivers.discovery import KNOWN_DEVICES, discover, match_kind
-from tactile_rig.mocks.usb import MOCK_DEVICES, FakeUsbBackend, FakeUsbDevice, build_fake_tree
+from tactile_rig.drivers.discovery import (KNOWN_DEVICES, DeviceMatch, discover, match_kind, parse_decimal,
+                                           parse_usb_id)
+from tactile_rig.mocks.usb import BENCH, Bench, FakeUsbBackend, Plugged, build_fake_tree
+from tactile_rig.mocks.usb.models import load_model
+from tactile_rig.mocks.usb.sysfs import build
 
 
 @pytest.fixture
@@ -27,119 +28,157 @@ def by_kind(found):
 
 def test_pyusb_filters_the_fake_backend_by_ids():
     devs = list(usb.core.find(find_all=True, idVendor=0x046D, backend=FakeUsbBackend()))
-    assert sorted(d.idProduct for d in devs) == [0x081B, 0xC52B]
-    assert devs[0].port_numbers in ((1, 4), (2,))
+    assert [(d.idProduct, d.port_numbers, d.speed) for d in devs] == [(0x081B, (1, 4), usb.util.SPEED_HIGH)]
+    (uno,) = usb.core.find(find_all=True, idVendor=0x2341, backend=FakeUsbBackend())
+    assert uno.speed == usb.util.SPEED_FULL and uno.parent.port_numbers == (1,)
 
 
-def test_discover_maps_devices_to_nodes_and_stable_links(tree):
+def test_discover_maps_the_bench_to_nodes_and_stable_links(tree):
     sysfs, dev = tree
-    found = by_kind(discover(backend=FakeUsbBackend(), sysfs_root=sysfs, dev_root=dev))
-    assert set(found) == {"u2d2", "arduino", "ch340", "camera_c310"}  # the mouse dongle is not ours
-    u2d2 = found["u2d2"]
-    assert (u2d2.usb_id, u2d2.port_path, u2d2.serial) == ("0403:6014", "1-1.1", "FT5MOCK1")
+    found = discover(backend=FakeUsbBackend(), sysfs_root=sysfs, dev_root=dev)
+    assert [d.kind for d in found] == ["u2d2", "arduino", "ch340", "camera_c310", "camera_gelsight_mini",
+                                       "camera_digit"]  # by bus and port; the hubs are not ours
+    assert {d.enumerated_by for d in found} == {"fake"}
+    k = by_kind(found)
+    u2d2 = k["u2d2"]
+    assert (u2d2.usb_id, u2d2.port_path, u2d2.serial, u2d2.product) == ("0403:6014", "1-1.1", "FT5MOCK1",
+                                                                         "USB <-> Serial Converter")
     assert u2d2.tty == [str(dev / "ttyUSB0")]
-    assert u2d2.by_id == [str(dev / "serial/by-id/usb-FTDI_USB_<->_Serial_Converter_FT5MOCK1-if00-port0")]
-    assert found["arduino"].tty == [str(dev / "ttyACM0")]
-    assert found["ch340"].tty == [str(dev / "ttyUSB1")] and found["ch340"].serial is None
-    cam = found["camera_c310"]
+    assert u2d2.by_id == [str(dev / "serial/by-id/usb-FTDI_USB__-__Serial_Converter_FT5MOCK1-if00-port0")]
+    assert u2d2.by_path == [str(dev / "serial/by-path/pci-0000:00:14.0-usb-0:1.1:1.0-port0")]
+    assert k["arduino"].tty == [str(dev / "ttyACM0")]
+    assert k["arduino"].by_path == [str(dev / "serial/by-path/pci-0000:00:14.0-usb-0:1.2:1.0")]  # no -port for ACM
+    ch = k["ch340"]
+    assert ch.tty == [str(dev / "ttyUSB1")] and ch.serial is None
+    assert ch.by_id == [str(dev / "serial/by-id/usb-1a86_USB2.0-Serial-if00-port0")]
+    cam = k["camera_c310"]
     assert cam.video == [str(dev / "video0")]  # video1 is the metadata node
-    assert len(cam.by_id) == 1 and cam.by_id[0].endswith("-video-index0")
-    assert os.path.realpath(cam.by_id[0]) == str((dev / "video0").resolve())
+    assert cam.by_id == [str(dev / "v4l/by-id/usb-046d_081b_5A3C6F10-video-index0")]
     assert cam.by_path == [str(dev / "v4l/by-path/pci-0000:00:14.0-usb-0:1.4:1.0-video-index0")]
-    assert found["ch340"].by_path == [str(dev / "serial/by-path/pci-0000:00:14.0-usb-0:1.3:1.0-port0")]
+    assert (dev / "v4l/by-id/usb-046d_081b_5A3C6F10-video-index0").resolve() == (dev / "video0").resolve()
+    assert k["camera_gelsight_mini"].video == [str(dev / "video2")]
+    assert k["camera_digit"].by_id == [str(dev / "v4l/by-id/usb-Facebook_DIGIT_D20001-video-index0")]
 
 
 def test_sysfs_fallback_finds_the_same(tree):
     sysfs, dev = tree
     a = discover(backend=FakeUsbBackend(), sysfs_root=sysfs, dev_root=dev)
     b = discover(sysfs_root=sysfs, dev_root=dev, use_pyusb=False)
+    assert {d.enumerated_by for d in b} == {"sysfs"}
+    for d in a + b:
+        d.enumerated_by = ""
     assert [vars(x) for x in a] == [vars(x) for x in b]
 
 
-def test_device_table_is_configurable(tree):
+def test_the_device_table_is_a_parameter(tree):
     sysfs, dev = tree
-    table = dict(KNOWN_DEVICES)
-    table[(0x046D, 0xC52B)] = "dongle"
+    table = KNOWN_DEVICES + (DeviceMatch("hub", 0x17EF, 0x1005),)
     found = by_kind(discover(backend=FakeUsbBackend(), sysfs_root=sysfs, dev_root=dev, table=table))
-    assert "dongle" in found and found["dongle"].tty == [] and found["dongle"].video == []
+    assert found["hub"].port_path == "1-1" and found["hub"].tty == [] and found["hub"].video == []
+    only = discover(backend=FakeUsbBackend(), sysfs_root=sysfs, dev_root=dev, table=(DeviceMatch("any_ftdi", 0x0403),))
+    assert [d.kind for d in only] == ["any_ftdi"]
 
 
-def test_arduino_matches_any_product_id():
-    assert match_kind(0x2341, 0x8036) == "arduino"
-    assert match_kind(0x0403, 0x6001) is None
+def test_match_kind_rules():
+    assert match_kind(0x2341, 0x8036) == "arduino"  # any Arduino product
+    assert match_kind(0x0403, 0x6001) is None  # an FT232R is not a U2D2
+    assert match_kind(0x0C45, 0x636D, "GelSight Mini R0B 2BNN-4ZE7") == "camera_gelsight_mini"
+    assert match_kind(0x0C45, 0x636D, "Arducam OV9281 USB Camera") is None  # Arducam's id, another camera
+    assert match_kind(0x0C45, 0x636D, None) is None
+    table = (DeviceMatch("vendor", 0x1234), DeviceMatch("ids", 0x1234, 1), DeviceMatch("named", 0x1234, 1, "X"))
+    assert [match_kind(0x1234, p, n, table) for p, n in ((1, "Xy"), (1, "y"), (2, "X"))] == ["named", "ids", "vendor"]
 
 
-def test_device_without_sysfs_entry_is_listed_without_nodes(tmp_path):
-    extra = FakeUsbDevice(0x1A86, 0x7523, 3, (7,), "", "USB Serial", "QinHeng")
-    sysfs, dev = build_fake_tree(tmp_path, MOCK_DEVICES[:1])
-    found = discover(backend=FakeUsbBackend(MOCK_DEVICES[:1] + (extra,)), sysfs_root=sysfs, dev_root=dev)
-    ch = by_kind(found)["ch340"]
-    assert ch.port_path == "3-7" and ch.tty == [] and ch.serial is None
+def test_a_camera_with_the_minis_ids_but_another_name_is_not_a_mini(tmp_path):
+    bench = Bench((Plugged("gelsight_mini", (1,), serial="SN0001", product="Arducam OV9281 USB Camera"),
+                   Plugged("digit", (2,), serial="D1")))
+    sysfs, dev = build_fake_tree(tmp_path, bench)
+    found = discover(backend=FakeUsbBackend(bench), sysfs_root=sysfs, dev_root=dev)
+    assert [d.kind for d in found] == ["camera_digit"]
+
+
+def test_two_ch340_collide_on_by_id_and_keep_their_by_path(tmp_path):
+    bench = Bench((Plugged("ch340", (1,)), Plugged("ch340", (2,))))
+    sysfs, dev = build_fake_tree(tmp_path, bench)
+    a, b = discover(backend=FakeUsbBackend(bench), sysfs_root=sysfs, dev_root=dev)
+    assert (a.tty, b.tty) == ([str(dev / "ttyUSB0")], [str(dev / "ttyUSB1")])
+    assert a.by_id == [] and b.by_id == [str(dev / "serial/by-id/usb-1a86_USB2.0-Serial-if00-port0")]  # last wins
+    assert a.by_path != b.by_path and len(a.by_path) == len(b.by_path) == 1
+
+
+def test_a_device_without_sysfs_entry_is_listed_without_nodes(tmp_path):
+    sysfs, dev = build_fake_tree(tmp_path, Bench((Plugged("u2d2", (1,), serial="A"),)))
+    bench = Bench((Plugged("u2d2", (1,), serial="A"), Plugged("ch340", (7,))))
+    found = by_kind(discover(backend=FakeUsbBackend(bench), sysfs_root=sysfs, dev_root=dev))
+    assert (found["ch340"].port_path, found["ch340"].tty, found["ch340"].serial) == ("1-7", [], None)
 
 
 def test_empty_system(tmp_path):
-    assert discover(backend=FakeUsbBackend(()), sysfs_root=tmp_path, dev_root=tmp_path) == []
+    assert discover(backend=FakeUsbBackend(Bench(())), sysfs_root=tmp_path, dev_root=tmp_path) == []
     assert discover(sysfs_root=tmp_path / "none", dev_root=tmp_path, use_pyusb=False) == []
 
 
-def test_cli_lists_mock_devices(capsys):
-    assert main(["devices", "--mock", "--json"]) == 0
-    data = json.loads(capsys.readouterr().out)
-    kinds = {d["kind"]: d for d in data["devices"]}
-    assert set(kinds) == {"u2d2", "arduino", "ch340", "camera_c310"}
-    assert kinds["camera_c310"]["video"] == ["/dev/video0"]
-    assert kinds["u2d2"]["by_id"][0].startswith("/dev/serial/by-id/usb-FTDI")
-    assert main(["devices", "--mock"]) == 0
-    text = capsys.readouterr().out
-    assert "camera_c310" in text and "/dev/v4l/by-id/" in text
+def test_corrupt_sysfs_attributes_are_skipped_with_a_warning(tree, caplog):
+    sysfs, dev = tree
+    (sysfs / "bus/usb/devices/1-1.1/idVendor").resolve().write_text("04z3\n")
+    (sysfs / "class/video4linux/video0/index").resolve().write_text("zero\n")
+    with caplog.at_level(logging.WARNING):
+        found = by_kind(discover(sysfs_root=sysfs, dev_root=dev, use_pyusb=False))
+    assert "u2d2" not in found and found["camera_c310"].video == []
+    assert "'04z3'" in caplog.text and "'zero'" in caplog.text
 
 
-def test_cli_on_an_empty_tree(tmp_path, capsys):
-    assert main(["devices", "--sysfs-root", str(tmp_path), "--dev-root", str(tmp_path), "--json"]) == 0
-    out = json.loads(capsys.readouterr().out)
-    assert out["devices"] == []
+@given(st.text(max_size=8))
+def test_parse_usb_id_accepts_exactly_four_hex_digits(text):
+    value = parse_usb_id(text)
+    if len(text) == 4 and all(c in "0123456789abcdefABCDEF" for c in text):
+        assert value == int(text, 16)
+    else:
+        assert value is None
+
+
+@given(st.one_of(st.integers(0, 10 ** 7).map(str), st.text(max_size=8)))
+def test_parse_decimal_accepts_small_decimals_only(text):
+    value = parse_decimal(text)
+    if value is not None:
+        assert str(value) == text.lstrip("0") or (value == 0 and set(text) == {"0"})
+        assert 0 <= value <= 1 << 16
 
 
 @st.composite
-def usb_worlds(draw):
-    """A random set of devices on distinct ports: known and unknown ids, ttys and cameras."""
-    ids = [(0x0403, 0x6014), (0x2341, 0x0043), (0x2341, 0x8036), (0x1A86, 0x7523), (0x046D, 0x081B),
-           (0x046D, 0xC52B), (0x0403, 0x6001)]
+def benches(draw):
+    """Random benches: known and unknown models on distinct ports, units with and without serials."""
+    models = ["u2d2", "arduino_uno_r3", "ch340", "logitech_c310", "gelsight_mini", "digit", "usb2_hub"]
     n = draw(st.integers(0, 6))
-    ports = draw(st.lists(st.tuples(st.integers(1, 3), st.integers(1, 9), st.integers(1, 4)), min_size=n, max_size=n,
-                          unique=True))
-    devices, n_usb, n_acm, n_video = [], 0, 0, 0
-    for bus, p1, p2 in ports:
-        vid, pid = draw(st.sampled_from(ids))
-        serial = draw(st.sampled_from(["", "A1", "XYZ987"]))
-        tty, video = None, ()
-        if vid == 0x046D and pid == 0x081B:
-            video, n_video = (f"video{n_video}", f"video{n_video + 1}"), n_video + 2
-        elif vid == 0x2341:
-            tty, n_acm = f"ttyACM{n_acm}", n_acm + 1
-        elif vid != 0x046D:
-            tty, n_usb = f"ttyUSB{n_usb}", n_usb + 1
-        devices.append(FakeUsbDevice(vid, pid, bus, (p1, p2), serial, "Dev", "Maker", tty=tty, video=video))
-    return tuple(devices)
+    ports = draw(st.lists(st.integers(1, 12), min_size=n, max_size=n, unique=True))
+    devices = []
+    for i, port in enumerate(ports):
+        model = draw(st.sampled_from(models))
+        serial = f"S{i}" if load_model(model).has_serial_number else None
+        devices.append(Plugged(model, (port,), serial=serial,
+                               product="GelSight Mini R0B X" if model == "gelsight_mini" else None))
+    return Bench(tuple(devices))
 
 
 @settings(max_examples=15)
-@given(usb_worlds())
-def test_discovery_finds_exactly_the_known_devices_and_their_nodes(devices):
+@given(benches())
+def test_discovery_finds_exactly_the_known_devices_and_their_nodes(bench):
     with tempfile.TemporaryDirectory() as tmp:
-        sysfs, dev = build_fake_tree(tmp, devices)
-        found = discover(backend=FakeUsbBackend(devices), sysfs_root=sysfs, dev_root=dev)
-        expected = [d for d in devices if match_kind(d.vid, d.pid) is not None]
-        assert [f.port_path for f in found] == [d.port_path for d in expected]
-        for f, d in zip(found, expected):
-            assert f.tty == ([str(dev / d.tty)] if d.tty else [])
-            assert f.video == ([str(dev / d.video[0])] if d.video else [])
-            assert len(f.by_path) == (1 if (d.tty or d.video) else 0)  # unique per port
-            # udev names by-id links from the USB strings: devices with equal strings share one name
-            kind = (d.tty or "")[:6] + ("video" if d.video else "")
-            twins = [e for e in devices if (e.manufacturer, e.product, e.serial, (e.tty or "")[:6] + (
-                "video" if e.video else "")) == (d.manufacturer, d.product, d.serial, kind)]
-            if len(twins) == 1:
-                assert len(f.by_id) == (1 if (d.tty or d.video) else 0)
-            assert len(f.by_id) <= 1
-            assert f.serial == (d.serial or None)
+        sysfs, dev = build_fake_tree(tmp, bench)
+        found = discover(backend=FakeUsbBackend(bench), sysfs_root=sysfs, dev_root=dev)
+        _, nodes = build(bench)
+        known = [p for p in sorted(bench.devices, key=lambda p: p.ports) if p.model != "usb2_hub"]
+        assert [f.port_path for f in found] == [p.port_path(1) for p in known]
+        for f, p in zip(found, known):
+            mine = [n for n in nodes if n.plugged is p]
+            assert f.tty == [str(dev / n.node) for n in mine if n.index is None]
+            assert f.video == [str(dev / n.node) for n in mine if n.index == 0]  # capture nodes only
+            assert len(f.by_path) == len(f.tty + f.video)  # by-path is unique per port
+            assert f.serial == p.serial
+            twins = [q for q in known if q.model == p.model and q.serial == p.serial]
+            assert len(f.by_id) == (len(f.tty + f.video) if twins[-1] is p else 0)  # the last claimant wins
+
+
+def test_the_bench_is_what_the_docs_list():
+    assert [p.model for p in BENCH.devices] == ["u2d2", "arduino_uno_r3", "ch340", "logitech_c310", "gelsight_mini",
+                                                 "digit"]
