@@ -9,7 +9,7 @@ import pytest
 
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.core.errors import NotConnected, PortInUse
-from tactile_rig.drivers.jig import Jig
+from tactile_rig.drivers.grbl import Jig
 from tactile_rig.drivers.scale import Scale, grams_mg
 from tactile_rig.drivers.transport import SerialTransport
 from tactile_rig.mocks.grbl import GrblMock
@@ -100,4 +100,4 @@ def test_four_threads_share_one_jig() -> None:
 
         errors = _run(4, body)
         assert not errors, errors[:3]
-        assert jig.replies_lost == 0 and jig.corrupt_reports == 0
+        assert jig.stats.replies_lost == 0 and jig.stats.corrupt_reports == 0

@@ -11,7 +11,7 @@ import pytest
 
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.core.errors import GrblError, LinkCorrupt, ReplyLost
-from tactile_rig.drivers.jig import Jig, parse_status
+from tactile_rig.drivers.grbl import Jig, parse_status
 from tactile_rig.mocks.grbl import GrblMock
 from tactile_rig.sim import World
 from tactile_rig.testing import serve_in_process
@@ -63,7 +63,7 @@ def test_a_lost_ok_is_reply_lost_for_that_line_and_the_next_commands_work(buffer
         jig.command("G21")  # answer 0 arrives
         with pytest.raises(ReplyLost) as info:
             jig.command("G90")  # answer 1 is lost on the wire
-        assert info.value.line == "G90" and jig.replies_lost == 1
+        assert info.value.line == "G90" and jig.stats.replies_lost == 1
         assert jig.command("G91") == [] and jig.command("G90") == []
         jig.move_to(3.0, -2.0, 10.0, wait=True)
         p = jig.pose()
@@ -79,7 +79,7 @@ def test_a_stream_with_lost_answers_finishes_and_counts_them(buffer_field: bool)
         jig = Jig(url)
         res = jig.stream(lines, timeout_s=120.0)
         assert res.sent == len(lines) and res.ok + len(res.lost) == len(lines)
-        assert len(res.lost) == 2 and jig.replies_lost == 2 and not res.errors
+        assert len(res.lost) == 2 and jig.stats.replies_lost == 2 and not res.errors
         st = jig.wait_idle(30.0)
         assert st.state == "Idle"
         assert jig.command("G90") == []  # the counting is back in step
@@ -112,7 +112,7 @@ def test_a_corrupt_status_report_is_link_corrupt_and_the_next_one_is_fine() -> N
         jig = Jig(url)
         with pytest.raises(LinkCorrupt):
             jig.status()
-        assert jig.status().state == "Idle" and jig.corrupt_reports == 1
+        assert jig.status().state == "Idle" and jig.stats.corrupt_reports == 1
 
 
 def test_a_silent_grbl_is_still_a_timeout_not_a_lost_answer() -> None:
@@ -163,7 +163,7 @@ def test_a_flipped_digit_in_an_idle_report_is_outvoted_by_the_next_reports() -> 
         mock.flip = {mock.reports + 1}  # the second report from now has X 1.000 -> 9.000
         got = [jig.status().mpos for _ in range(4)]
         assert all(p == pytest.approx((1.0, 0.0, 0.0)) for p in got), got
-        assert jig.corrupt_reports == 1
+        assert jig.stats.corrupt_reports == 1
 
 
 def test_a_report_off_the_commanded_path_or_too_fast_is_link_corrupt() -> None:

@@ -7,7 +7,7 @@ import re
 import pytest
 
 from tactile_rig.core.clock import VirtualClock
-from tactile_rig.drivers.jig import Jig, parse_status
+from tactile_rig.drivers.grbl import Jig, parse_status
 from tactile_rig.drivers.transport import SerialTransport
 from tactile_rig.mocks.grbl import GrblMock
 from tactile_rig.testing import expected_protocol, serve_in_process
