@@ -130,7 +130,7 @@ class _ScaleGauge:
         self.scale = scale
         self.name = getattr(scale, "device", "scale")
 
-    def read_n(self, timeout_s: float | None = 1.0) -> float:
+    def read_force_n(self, timeout_s: float | None = 1.0) -> float:
         return float(self.scale.force_n(timeout_s))
 
 

@@ -256,7 +256,7 @@ def test_unplug_is_not_connected_fails_fast_and_replug_reconnects_with_backoff(m
     dev = make_bus(protocol=protocol, ids=[1], timing=True, return_delay_us=0)
     with serve_in_process(dev, clock) as url:
         policy = Reconnect(clock, initial_s=0.1, factor=2.0, max_s=1.0)
-        with DynamixelBus(url, protocol=protocol, baudrate=dev.baud, reconnect=policy) as bus:
+        with DynamixelBus(url, protocol=protocol, baudrate=dev.baud, reconnect_policy=policy) as bus:
             bus.write(1, "Goal Position", 1111)
             plug.plugged = False
             with pytest.raises(NotConnected, match="unplugged"):
@@ -352,7 +352,7 @@ def test_unplug_and_replug_over_a_pty(tmp_path) -> None:
     server = PtyServer(dev).start()
     _symlink(link, server.port)
     try:
-        with DynamixelBus(link, reconnect=Reconnect(initial_s=0.05, max_s=0.2)) as bus:
+        with DynamixelBus(link, reconnect_policy=Reconnect(initial_s=0.05, max_s=0.2)) as bus:
             bus.write(1, "Goal Position", 1357)
             server.stop()
             os.unlink(link)
