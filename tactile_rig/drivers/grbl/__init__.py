@@ -18,6 +18,6 @@ from tactile_rig.drivers.grbl.link import CharacterCounter, StreamResult, clean_
 from tactile_rig.drivers.grbl.status import MM_PER_INCH, GrblStatus, parse_status
 
 __all__ = [
-    "ENVELOPE_TOL", "FEED_OVERRIDE_MAX", "MM_PER_INCH", "CharacterCounter", "FirmwareWindow", "GrblController", "GrblStats", "GrblStatus", "Jig", "PathEnvelope",
-    "StreamResult", "clean_gcode_line", "parse_status", "read_window",
+    "ENVELOPE_TOL", "FEED_OVERRIDE_MAX", "MM_PER_INCH", "CharacterCounter", "FirmwareWindow", "GrblController",
+    "GrblStats", "GrblStatus", "Jig", "PathEnvelope", "StreamResult", "clean_gcode_line", "parse_status", "read_window",
 ]
