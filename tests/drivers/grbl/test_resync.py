@@ -2,12 +2,16 @@
 
 The wire loses an ``ok``/``error`` line (``LossyGrbl`` leaves out chosen answers after GRBL has
 executed the line, as a UART overrun would): the driver finds it from a later status report,
-raises ``ReplyLost`` for that line only, keeps streaming, and never names a wrong line in an error.
+raises ``ReplyLost`` for that line only, keeps streaming, and never names a wrong line in an error,
+neither in the result nor in the live progress callback.
 """
 
 from __future__ import annotations
 
+import re
+
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.core.errors import GrblError, LinkCorrupt, ReplyLost
@@ -181,3 +185,39 @@ def test_a_report_off_the_commanded_path_or_too_fast_is_link_corrupt() -> None:
                 jig._check_moving(st)
         jig._check_moving(parse_status("<Run|MPos:1.000,0.000,0.000|FS:600,0>", clock.now_s(), jig._wco))
         jig.wait_idle(10.0)
+
+
+def _stream_with_progress(lose: set[int], lines: list[str]):
+    clock, mock, stage = _jig({"lose": lose})
+    calls: list[tuple[int, str, str]] = []
+    with serve_in_process(mock, clock) as url:
+        jig = Jig(url)
+        res = jig.stream(lines, timeout_s=120.0, stop_on_error=False,
+                         on_progress=lambda no, text, answer: calls.append((no, text, answer)))
+    return res, calls
+
+
+def test_live_progress_flags_an_error_a_lost_answer_made_ambiguous_as_the_result_does() -> None:
+    # GRBL's ok to line 2 is lost; its error:20 for line 3 reaches the host as the next answer.
+    lines = ["G90", "G1 X1 F600", "G1 X2 Q7", "G1 X3"]
+    res, calls = _stream_with_progress({1}, lines)
+    assert res.uncertain, "the scenario must leave an error ambiguous"
+    errors = [(no, answer) for no, _, answer in calls if answer.startswith("error:")]
+    assert [no for no, _ in errors] == [no for no, _, _ in res.errors]
+    for no, answer in errors:
+        assert ("one of lines" in answer) == (no in res.uncertain), (no, answer, res.uncertain)
+    # the range named includes the line GRBL refused
+    first, last = map(int, re.search(r"one of lines (\d+)-(\d+)", errors[0][1]).groups())
+    assert first <= 3 <= last
+    assert sorted(no for no, _, _ in calls) == [1, 2, 3, 4]  # every line reported once
+
+
+@settings(max_examples=25, deadline=None)
+@given(lose=st.sets(st.integers(0, 11), max_size=3), bad=st.sets(st.integers(0, 11), min_size=1, max_size=3))
+def test_live_progress_and_the_result_agree_on_every_ambiguous_error(lose: set[int], bad: set[int]) -> None:
+    lines = [f"G1 X{k % 3}.5 F1200" if k not in bad else f"G1 X{k % 3}.5 Q7" for k in range(12)]
+    res, calls = _stream_with_progress(lose, ["G90"] + lines)
+    flagged = sorted(no for no, _, answer in calls if answer.startswith("error:") and "one of lines" in answer)
+    assert flagged == sorted(res.uncertain)
+    assert sorted(no for no, _, _ in calls) == list(range(1, len(lines) + 2))
+    assert [no for no, _, a in calls if a == "lost"] == res.lost
