@@ -106,7 +106,7 @@ def run_bus(protocol: int, fault: str, n_ops: int, seed: int = 1) -> Row:
     row = Row()
     failed_before = False
     try:
-        bus = DynamixelBus(port, protocol=protocol, baudrate=dev.baud, reconnect=Reconnect(clock, initial_s=0.05))
+        bus = DynamixelBus(port, protocol=protocol, baudrate=dev.baud, reconnect_policy=Reconnect(clock, initial_s=0.05))
     except RigError:
         row.typed += 1
         unregister_instance(name)

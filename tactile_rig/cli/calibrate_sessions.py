@@ -20,6 +20,7 @@ from tactile_rig.cli.args import SEED, any_int, finite_float, output_file_or
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.core.clock import VirtualClock
+from tactile_rig.devices.scale import STANDARD_GRAVITY_MPS2
 from tactile_rig.drivers.dynamixel import DynamixelGripper
 from tactile_rig.mocks.registry import device_from_url
 from tactile_rig.mocks.scale import ScaleMock
@@ -38,8 +39,6 @@ from tactile_rig.rig.jig_accuracy import (
     prepare_jig,
     sim_camera_connector,
 )
-
-GRAVITY_MPS2 = 9.80665
 
 
 def register_sessions(csub: Any) -> None:
@@ -190,7 +189,7 @@ def _mock_mass_placer(rig: Any) -> Callable[[float], None]:
 
     def place(grams: float) -> None:
         cell.set_force_source(None)
-        cell.applied_force_n = float(grams) / 1000.0 * GRAVITY_MPS2
+        cell.applied_force_n = float(grams) / 1000.0 * STANDARD_GRAVITY_MPS2
 
     return place
 

@@ -88,9 +88,10 @@ def _state(args: argparse.Namespace) -> int:
 
 
 def _go(args: argparse.Namespace) -> int:
-    with _open(args, normalized=args.normalized) as g:
+    with _open(args) as g:
         g.activate(args.effort)
-        outcome = g.gripper_go(args.position, args.effort, blocking=not args.no_wait, timeout_s=args.timeout)
+        go = g.gripper_go_frac if args.normalized else g.gripper_go
+        outcome = go(args.position, args.effort, blocking=not args.no_wait, timeout_s=args.timeout)
         _print_state(args, g.state(), {"outcome": outcome.value})
     if outcome == GripperOutcome.FAULT:
         return 3

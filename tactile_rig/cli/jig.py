@@ -15,8 +15,7 @@ import os
 from tactile_rig.cli.args import any_int, finite_float
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.common import print_json
-from tactile_rig.drivers.jig import Jig
-from tactile_rig.drivers.jig_limits import read_window
+from tactile_rig.drivers.grbl import Jig, read_window
 from tactile_rig.rig.bench import JigConfig
 
 

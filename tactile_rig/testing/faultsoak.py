@@ -31,7 +31,7 @@ from tactile_rig.core.clock import Clock, RealClock, VirtualClock
 from tactile_rig.core.errors import DeviceFault, RigError
 from tactile_rig.devices import scale as sp
 from tactile_rig.drivers.dynamixel.bus import DynamixelBus
-from tactile_rig.drivers.jig import Jig
+from tactile_rig.drivers.grbl import Jig
 from tactile_rig.drivers.scale import Scale
 from tactile_rig.mocks.dynamixel import make_bus
 from tactile_rig.mocks.faults import KINDS, FaultInjector

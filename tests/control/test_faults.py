@@ -73,9 +73,9 @@ class _Unplugged:
         if self.calls < 0:
             raise NotConnected("port failed: unplugged (EIO)", device=self.name)
 
-    def move_toward(self, target: Pose, speed_mps: float) -> None:
+    def move_toward(self, target: Pose, path_speed_mps: float) -> None:
         self._tick()
-        self.arm.move_toward(target, speed_mps)
+        self.arm.move_toward(target, path_speed_mps)
 
     def pose(self) -> Pose:
         self._tick()

@@ -121,8 +121,8 @@ class _RecordingGripper:
     def __init__(self) -> None:
         self.calls: list[tuple[float, float]] = []
 
-    def gripper_go(self, position: float, effort: float, **kw):
-        self.calls.append((position, effort))
+    def gripper_go(self, opening_m: float, effort_frac: float, **kw):
+        self.calls.append((opening_m, effort_frac))
         return GripperOutcome.MOVING
 
 

@@ -7,7 +7,7 @@ import pytest
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.core.errors import DeviceFault, GrblAlarm, NotConnected
 from tactile_rig.drivers.base import Driver, Lifecycle
-from tactile_rig.drivers.jig import Jig
+from tactile_rig.drivers.grbl import Jig
 from tactile_rig.drivers.scale import Scale
 from tactile_rig.mocks.grbl import GrblMock
 from tactile_rig.sim import World

@@ -42,8 +42,7 @@ def test_the_docs_example_object_is_not_squashed():
 
 # -- jig: the bench's limits and the firmware's window, before any motion ---------------------------
 from tactile_rig.core.errors import LimitError  # noqa: E402
-from tactile_rig.drivers.jig import Jig  # noqa: E402
-from tactile_rig.drivers.jig_limits import read_window  # noqa: E402
+from tactile_rig.drivers.grbl import Jig, read_window  # noqa: E402
 from tactile_rig.rig.bench import JigConfig, load_bench  # noqa: E402
 
 

@@ -87,7 +87,7 @@ def test_tare_and_known_mass_calibration_persist_across_a_reset() -> None:
         scale.read_many(30)
         assert scale.latest().grams == pytest.approx(200.0, abs=0.5)
         scale.reconnect()  # the Arduino resets on open: the factor comes back from EEPROM
-        assert scale.info.cal_factor == pytest.approx(factor, abs=1e-3)
+        assert scale.info.cal_factor_counts_per_g == pytest.approx(factor, abs=1e-3)
         with pytest.raises(ValueError, match="known_mass_g"):
             scale.calibrate(-5.0)
 
@@ -172,7 +172,7 @@ def test_tare_exchanges_exactly_these_bytes() -> None:
     with expected_protocol([(None, banner), (b"t\n", frame("T,ok"))], baud=sp.BAUD) as url:
         scale = Scale(url)
         scale.tare(timeout_s=0.5)
-        assert scale.info.cal_factor == 696.0
+        assert scale.info.cal_factor_counts_per_g == 696.0
 
 
 def test_stable_path_prefers_the_by_id_link(tmp_path) -> None:

@@ -10,7 +10,7 @@ from hypothesis import given, strategies as st
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.core.errors import ZeroLost
 from tactile_rig.devices import scale as sp
-from tactile_rig.drivers.scale import Scale, ScaleEvent, grams_mg, infer_zero_raw
+from tactile_rig.drivers.scale import Scale, ScaleEvent, infer_zero_raw, mg_from_raw
 from tactile_rig.mocks.scale import ScaleMock
 from tactile_rig.sim.world.load_cell import LoadCell
 from tactile_rig.testing import serve_in_process
@@ -102,6 +102,6 @@ def test_a_stock_sketch_that_reboots_gives_zero_lost_until_a_tare() -> None:
 @given(raw=st.integers(sp.RAW_MIN, sp.RAW_MAX), zero=st.integers(sp.RAW_MIN, sp.RAW_MAX),
        cal=st.integers(100, 100_000_000).flatmap(lambda c: st.sampled_from([c, -c])))
 def test_the_zero_inferred_from_a_sample_reproduces_the_sketchs_grams(raw: int, zero: int, cal: int) -> None:
-    mg = grams_mg(raw, zero, cal)
+    mg = mg_from_raw(raw, zero, cal)
     z = infer_zero_raw(raw, mg, cal)
-    assert z is not None and grams_mg(raw, z, cal) == mg
+    assert z is not None and mg_from_raw(raw, z, cal) == mg

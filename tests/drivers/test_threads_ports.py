@@ -1,5 +1,6 @@
 """Exclusive ports and thread-safe drivers: a second handle on a port is ``PortInUse`` naming it;
-four threads sharing one scale or one jig see every sample once, in order, and no spurious error."""
+four threads sharing one scale get every sample once, each thread in order, as the sketch sent it;
+four threads sharing one jig see no spurious error."""
 
 from __future__ import annotations
 
@@ -9,8 +10,8 @@ import pytest
 
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.core.errors import NotConnected, PortInUse
-from tactile_rig.drivers.jig import Jig
-from tactile_rig.drivers.scale import Scale, grams_mg
+from tactile_rig.drivers.grbl import Jig
+from tactile_rig.drivers.scale import Scale
 from tactile_rig.drivers.transport import SerialTransport
 from tactile_rig.mocks.grbl import GrblMock
 from tactile_rig.mocks.scale import ScaleMock
@@ -57,11 +58,21 @@ def test_a_driver_cannot_steal_a_port_another_driver_holds() -> None:
             assert scale.read(timeout_s=2.0).raw is not None  # the first one is undisturbed
 
 
-def test_four_threads_share_one_scale_without_losing_or_corrupting_a_sample() -> None:
+def test_four_threads_reading_one_scale_get_every_sample_once_each_in_order_as_the_sketch_sent_it() -> None:
     clock = VirtualClock()
     mock = ScaleMock(clock=clock, spike_prob=0.0)
-    got: list = []
-    lock = threading.Lock()
+    sent: dict[int, tuple[int, float]] = {}  # seq -> (raw counts, grams) as the sketch printed them
+    emit = mock._emit
+
+    def record(data: bytes, t_write: float, *, reply: bool = False) -> None:
+        body = data.decode("ascii").split("*")[0]
+        if body.startswith("S,"):
+            seq, grams, raw = body.split(",")[1:]
+            sent[int(seq)] = (int(raw), float(grams))
+        emit(data, t_write, reply=reply)
+
+    mock._emit = record  # type: ignore[method-assign]
+    per_thread: list[list] = [[] for _ in range(4)]
     with serve_in_process(mock, clock) as url:
         scale = Scale(url)
 
@@ -69,18 +80,19 @@ def test_four_threads_share_one_scale_without_losing_or_corrupting_a_sample() ->
             for k in range(60):
                 batch = [scale.read()] if (i + k) % 3 else scale.poll()
                 if (i + k) % 5 == 0:
-                    batch.append(scale.latest())
-                with lock:
-                    got.extend(batch)
+                    batch += scale.read_many(2)
+                per_thread[i].extend(batch)
 
         errors = _run(4, body)
         assert not errors, errors[:3]
         assert scale.stats.dropped == 0 and scale.stats.bad_checksum == 0 and scale.stats.resets == 0
-    seqs = sorted(r.seq for r in got)
-    # latest() consumes the ones before it: every sample is delivered at most once, and only a
-    # latest() may skip some (they are counted as consumed, not lost on the wire).
-    assert len(seqs) == len(set(seqs))
-    assert all(r.grams == grams_mg(r.raw, scale.zero_raw, scale.cal_milli) / 1000 for r in got)
+    for got in per_thread:  # each thread's calls follow one another: each sees the samples in order
+        seqs = [r.seq for r in got]
+        assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
+    every = sorted(r.seq for got in per_thread for r in got)
+    assert every == list(range(every[0], every[0] + len(every)))  # none twice, none lost between
+    for r in (r for got in per_thread for r in got):  # each is the sample the sketch sent, intact
+        assert (r.raw, r.sketch_grams) == sent[r.seq] and r.grams == r.sketch_grams
 
 
 def test_four_threads_share_one_jig() -> None:
@@ -100,4 +112,4 @@ def test_four_threads_share_one_jig() -> None:
 
         errors = _run(4, body)
         assert not errors, errors[:3]
-        assert jig.replies_lost == 0 and jig.corrupt_reports == 0
+        assert jig.stats.replies_lost == 0 and jig.stats.corrupt_reports == 0

@@ -7,7 +7,7 @@ import pytest
 
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.core.errors import DeviceFault, DeviceTimeout, NotConnected, RigError
-from tactile_rig.drivers.jig import Jig
+from tactile_rig.drivers.grbl import Jig
 from tactile_rig.drivers.scale import Scale
 from tactile_rig.mocks.faults import FaultInjector
 from tactile_rig.mocks.grbl import GrblMock
@@ -107,7 +107,7 @@ def test_an_unplugged_jig_fails_fast_then_comes_back_in_fault_and_activates() ->
                 break
             except NotConnected:
                 continue
-        assert jig.reconnects == 1
+        assert jig.stats.reconnects == 1
         with pytest.raises(DeviceFault):
             jig.move_to(1.0, 0.0, 0.0)  # GRBL rebooted: moves wait for activate()
 

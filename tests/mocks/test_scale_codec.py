@@ -76,7 +76,7 @@ def test_banner_and_replies_decode() -> None:
     out = parser.feed(frame("B,hx711-scale,1.0.0,80,696.000") + frame("T,ok") + frame("K,702.125")
                       + frame("E,3,load too small") + frame("S,65535,-1.500,-8388608"), 2.0)
     assert [p.kind for p in out] == ["banner", "tare", "cal", "error", "sample"]
-    assert out[0].info.rate_sps == 80 and out[0].info.cal_factor == 696.0
+    assert out[0].info.rate_sps == 80 and out[0].info.cal_factor_counts_per_g == 696.0
     assert out[2].value == 702.125 and out[3].code == 3
     assert out[4].reading.saturated and out[4].reading.raw == sp.RAW_MIN
 

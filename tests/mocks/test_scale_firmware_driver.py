@@ -55,7 +55,7 @@ def _check_stream(scale: Scale, n: int, rate: int) -> None:
 
 def test_at_80_sps_every_line_arrives_tare_and_calibration_hold_and_a_reopen_reboots(firmware) -> None:
     with _board(80, counts_per_g=720.0) as board, Scale(board.port, boot_timeout_s=6.0) as scale:
-        assert scale.format == "tactile" and scale.info.cal_factor == 696.0  # a fresh EEPROM
+        assert scale.format == "tactile" and scale.info.cal_factor_counts_per_g == 696.0  # a fresh EEPROM
         _check_stream(scale, 160, 80)
         board.set_mass_g(50.0)  # a tray: tared away
         _settle(scale, 8)
@@ -69,7 +69,7 @@ def test_at_80_sps_every_line_arrives_tare_and_calibration_hold_and_a_reopen_reb
         assert _mean_grams(scale, 20) == pytest.approx(200.0, abs=0.5)
         scale.reconnect()  # the port reopened: DTR resets the Uno, the factor comes back from EEPROM
         assert scale.stats.resets == 1 and scale.events[-1].kind == "reset"
-        assert scale.info.cal_factor == pytest.approx(factor, abs=1e-3)
+        assert scale.info.cal_factor_counts_per_g == pytest.approx(factor, abs=1e-3)
         after = scale.read(timeout_s=2.0)
         assert after.seq == 0 and after.raw == pytest.approx(84_000 + 250 * 720, abs=60)  # raw is absolute
         assert scale.stats.dropped == 0 and scale.stats.bad_checksum == 0

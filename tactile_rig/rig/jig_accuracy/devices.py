@@ -164,5 +164,5 @@ def connect_bench_jig_rig(bench: Any, camera: str | None = None, *, start_s: flo
 
 def prepare_jig(jig: Any, timeout_s: float = 120.0) -> None:
     """Bring a GRBL jig to Idle and ``active``: home it when it is locked in Alarm (GRBL with homing
-    enabled), clear a latched fault (:meth:`tactile_rig.drivers.jig.Jig.activate`)."""
+    enabled), clear a latched fault (:meth:`tactile_rig.drivers.grbl.Jig.activate`)."""
     jig.activate(home=True, timeout_s=timeout_s)

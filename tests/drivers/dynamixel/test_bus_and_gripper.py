@@ -170,15 +170,14 @@ def test_gripper_non_blocking_and_timeout(gripper_factory) -> None:
 def test_gripper_bad_arguments(gripper_factory) -> None:
     g, dev = gripper_factory(width_mm=None)
     g.activate()
-    with pytest.raises(LimitError, match="position=0.5"):
+    with pytest.raises(LimitError, match="opening_m=0.5"):
         g.gripper_go(0.5, 0.3)
     with pytest.raises(ValueError, match="effort"):
         g.gripper_go(0.05, 1.5)
     with pytest.raises(ValueError, match="effort"):
         g.gripper_go(0.05, float("nan"))
-    gn = DynamixelGripper(g.bus, normalized=True)
-    with pytest.raises(LimitError, match=r"\[0, 1\]"):
-        gn.gripper_go(-0.1, 0.3)
+    with pytest.raises(LimitError, match=r"opening_frac=-0.1 is outside \[0, 1\]"):
+        g.gripper_go_frac(-0.1, 0.3)
 
 
 @pytest.mark.parametrize("protocol", [2, 1])

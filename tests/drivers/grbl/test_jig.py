@@ -10,7 +10,7 @@ import pytest
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.control.protocols import Motion, Pose
 from tactile_rig.core.errors import GrblAlarm, GrblError, GrblReset
-from tactile_rig.drivers.jig import Jig
+from tactile_rig.drivers.grbl import Jig
 from tactile_rig.core.errors import DeviceTimeout, LimitError, NotConnected
 from tactile_rig.mocks.grbl import GrblMock
 from tactile_rig.sim import World
@@ -164,7 +164,7 @@ def test_wrong_baud_is_a_timeout_and_an_unexpected_banner_is_a_reset_error() -> 
         mock.inject("reset")
         with pytest.raises(GrblReset, match="reset unexpectedly"):
             jig.wait_idle(5.0)
-        assert jig.resets == 1
+        assert jig.stats.resets == 1
 
 
 def test_feed_hold_stops_and_resume_finishes_the_move() -> None:
@@ -248,7 +248,7 @@ def test_check_mode_parses_without_moving() -> None:
             jig.command("G1 X1 D3")
         assert res.ok == 3 and jig.status().mpos == (0.0, 0.0, 0.0) and info.value.code == 20
         jig.set_check_mode(False)  # GRBL resets on leaving check mode
-        assert jig.status().state == "Idle" and jig.resets == 0
+        assert jig.status().state == "Idle" and jig.stats.resets == 0
 
 
 def test_theta_on_the_a_channel_of_grblhal() -> None:
@@ -277,9 +277,9 @@ def test_the_jig_is_a_motion_device() -> None:
     with serve_in_process(mock, clock) as url:
         jig = Jig(url)
         assert isinstance(jig, Motion)
-        jig.move_toward(Pose(x_mm=4.0, y_mm=0.0, theta_deg=0.0), speed_mps=0.002)
+        jig.move_toward(Pose(x_mm=4.0, y_mm=0.0, theta_deg=0.0), path_speed_mps=0.002)
         clock.advance(0.5)
-        jig.move_toward(Pose(x_mm=-4.0, y_mm=1.0, theta_deg=0.0), speed_mps=0.004)  # replaces the first
+        jig.move_toward(Pose(x_mm=-4.0, y_mm=1.0, theta_deg=0.0), path_speed_mps=0.004)  # replaces the first
         jig.wait_idle(10.0)
         _assert_at(jig, stage, -4.0, 1.0, 0.0)
         jig.move_to(8.0, 0.0, 0.0)

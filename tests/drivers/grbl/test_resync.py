@@ -2,16 +2,20 @@
 
 The wire loses an ``ok``/``error`` line (``LossyGrbl`` leaves out chosen answers after GRBL has
 executed the line, as a UART overrun would): the driver finds it from a later status report,
-raises ``ReplyLost`` for that line only, keeps streaming, and never names a wrong line in an error.
+raises ``ReplyLost`` for that line only, keeps streaming, and never names a wrong line in an error,
+neither in the result nor in the live progress callback.
 """
 
 from __future__ import annotations
 
+import re
+
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.core.errors import GrblError, LinkCorrupt, ReplyLost
-from tactile_rig.drivers.jig import Jig, parse_status
+from tactile_rig.drivers.grbl import Jig, parse_status
 from tactile_rig.mocks.grbl import GrblMock
 from tactile_rig.sim import World
 from tactile_rig.testing import serve_in_process
@@ -63,7 +67,7 @@ def test_a_lost_ok_is_reply_lost_for_that_line_and_the_next_commands_work(buffer
         jig.command("G21")  # answer 0 arrives
         with pytest.raises(ReplyLost) as info:
             jig.command("G90")  # answer 1 is lost on the wire
-        assert info.value.line == "G90" and jig.replies_lost == 1
+        assert info.value.line == "G90" and jig.stats.replies_lost == 1
         assert jig.command("G91") == [] and jig.command("G90") == []
         jig.move_to(3.0, -2.0, 10.0, wait=True)
         p = jig.pose()
@@ -79,7 +83,7 @@ def test_a_stream_with_lost_answers_finishes_and_counts_them(buffer_field: bool)
         jig = Jig(url)
         res = jig.stream(lines, timeout_s=120.0)
         assert res.sent == len(lines) and res.ok + len(res.lost) == len(lines)
-        assert len(res.lost) == 2 and jig.replies_lost == 2 and not res.errors
+        assert len(res.lost) == 2 and jig.stats.replies_lost == 2 and not res.errors
         st = jig.wait_idle(30.0)
         assert st.state == "Idle"
         assert jig.command("G90") == []  # the counting is back in step
@@ -112,7 +116,7 @@ def test_a_corrupt_status_report_is_link_corrupt_and_the_next_one_is_fine() -> N
         jig = Jig(url)
         with pytest.raises(LinkCorrupt):
             jig.status()
-        assert jig.status().state == "Idle" and jig.corrupt_reports == 1
+        assert jig.status().state == "Idle" and jig.stats.corrupt_reports == 1
 
 
 def test_a_silent_grbl_is_still_a_timeout_not_a_lost_answer() -> None:
@@ -163,7 +167,7 @@ def test_a_flipped_digit_in_an_idle_report_is_outvoted_by_the_next_reports() -> 
         mock.flip = {mock.reports + 1}  # the second report from now has X 1.000 -> 9.000
         got = [jig.status().mpos for _ in range(4)]
         assert all(p == pytest.approx((1.0, 0.0, 0.0)) for p in got), got
-        assert jig.corrupt_reports == 1
+        assert jig.stats.corrupt_reports == 1
 
 
 def test_a_report_off_the_commanded_path_or_too_fast_is_link_corrupt() -> None:
@@ -181,3 +185,39 @@ def test_a_report_off_the_commanded_path_or_too_fast_is_link_corrupt() -> None:
                 jig._check_moving(st)
         jig._check_moving(parse_status("<Run|MPos:1.000,0.000,0.000|FS:600,0>", clock.now_s(), jig._wco))
         jig.wait_idle(10.0)
+
+
+def _stream_with_progress(lose: set[int], lines: list[str]):
+    clock, mock, stage = _jig({"lose": lose})
+    calls: list[tuple[int, str, str]] = []
+    with serve_in_process(mock, clock) as url:
+        jig = Jig(url)
+        res = jig.stream(lines, timeout_s=120.0, stop_on_error=False,
+                         on_progress=lambda no, text, answer: calls.append((no, text, answer)))
+    return res, calls
+
+
+def test_live_progress_flags_an_error_a_lost_answer_made_ambiguous_as_the_result_does() -> None:
+    # GRBL's ok to line 2 is lost; its error:20 for line 3 reaches the host as the next answer.
+    lines = ["G90", "G1 X1 F600", "G1 X2 Q7", "G1 X3"]
+    res, calls = _stream_with_progress({1}, lines)
+    assert res.uncertain, "the scenario must leave an error ambiguous"
+    errors = [(no, answer) for no, _, answer in calls if answer.startswith("error:")]
+    assert [no for no, _ in errors] == [no for no, _, _ in res.errors]
+    for no, answer in errors:
+        assert ("one of lines" in answer) == (no in res.uncertain), (no, answer, res.uncertain)
+    # the range named includes the line GRBL refused
+    first, last = map(int, re.search(r"one of lines (\d+)-(\d+)", errors[0][1]).groups())
+    assert first <= 3 <= last
+    assert sorted(no for no, _, _ in calls) == [1, 2, 3, 4]  # every line reported once
+
+
+@settings(max_examples=25, deadline=None)
+@given(lose=st.sets(st.integers(0, 11), max_size=3), bad=st.sets(st.integers(0, 11), min_size=1, max_size=3))
+def test_live_progress_and_the_result_agree_on_every_ambiguous_error(lose: set[int], bad: set[int]) -> None:
+    lines = [f"G1 X{k % 3}.5 F1200" if k not in bad else f"G1 X{k % 3}.5 Q7" for k in range(12)]
+    res, calls = _stream_with_progress(lose, ["G90"] + lines)
+    flagged = sorted(no for no, _, answer in calls if answer.startswith("error:") and "one of lines" in answer)
+    assert flagged == sorted(res.uncertain)
+    assert sorted(no for no, _, _ in calls) == list(range(1, len(lines) + 2))
+    assert [no for no, _, a in calls if a == "lost"] == res.lost

@@ -13,7 +13,7 @@ from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, ru
 
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.core.errors import GrblAlarm
-from tactile_rig.drivers.jig import Jig
+from tactile_rig.drivers.grbl import Jig
 from tactile_rig.mocks.grbl import GrblMock
 from tactile_rig.mocks.registry import register_instance, unregister_instance
 from tactile_rig.sim.world.stage import Stage

@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, strategies as st
 
 from tactile_rig.devices import grbl as gp
-from tactile_rig.drivers.jig import clean_gcode_line, parse_status
+from tactile_rig.drivers.grbl import clean_gcode_line, parse_status
 from tactile_rig.core.errors import CommandRejected, DeviceFault, GrblAlarm, GrblError, LinkCorrupt
 from tactile_rig.testing.strategies_grbl import status_reports
 

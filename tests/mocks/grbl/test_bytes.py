@@ -7,7 +7,7 @@ import re
 import pytest
 
 from tactile_rig.core.clock import VirtualClock
-from tactile_rig.drivers.jig import Jig, parse_status
+from tactile_rig.drivers.grbl import Jig, parse_status
 from tactile_rig.drivers.transport import SerialTransport
 from tactile_rig.mocks.grbl import GrblMock
 from tactile_rig.testing import expected_protocol, serve_in_process
@@ -55,7 +55,8 @@ def test_system_commands_print_grbls_shapes(wire) -> None:
     tr, mock, clock = wire
     tr.write(b"$I\n$#\n$G\n$N\n$\n$$\n")
     text = "\n".join(_lines(tr))
-    assert "[VER:1.1h.20190825:]" in text and "[OPT:V,15,128]" in text
+    # GRBL 1.1h: grbl/grbl.h GRBL_VERSION "1.1h", GRBL_VERSION_BUILD "20190830"; report.c prints [VER:...]
+    assert "[VER:1.1h.20190830:]" in text and "[OPT:V,15,128]" in text
     assert re.search(r"\[G54:0\.000,0\.000,0\.000\]", text) and "[PRB:0.000,0.000,0.000:0]" in text
     assert "[GC:G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0]" in text
     assert "$N0=" in text and text.startswith("[VER")

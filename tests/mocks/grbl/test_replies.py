@@ -1,4 +1,4 @@
-"""Issue #16's table, row by row: what a sender sees must be what GRBL 1.1h prints.
+"""GRBL 1.1h's replies, area by area: what a sender sees must be what the firmware prints.
 
 Each test's docstring names the firmware function (gnea/grbl v1.1h) whose behaviour it pins.
 The host is virtual (tests/_grbl.py): bytes in at a time, the mock's exact output back.
@@ -212,12 +212,12 @@ def test_build_info_startup_lines_and_a_full_restore() -> None:
     h = Host()
     assert h.line("$N0=G21") == ["error:8"]  # locked in Alarm: startup lines are stored only when Idle
     assert h.line("$I=jig 7") == ["ok"]
-    assert h.line("$I")[0] == "[VER:1.1h.20190825:JIG7]"  # the protocol loop upper-cases and drops spaces
+    assert h.line("$I")[0] == "[VER:1.1h.20190830:JIG7]"  # the protocol loop upper-cases and drops spaces
     h.line("$X")
     assert h.line("$N1=G91") == ["ok"] and h.line("$N")[:2] == ["$N0=", "$N1=G91"]
     h.line("$110=300")
     assert h.line("$RST=*") == ["[MSG:Restoring defaults]", "ok", BANNER]  # no $N1 left to run
-    assert h.line("$I")[0] == "[VER:1.1h.20190825:]" and h.line("$N")[:2] == ["$N0=", "$N1="]
+    assert h.line("$I")[0] == "[VER:1.1h.20190830:]" and h.line("$N")[:2] == ["$N0=", "$N1="]
     assert "$110=1200.000" in h.line("$$")
 
 

@@ -56,7 +56,7 @@ class FirmwareWindow:
 
 
 def read_window(jig: Any) -> FirmwareWindow | None:
-    """The window of a connected :class:`~tactile_rig.drivers.jig.Jig` (``$$`` and one status), or
+    """The window of a connected :class:`~tactile_rig.drivers.grbl.jig.Jig` (``$$`` and one status), or
     None when soft limits are off (``$20=0``) or the status reports no WCO to place it by."""
     settings = jig.read_settings()
     if not int(settings.get(20, 0)):
