@@ -10,8 +10,12 @@ import threading
 from pathlib import Path
 
 import cv2
+import foxglove  # noqa: F401  (the live extra serves the view: a broken install fails here)
+import mcap.reader as mcap_reader
 import numpy as np
 import pytest
+import sklearn  # noqa: F401  (the learn extra fits the force map)
+import websockets  # noqa: F401  (the live view's test client)
 
 from tactile_rig.cli import main
 from tactile_rig.rig.bench import connect_bench, load_bench
@@ -19,10 +23,6 @@ from tactile_rig.rig.jig_accuracy import JigAccuracyConfig, execute_jig_accuracy
 from tactile_rig.rig.learning import fit_force_map
 from tactile_rig.rig.rehearsal import RehearsalBench, RehearsalOptions
 from tests._foxglove_client import LiveClient
-
-mcap_reader = pytest.importorskip("mcap.reader")
-pytest.importorskip("foxglove")
-pytest.importorskip("websockets")
 
 pytestmark = pytest.mark.pty
 
@@ -153,7 +153,6 @@ def test_record_live_streams_what_it_records(rehearsal, tmp_path, capsys) -> Non
 
 
 def test_fingervision_track_live_from_the_bench_camera_in_newtons(rehearsal, tmp_path, capsys) -> None:
-    pytest.importorskip("sklearn")
     # A force map fitted on pairs where |F| = 2 N per px of marker force (the fit is the calib
     # session's business; here it only has to be a fitted map the bench path loads and applies).
     rng = np.random.default_rng(0)
