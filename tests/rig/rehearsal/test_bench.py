@@ -157,7 +157,7 @@ def test_fingervision_track_live_from_the_bench_camera_in_newtons(rehearsal, tmp
     # session's business; here it only has to be a fitted map the bench path loads and applies).
     rng = np.random.default_rng(0)
     # Forces dense near zero (radius 4 px · u², random direction): a 60-frame run may press only a
-    # fraction of a pixel, where a uniform cube left |F| = 2|f| poorly fitted (3.8 N for 0.6 px, seen);
+    # fraction of a pixel, where forces drawn from a uniform cube fit |F| = 2|f| poorly (3.8 N for 0.6 px);
     # torques wider than any the rehearsal gives, so the map depends on the marker force alone.
     d = rng.normal(size=(800, 3))
     f = d / np.linalg.norm(d, axis=1, keepdims=True) * 4.0 * rng.uniform(0.0, 1.0, (800, 1)) ** 2
