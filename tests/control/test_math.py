@@ -3,6 +3,7 @@ following law's frame rotations, the perception-result adapter."""
 
 from __future__ import annotations
 
+import cmath
 import math
 from types import SimpleNamespace
 
@@ -19,6 +20,7 @@ from tactile_rig.control.insertion import gripper_goal, velocity_command
 from tactile_rig.core.geometry import invert_rigid as invert
 from tactile_rig.core.geometry import matrix_from_pose as pose_to_matrix
 from tactile_rig.core.geometry import pose_from_matrix as matrix_to_pose
+from tactile_rig.core.geometry import rotation_2d
 from tactile_rig.control.protocols import GripperOutcome, Pose, TouchReading
 
 mm = st.floats(-500.0, 500.0)
@@ -73,6 +75,60 @@ def test_the_velocity_law_has_the_commanded_speed_toward_the_goal(q, goal, speed
     assert np.linalg.norm(v) == pytest.approx(speed)
     assert float(np.dot(v, e)) == pytest.approx(speed * np.linalg.norm(e))
     assert velocity_command(goal, goal, speed) == (0.0, 0.0, 0.0, 0.0)
+
+
+xy = st.floats(-1e6, 1e6)
+any_deg = st.one_of(deg, st.floats(-1e4, 1e4), st.sampled_from([-270.0, -180.0, -90.0, 0.0, 90.0, 180.0, 270.0, 360.0]))
+
+
+def _close(a: tuple[float, float], b: tuple[float, float], scale: float) -> bool:
+    return math.hypot(a[0] - b[0], a[1] - b[1]) <= 1e-9 * (1.0 + scale)
+
+
+@given(x=xy, y=xy, angle=any_deg)
+def test_rotate_xy_is_the_complex_product_the_polar_sum_and_the_geometry_rotation(x, y, angle) -> None:
+    """Three other formulations of the same counter-clockwise rotation agree with it: multiplying by
+    e^(i angle), adding the angle to the vector's polar angle, and ``core.geometry.rotation_2d``."""
+    got = rotate_xy(x, y, angle)
+    r = math.hypot(x, y)
+    z = complex(x, y) * cmath.exp(1j * math.radians(angle))
+    phi = math.atan2(y, x) + math.radians(angle)
+    m = rotation_2d(angle) @ np.array([x, y])
+    for other in ((z.real, z.imag), (r * math.cos(phi), r * math.sin(phi)), (float(m[0]), float(m[1]))):
+        assert _close(got, other, r), (got, other)
+    assert math.hypot(*got) == pytest.approx(r, rel=1e-12, abs=1e-300)
+
+
+@given(x=xy, y=xy, a=any_deg, b=any_deg)
+def test_rotate_xy_composes_inverts_and_repeats_every_turn(x, y, a, b) -> None:
+    r = math.hypot(x, y)
+    assert _close(rotate_xy(*rotate_xy(x, y, a), b), rotate_xy(x, y, a + b), r)
+    assert _close(rotate_xy(*rotate_xy(x, y, a), -a), (x, y), r)
+    assert _close(rotate_xy(x, y, a + 360.0), rotate_xy(x, y, a), r)
+
+
+@given(x=xy, y=xy)
+def test_rotate_xy_quarter_and_half_turns(x, y) -> None:
+    """+90 deg takes +x to +y (counter-clockwise), -90 deg takes +x to -y, and +180 and -180 deg are the
+    same half turn."""
+    r = math.hypot(x, y)
+    assert _close(rotate_xy(x, y, 90.0), (-y, x), r)
+    assert _close(rotate_xy(x, y, -90.0), (y, -x), r)
+    assert _close(rotate_xy(x, y, 180.0), (-x, -y), r)
+    assert _close(rotate_xy(x, y, -180.0), (-x, -y), r)
+    assert _close(rotate_xy(x, y, 270.0), rotate_xy(x, y, -90.0), r)
+    assert rotate_xy(x, y, 0.0) == (x, y)
+
+
+def test_rotate_xy_known_vectors_and_non_finite_angles() -> None:
+    assert rotate_xy(1.0, 0.0, 90.0) == pytest.approx((0.0, 1.0), abs=1e-15)
+    assert rotate_xy(0.0, 2.0, 90.0) == pytest.approx((-2.0, 0.0), abs=1e-15)
+    assert rotate_xy(3.0, 4.0, -90.0) == pytest.approx((4.0, -3.0), abs=1e-15)
+    assert rotate_xy(1.0, 1.0, 45.0) == pytest.approx((0.0, math.sqrt(2.0)), abs=1e-15)
+    assert rotate_xy(2.0, 0.0, 30.0) == pytest.approx((math.sqrt(3.0), 1.0), abs=1e-15)
+    for bad in (math.nan, math.inf, -math.inf):
+        with pytest.raises(ValueError, match="angle_deg"):
+            rotate_xy(1.0, 0.0, bad)
 
 
 @given(fx=st.floats(-5, 5), fy=st.floats(-5, 5), mount=deg)

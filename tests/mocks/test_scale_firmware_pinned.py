@@ -1,8 +1,10 @@
-"""The scale mock's behaviours that the differential test found missing or wrong, pinned one by one.
+"""The scale mock behaves as the sketch does where the two are easiest to tell apart: boot and reset
+timing, the receive ring, the command and mass grammar, the sketch's integer arithmetic, raw counts
+across a reboot, the Uno's real baud rate, an unplugged HX711 and its settling.
 
-Each was a difference between the Python mock and the sketch compiled for the ATmega328P on the
-simulated board (``tests/mocks/test_scale_firmware_differential.py`` holds them line for line against the
-board); these run without the AVR toolchain. Times are the mock's virtual time, not wall time.
+``tests/mocks/test_scale_firmware_differential.py`` holds the mock against the sketch compiled for the
+ATmega328P on the simulated board, line for line; these run without the AVR toolchain. Times are the
+mock's virtual time, not wall time.
 """
 
 from __future__ import annotations
@@ -159,7 +161,7 @@ def test_thousandths_print_with_three_decimals_and_no_negative_zero(v: int) -> N
 
 
 def test_raw_is_absolute_counts_the_tare_only_moves_grams() -> None:
-    # The host keeps its own zero from raw across a reboot of the board (issue #11).
+    # The host keeps its own zero from raw across a reboot of the board.
     s = Script().at(0.0, "open")
     t0 = QUIET.bootloader_s + 0.4
     s.at(t0, "force_n", 0.1 * G).at(t0 + 0.5, "send", b"t\n").at(t0 + 1.2, "reset")

@@ -7,17 +7,16 @@ import json
 import socket
 import threading
 
+import foxglove  # noqa: F401  (the live extra: a broken install fails here)
 import numpy as np
 import pytest
+import websockets  # noqa: F401  (the test client)
 
 from tactile_rig.cli import main
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.rig.live import LiveServer, Tee
 from tactile_rig.rig.recording import SCHEMAS, Recorder, read_recording
 from tests._foxglove_client import LiveClient
-
-pytest.importorskip("foxglove")
-pytest.importorskip("websockets")
 
 
 def _free_port() -> int:

@@ -69,9 +69,9 @@ def test_inhand_rotation_by_slip_ends_within_5_degrees_without_dropping(seed) ->
 
 @pytest.mark.parametrize("scene, seed", [("inhand_rotation_torque", 10), ("inhand_rotation_dynamixel", 4)])
 def test_inhand_rotation_near_hanging_slides_on_past_the_static_limit_instead_of_stalling(scene, seed) -> None:
-    # Regression: targets of 86–87° lie past acos(r_patch / r), where a squeeze that holds the weight
-    # out-resists gravity's torque; these episodes stalled at the learnt squeeze floor 6–7° short.
-    # On the MX-64 one position tick moved the squeeze by about the object's weight.
+    # Targets of 86–87° lie past acos(r_patch / r), where a squeeze that holds the weight out-resists
+    # gravity's torque: the controller must slide the object on instead of stalling at the learnt
+    # squeeze floor 6–7° short. On the MX-64 one position tick moves the squeeze by about the weight.
     r = run_episode(scene, seed)
     assert r.figures["target_deg"] > 86.0  # the case: beyond the static limit of this object
     assert r.figures["dropped"] == 0

@@ -4,14 +4,17 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import json
+import logging
 from pathlib import Path
 
+import distributed  # noqa: F401  (in the test install; it sets its logger's level on import)
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
 from tactile_rig.rig.sweep import (
     canonical,
+    dask_executor,
     grid,
     parse_axis,
     point_key,
@@ -142,6 +145,33 @@ def test_episodes_have_their_own_keys_and_seeds_and_episode_zero_is_the_point(tm
         run_sweep(TARGET, [params], tmp_path, episodes=0)
 
 
+class _ReversedExecutor(cf.Executor):
+    """Finishes its ``n`` calls last-submitted first, once all are submitted, as a busy pool may."""
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.calls: list[tuple] = []
+        self.futures: list[cf.Future] = []
+
+    def submit(self, fn, /, *args, **kwargs) -> cf.Future:
+        fut: cf.Future = cf.Future()
+        self.calls.append((fn, args, kwargs))
+        self.futures.append(fut)
+        if len(self.futures) == self.n:
+            for f, (g, a, k) in zip(reversed(self.futures), reversed(self.calls)):
+                f.set_result(g(*a, **k))
+        return fut
+
+
+def test_the_summary_lists_episodes_in_the_order_of_the_points_however_they_finish(tmp_path: Path) -> None:
+    points = [{"x": x, "noise": 0.0} for x in (3.0, 1.0, 2.0)]
+    s = run_sweep(TARGET, points, tmp_path, episodes=2, executor=_ReversedExecutor(6))
+    assert [(p.params["x"], p.episode) for p in s.points] == [(3.0, 0), (3.0, 1), (1.0, 0), (1.0, 1), (2.0, 0), (2.0, 1)]
+    # resumed with a new point first: the done episodes are skipped, the new ones run
+    resumed = run_sweep(TARGET, [{"x": 0.0, "noise": 0.0}, *points], tmp_path, episodes=2, executor=_ReversedExecutor(2))
+    assert [(p.params["x"], p.status) for p in resumed.points] == [(0.0, "ok")] * 2 + [(x, "skipped") for x in (3.0, 3.0, 1.0, 1.0, 2.0, 2.0)]
+
+
 def test_table_gives_success_rate_median_and_worst_per_point(tmp_path: Path) -> None:
     from tactile_rig.rig.sweep_report import format_table, sweep_table
 
@@ -229,11 +259,6 @@ def test_cli_prints_one_table_and_plots(tmp_path: Path, capsys: pytest.CaptureFi
 
 def test_dask_local_cluster_runs_the_sweep_quietly(tmp_path: Path, capfd: pytest.CaptureFixture,
                                                    caplog: pytest.LogCaptureFixture) -> None:
-    pytest.importorskip("distributed")
-    import logging
-
-    from tactile_rig.rig.sweep import dask_executor
-
     caplog.set_level(logging.INFO)  # as the CLI's --log-level INFO would: Dask's INFO chatter must not show
     before = logging.getLogger("distributed").level
     ex = dask_executor(workers=1, processes=False, threads_per_worker=2)

@@ -64,7 +64,7 @@ def test_a_status_60_ms_late_is_discarded_and_the_retry_returns_the_true_value(p
         LateReplies(dev, [0.060])  # the status of the next request arrives 60 ms late
         assert bus.read(1, "Goal Position") == 1234
         assert bus.stats.stale_packets == 1 and bus.stats.resyncs == 1 and bus.stats.retries == 1
-        # the issue's sequence: what followed the late packet got its own answer
+        # every request after the late packet gets its own answer
         assert bus.ping(1) == MODEL[protocol]
         assert bus.read(1, "Present Position") == dev.servo(1).item("Present Position")
         assert bus.read(2, "Goal Position") == 2345
@@ -77,7 +77,7 @@ def test_without_retries_the_late_status_is_a_timeout_and_never_the_next_answer(
         LateReplies(dev, [0.060])
         with pytest.raises(DeviceTimeout):
             bus.read(1, "Goal Position")
-        # without the resync this ping returns 2048: the late read status would answer it
+        # a bus that took the late read status as the next reply would return 2048 here
         assert bus.ping(1) == MODEL[protocol]
         assert bus.stats.stale_packets == 1
         LateReplies(dev, [0.060])
@@ -420,8 +420,8 @@ def test_group_reads_discard_a_late_status_and_return_the_true_values(protocol: 
 
 @pytest.mark.parametrize("protocol", [2, 1])
 def test_the_gripper_state_after_a_late_one_byte_status_is_the_true_state(protocol: int) -> None:
-    """A 1-byte read times out, its status comes 60 ms late, and the next block read (the gripper's
-    state) must not take it: a 24-byte read returning 1 byte would be an opening of -0.05 m."""
+    """A 1-byte read times out and its status comes 60 ms late: the next block read (the gripper's
+    state) must not take it (a 24-byte read returning 1 byte would read as an opening of -0.05 m)."""
     dev = make_bus(protocol=protocol, ids=[1], timing=True, return_delay_us=0)
     with serve_in_process(dev) as url:
         with DynamixelBus(url, protocol=protocol, baudrate=dev.baud, retries=0) as bus:

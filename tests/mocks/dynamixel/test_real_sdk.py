@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import importlib
 import time
 from contextlib import contextmanager
+from importlib.metadata import version
 
 import pytest
 import dynamixel_sdk as sdk
@@ -15,6 +17,10 @@ from tactile_rig.mocks.dynamixel import make_bus
 from tactile_rig.testing import serve_in_process, serve_on_pty
 
 OK = sdk.COMM_SUCCESS
+# dynamixel_easy_sdk ships with dynamixel-sdk 4 and later (what CI installs): there it must import;
+# the declared floor, dynamixel-sdk 3.8, has no easy SDK
+SDK_VERSION = version("dynamixel-sdk")
+easy = importlib.import_module("dynamixel_easy_sdk") if int(SDK_VERSION.split(".")[0]) >= 4 else None
 
 # Values that respect the cross-item limits when items are written in address order.
 P2_VALUES = {"Operating Mode": 5, "Temperature Limit": 70, "Max Position Limit": 4000, "Min Position Limit": 100,
@@ -224,7 +230,8 @@ def test_classic_and_easy_sdk_over_a_pty() -> None:
         assert br.txRxPacket() == OK and (br.getData(1, 0, 2), br.getData(2, 116, 4)) == (311, 2500)
         port.closePort()
 
-        easy = pytest.importorskip("dynamixel_easy_sdk")  # shipped with dynamixel-sdk >= 4
+        if easy is None:
+            pytest.skip(f"dynamixel-sdk {SDK_VERSION} has no dynamixel_easy_sdk (it ships with 4 and later)")
         Connector, DxlRuntimeError = easy.Connector, easy.DxlRuntimeError
         conn = Connector(server.port, 1_000_000)
         motor = conn.createMotor(1)  # pings, then reads Torque Enable and Operating Mode

@@ -134,7 +134,7 @@ def test_cli_glob_video_and_errors(tmp_path, capsys) -> None:
     assert "window" in capsys.readouterr().err
 
 
-def test_cli_init_flag_selects_the_old_baseline_scheme(tmp_path, capsys) -> None:
+def test_cli_init_flag_selects_lattice_ids_or_ids_after_the_baseline_frames(tmp_path, capsys) -> None:
     for k in range(4):
         cv2.imwrite(str(tmp_path / f"f{k}.png"), render(REST, seed=k))
     assert main(["fingervision", "track", str(tmp_path), "--calib-frames", "2", "--no-calibration", "--json"]) == 0

@@ -110,12 +110,13 @@ def test_defaults_report_every_marker_with_its_id_from_the_first_frame(folder: P
     assert tp / (tp + fp) >= 0.95 and tp / (tp + fn) >= 0.95, (tp, fp, fn)
 
 
-def test_the_old_frames_baseline_is_what_the_lattice_replaces(folder: Path) -> None:
-    """With init="frames" the 10 real frames are all baseline: no ids at all (the issue's recall 0.28)."""
-    old = score_real(FingerVisionParams(init="frames"))
-    new = score_real(FingerVisionParams())
-    assert old is not None and new is not None
-    assert old.recall == 0.0 and new.recall >= 0.95 and new.precision >= 0.95 and new.id_switches == 0
+def test_a_frames_baseline_gives_no_ids_on_the_real_frames_and_lattice_ids_give_all(folder: Path) -> None:
+    """With init="frames" the 10 real frames are all baseline frames: no ids at all; the lattice init
+    reports every marker with its id from the first frame."""
+    frames = score_real(FingerVisionParams(init="frames"))
+    lattice = score_real(FingerVisionParams())
+    assert frames is not None and lattice is not None
+    assert frames.recall == 0.0 and lattice.recall >= 0.95 and lattice.precision >= 0.95 and lattice.id_switches == 0
 
 
 def test_cli_track_json_scores_with_defaults(folder: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -92,19 +92,63 @@ def test_no_markers_at_all() -> None:
     assert st_.positions_px.shape == (0, 2) and st_.valid.shape == (0,)
 
 
+MARKER_R_PX = 4.0  # the synthetic maker's default disc radius
+
+
+def _pair_run(gap_y_px: float, speed_px: float, frames: int, params: TrackerParams):
+    """Markers a (left) and b (right, ``gap_y_px`` lower) moving towards each other along x at
+    ``speed_px`` a frame; yields (frame, truth (2, 2) px, state) for every frame."""
+    a0, b0 = np.array([130.3, 120.2]), np.array([190.6, 120.2 + gap_y_px])
+    tracker = MarkerTracker(_baseline(np.array([a0, b0])), params)
+    for k in range(1, frames + 1):
+        truth = np.array([a0 + [speed_px * k, 0.0], b0 - [speed_px * k, 0.0]])
+        yield k, truth, tracker.update(_contrast(truth, seed=k))
+
+
 @pytest.mark.parametrize("use_kalman", [False, True])
-def test_crossing_pair_never_swaps_identities(use_kalman: bool) -> None:
-    a0, b0 = np.array([130.3, 120.2]), np.array([190.6, 120.9])
-    tracker = MarkerTracker(_baseline(np.array([a0, b0])), TrackerParams(use_kalman=use_kalman))
-    for k in range(1, 40):
-        a = a0 + [2.0 * k, 0.0]
-        b = b0 - [2.0 * k, 0.0]
-        st_ = tracker.update(_contrast(np.array([a, b]), seed=k))
-        for i, (own, other) in enumerate(((a, b), (b, a))):
-            if st_.found[i]:
-                d_own = np.hypot(*(st_.positions_px[i] - own))
-                d_other = np.hypot(*(st_.positions_px[i] - other))
-                assert d_own <= 1.5 or d_own < d_other, f"frame {k}: marker {i} took the other's place"
+def test_markers_passing_inside_each_others_window_keep_their_identities(use_kalman: bool) -> None:
+    """Two markers on rows 9 px apart pass each other at 1.5 px a frame. At the closest approach each
+    one's disc reaches into the other's measurement window, yet both are measured in every frame, each
+    id stays on its own marker, and the ids end in the markers' swapped left-right order."""
+    p = TrackerParams(use_kalman=use_kalman)
+    # an id within half the closest approach of its own marker is nearer to it than to the other; the
+    # Kalman filter (the thesis's noise settings) lags up to ~3 px while its velocity builds up
+    tol_px = 3.5 if use_kalman else 1.0
+    closest_px = np.inf
+    for k, truth, st_ in _pair_run(9.0, 1.5, 80, p):
+        closest_px = min(closest_px, float(np.hypot(*(truth[0] - truth[1]))))
+        assert st_.found.all() and st_.valid.all(), f"frame {k}: a visible marker was dropped: {st_.found}"
+        err = np.hypot(*(st_.positions_px - truth).T)
+        assert err.max() <= tol_px, f"frame {k}: ids off their markers by {err} px"
+    assert closest_px - MARKER_R_PX < p.window_half_px, "the markers must come within each other's window"
+    assert 2 * tol_px < closest_px
+    assert truth[0, 0] > truth[1, 0] and st_.positions_px[0, 0] > st_.positions_px[1, 0]
+
+
+_REACQUIRED_ON_A_PASSING_DOT = pytest.mark.xfail(strict=True, reason=(
+    "a lost marker is re-acquired on another marker running across its rest position at 1.5 px a frame: "
+    "the re-detection window clips the entering dot, so its centroid creeps by less than "
+    "confirm_motion_px a frame and passes the stillness check"))
+
+
+@pytest.mark.parametrize("use_kalman, speed_px", [
+    (False, 2.0),
+    pytest.param(False, 1.5, marks=_REACQUIRED_ON_A_PASSING_DOT),
+    pytest.param(True, 1.5, marks=_REACQUIRED_ON_A_PASSING_DOT),
+])
+def test_markers_that_run_through_each_other_are_dropped_not_swapped(use_kalman: bool, speed_px: float) -> None:
+    """Two markers on one row run through each other and on across the other's rest position. While
+    they approach, more than two windows apart, both are measured; where they overlap they cannot be
+    told apart and may be dropped; but no id is ever found on the other marker, at the overlap or later."""
+    p = TrackerParams(use_kalman=use_kalman)
+    apart_px = 2 * (p.window_half_px + MARKER_R_PX)
+    for k, truth, st_ in _pair_run(0.0, speed_px, int(120 / speed_px), p):
+        approaching = truth[0, 0] < truth[1, 0]
+        if approaching and np.hypot(*(truth[0] - truth[1])) >= apart_px:
+            assert st_.found.all(), f"frame {k}: a marker {apart_px} px from the other was dropped"
+        err = np.hypot(*(st_.positions_px - truth).T)
+        for i in np.flatnonzero(st_.found):
+            assert err[i] <= 3.5, f"frame {k}: id {i} found {err[i]:.1f} px off its marker (on the other?)"
         assert np.all(np.isfinite(st_.positions_px))
 
 

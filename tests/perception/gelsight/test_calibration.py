@@ -85,7 +85,7 @@ def test_background_frame_reads_flat(lut_cal, mlp_cal) -> None:
 
 @pytest.mark.parametrize("value", [0, 255])
 def test_saturated_frames_are_refused(mlp_cal, value: int) -> None:
-    # An all-black (lights off, lens covered) or all-white frame read -7..+8 mm before: refused now.
+    # An all-black (lights off, lens covered) or all-white frame would read as -7..+8 mm heights: refused.
     frame = np.full_like(mlp_cal.background, value)
     with pytest.raises(SaturatedFrame) as err:
         Reconstructor(mlp_cal).height_mm(frame)

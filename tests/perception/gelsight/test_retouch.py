@@ -24,9 +24,9 @@ def test_defaults_localize_realistic_retouches_and_are_never_confidently_wrong(u
     assert sc.rot_mae_deg <= 0.3 and sc.trans_mae_mm <= 0.05
 
 
-def test_the_pre_issue_defaults_refused_most_of_them(usb_retouches) -> None:
-    old = RegistrationParams(max_sigma_px=0.1, max_sigma_rot_deg=0.1, min_ncc=0.6, min_rotation_pinning=0.0,
+def test_strict_gates_without_dense_bias_correction_localize_fewer_than_the_defaults(usb_retouches) -> None:
+    strict = RegistrationParams(max_sigma_px=0.1, max_sigma_rot_deg=0.1, min_ncc=0.6, min_rotation_pinning=0.0,
                              dense_bias_order=0, dense_gain=False, inlier_px=2.0, dense_highpass_px=0.0,
                              detect_short_px=160, orb_levels=8)
-    new = score_pairs(usb_retouches, RegistrationParams())
-    assert score_pairs(usb_retouches, old).right < new.right
+    default = score_pairs(usb_retouches, RegistrationParams())
+    assert score_pairs(usb_retouches, strict).right < default.right

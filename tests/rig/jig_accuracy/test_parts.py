@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import statistics
 
 import numpy as np
 import pytest
@@ -151,13 +152,29 @@ def test_summary_of_one_sweep_leaves_the_other_empty():
 
 
 @given(st.lists(st.tuples(st.floats(-90, 90), st.floats(-5, 5), st.booleans()), max_size=20))
-def test_summary_never_nan_and_mae_bounds_std(rows):
+def test_summary_is_the_mean_and_spread_of_each_sweeps_absolute_errors(rows):
+    """Each sweep's MAE and std are the mean and population standard deviation of its points' absolute
+    errors (computed here with ``statistics``), and the std stays inside the Bhatia-Davis bound that
+    MAE and the largest error put on it: std^2 <= MAE (max - MAE)."""
     res = [_result(i, "rotation" if i % 2 else "translation", Pose(0, 0, theta_deg=a), Pose(e, 0, theta_deg=a + e) if ok else None)
            for i, (a, e, ok) in enumerate(rows)]
     s = summarize(res)
-    for key in ("rotation_mae_deg", "rotation_std_deg", "translation_mae_mm", "translation_std_mm"):
-        assert s[key] is None or (math.isfinite(s[key]) and s[key] >= 0)
-    json.dumps(s)
+    # each row's estimate is off by e in x and e in theta: |e| is both of its errors
+    errors = {sweep: [abs(e) for i, (_a, e, ok) in enumerate(rows) if ok and (i % 2) == (sweep == "rotation")]
+              for sweep in ("rotation", "translation")}
+    for sweep, unit in (("rotation", "deg"), ("translation", "mm")):
+        mae, std, worst = s[f"{sweep}_mae_{unit}"], s[f"{sweep}_std_{unit}"], s[f"{sweep}_max_{unit}"]
+        errs = errors[sweep]
+        if not errs:
+            assert mae is None and std is None and worst is None
+            continue
+        assert mae == pytest.approx(statistics.fmean(errs), abs=1e-9)
+        assert std == pytest.approx(statistics.pstdev(errs), abs=1e-9)
+        assert worst == pytest.approx(max(errs), abs=1e-9)
+        assert 0.0 <= mae <= worst + 1e-12
+        assert std ** 2 <= mae * (worst - mae) + 1e-9
+    assert s["n_localized"] == sum(ok for *_, ok in rows) and s["n_refused"] == len(rows) - s["n_localized"]
+    json.dumps(s, allow_nan=False)
 
 
 # -- persistence ---------------------------------------------------------------------------------

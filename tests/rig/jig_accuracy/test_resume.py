@@ -1,5 +1,5 @@
-"""A resumed mock jig accuracy run equals an uninterrupted one, and a resume loses no recording
-(issue 11, item 8): per-point noise seeded from (seed, point), run.mcap never truncated."""
+"""A resumed mock jig accuracy run equals an uninterrupted one, and a resume loses no recording:
+per-point noise seeded from (seed, point), run.mcap never truncated."""
 
 from __future__ import annotations
 
@@ -84,7 +84,7 @@ def test_killed_mid_point_and_resumed_run_equals_an_uninterrupted_one(tmp_path, 
     assert _messages(tmp_path / "run.mcap") == messages
 
 
-def _old_recording(path: Path, n_points: int) -> list[tuple]:
+def _earlier_attempt_recording(path: Path, n_points: int) -> list[tuple]:
     clock = VirtualClock()
     with Recorder(path, clock=clock) as rec:
         for i in range(n_points):
@@ -103,7 +103,7 @@ def test_a_crash_at_any_step_of_a_resume_loses_nothing(tmp_path, monkeypatch) ->
     """The resume's steps (writes, flushes, fsyncs, the rename) fail one at a time: after each crash
     run.mcap still holds every message of the earlier attempt, and a later resume completes."""
     path = tmp_path / "run.mcap"
-    before = _old_recording(path, 30)
+    before = _earlier_attempt_recording(path, 30)
     kept = before[:60]  # up to the 30th point message; the cut-short move goes
     steps = {"n": 0, "crash_at": 0}
     real = {"write": Recorder._add, "sync": jig_session.os.replace}

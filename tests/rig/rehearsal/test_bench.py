@@ -10,8 +10,12 @@ import threading
 from pathlib import Path
 
 import cv2
+import foxglove  # noqa: F401  (the live extra serves the view: a broken install fails here)
+import mcap.reader as mcap_reader
 import numpy as np
 import pytest
+import sklearn  # noqa: F401  (the learn extra fits the force map)
+import websockets  # noqa: F401  (the live view's test client)
 
 from tactile_rig.cli import main
 from tactile_rig.rig.bench import connect_bench, load_bench
@@ -19,10 +23,6 @@ from tactile_rig.rig.jig_accuracy import JigAccuracyConfig, execute_jig_accuracy
 from tactile_rig.rig.learning import fit_force_map
 from tactile_rig.rig.rehearsal import RehearsalBench, RehearsalOptions
 from tests._foxglove_client import LiveClient
-
-mcap_reader = pytest.importorskip("mcap.reader")
-pytest.importorskip("foxglove")
-pytest.importorskip("websockets")
 
 pytestmark = pytest.mark.pty
 
@@ -153,12 +153,11 @@ def test_record_live_streams_what_it_records(rehearsal, tmp_path, capsys) -> Non
 
 
 def test_fingervision_track_live_from_the_bench_camera_in_newtons(rehearsal, tmp_path, capsys) -> None:
-    pytest.importorskip("sklearn")
     # A force map fitted on pairs where |F| = 2 N per px of marker force (the fit is the calib
     # session's business; here it only has to be a fitted map the bench path loads and applies).
     rng = np.random.default_rng(0)
     # Forces dense near zero (radius 4 px · u², random direction): a 60-frame run may press only a
-    # fraction of a pixel, where a uniform cube left |F| = 2|f| poorly fitted (3.8 N for 0.6 px, seen);
+    # fraction of a pixel, where forces drawn from a uniform cube fit |F| = 2|f| poorly (3.8 N for 0.6 px);
     # torques wider than any the rehearsal gives, so the map depends on the marker force alone.
     d = rng.normal(size=(800, 3))
     f = d / np.linalg.norm(d, axis=1, keepdims=True) * 4.0 * rng.uniform(0.0, 1.0, (800, 1)) ** 2

@@ -10,17 +10,16 @@ import json
 import threading
 import time
 
+import mcap.reader as mcap_reader
 import numpy as np
 import pytest
+import sklearn  # noqa: F401  (the learn extra fits the force map)
 
 from tactile_rig.cli import main
 from tactile_rig.rig.bench import connect_bench, load_bench
 from tactile_rig.rig.camera_calibrations import camera_calibrations
 from tactile_rig.rig.live_perception import FingerVisionStep, run_live
 from tactile_rig.rig.rehearsal import RehearsalBench, RehearsalOptions
-
-mcap_reader = pytest.importorskip("mcap.reader")
-pytest.importorskip("sklearn")
 
 pytestmark = [pytest.mark.pty, pytest.mark.slow]
 
