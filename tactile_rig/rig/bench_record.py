@@ -1,14 +1,18 @@
 """``record``: every device's stream of a bench into one MCAP (and, with a live server, over WebSocket).
 
-Topics (the recording schemas of :mod:`tactile_rig.rig.recording`):
+Topics (the one mapping of :mod:`tactile_rig.rig.messages`; ``docs/foxglove_and_ros2.md``):
 
 * ``/scale/force`` (``tactile_rig.ScaleReading``): every sample the sketch sends, with grams, raw, seq;
-* ``/state/gripper`` (``tactile_rig.DeviceState``): the gripper's state every ``gripper_period_s``;
-* ``/state/jig`` and ``/jig/pose``: the GRBL status report and work pose every ``jig_period_s``;
+* ``/state/gripper`` (``tactile_rig.GripperState``) and ``/gripper/joint_states``
+  (``foxglove.JointStates``): the gripper's state every ``gripper_period_s``;
+* ``/state/jig``, ``/jig/pose`` and ``/tf`` (``foxglove.FrameTransforms``: the stage under the
+  sensors): the GRBL status report and work pose every ``jig_period_s``;
 * ``/<name>/image/compressed`` (``foxglove.CompressedImage``, JPEG): every new frame of every camera.
 
 One loop polls every device in turn (no thread per device): the scale driver queues its samples, the
 cameras capture on their own threads and keep the newest frame, so nothing waits on another device.
+Live, the session offers the services ``tare_scale`` and ``stop_motion`` (:class:`BenchServices`),
+run by the same loop between two polls.
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ from typing import Any, Callable
 
 from tactile_rig.core.errors import DeviceTimeout, LinkCorrupt, RigError
 from tactile_rig.rig.bench import Bench, connect_bench
-from tactile_rig.rig.live import Tee
+from tactile_rig.rig.live import ServiceRefused, Tee
 from tactile_rig.rig.learning import model_json_path
 from tactile_rig.rig.recording import Recorder, camera_topic
 
@@ -36,6 +40,66 @@ class RecordOutcome:
     duration_s: float = 0.0
     camera_fps: dict[str, float] = field(default_factory=dict)
     missed: dict[str, int] = field(default_factory=dict)  # polls a device did not answer (skipped)
+    dropped: dict[str, int] = field(default_factory=dict)  # camera frames never recorded (sequence gaps)
+
+
+MOVING_STATES = ("Run", "Jog", "Home", "Hold")  # GRBL states in which the stage is (or may be) moving
+STEADY_SPAN_N = 0.05  # tare_scale: the last second's readings must lie within this (N) of each other
+
+
+class BenchServices:
+    """The live services of a recording session, each refused when the bench is not in a state to do it.
+
+    * ``tare_scale``: zero the scale with what is on it now. Refused without a scale, while the jig
+      or the gripper moves, or while the load is changing (the last second's readings span more than
+      ``STEADY_SPAN_N``): a zero taken then would be wrong.
+    * ``stop_motion``: stop the jig (feed hold, then GRBL flushes its plan; the position is kept).
+      Refused without a jig and when nothing moves. It moves nothing, so it needs no limits check.
+    """
+
+    def __init__(self, rig: Any) -> None:
+        self.rig = rig
+        self.jig_state: str | None = None
+        self.gripper_moving = False
+        self._forces: list[tuple[float, float]] = []  # (t_s, N) over the last second
+
+    def saw_force(self, t_s: float, force_n: float) -> None:
+        self._forces.append((t_s, force_n))
+        while self._forces and self._forces[0][0] < t_s - 1.0:
+            self._forces.pop(0)
+
+    def tare_scale(self, args: dict[str, Any]) -> str:
+        if self.rig.scale is None:
+            raise ServiceRefused("the bench has no scale", device="scale")
+        if self.jig_state in MOVING_STATES:
+            raise ServiceRefused(f"the jig is moving ({self.jig_state}); tare when it is idle", device="scale")
+        if self.gripper_moving:
+            raise ServiceRefused("the gripper is moving; tare when it is still", device="scale")
+        if len(self._forces) < 2:
+            raise ServiceRefused("no scale readings in the last second; tare when the scale streams", device="scale")
+        values = [f for _, f in self._forces]
+        span = max(values) - min(values)
+        if span > STEADY_SPAN_N:
+            raise ServiceRefused(f"the load is changing ({span:.3f} N over the last second, more than "
+                                 f"{STEADY_SPAN_N} N); tare a steady load", device="scale")
+        before = values[-1]
+        self.rig.scale.tare()
+        self._forces.clear()
+        return f"scale tared (was reading {before:+.4f} N)"
+
+    def stop_motion(self, args: dict[str, Any]) -> str:
+        if self.rig.jig is None:
+            raise ServiceRefused("the bench has no jig", device="jig")
+        state = self.rig.jig.status().state
+        if state not in MOVING_STATES:
+            raise ServiceRefused(f"nothing to stop: the jig is {state}", device="jig")
+        self.rig.jig.stop()
+        return f"jig stopped (was {state})"
+
+    def offer(self, live: Any) -> None:
+        """Offer both services on ``live`` (a LiveServer)."""
+        live.add_service("tare_scale", self.tare_scale)
+        live.add_service("stop_motion", self.stop_motion)
 
 
 def record_topics(bench: Bench) -> dict[str, str]:
@@ -44,9 +108,10 @@ def record_topics(bench: Bench) -> dict[str, str]:
     if any(d.kind == "scale" for d in bench.devices.values()):
         topics["/scale/force"] = "tactile_rig.ScaleReading"
     if any(d.kind == "gripper" for d in bench.devices.values()):
-        topics["/state/gripper"] = "tactile_rig.DeviceState"
+        topics.update({"/state/gripper": "tactile_rig.GripperState", "/gripper/joint_states": "foxglove.JointStates"})
     if any(d.kind == "jig" for d in bench.devices.values()):
-        topics.update({"/state/jig": "tactile_rig.DeviceState", "/jig/pose": "tactile_rig.JigPose"})
+        topics.update({"/state/jig": "tactile_rig.DeviceState", "/jig/pose": "tactile_rig.JigPose",
+                       "/tf": "foxglove.FrameTransforms"})
     for name in bench.cameras:
         topics[camera_topic(name, compressed=True)] = "foxglove.CompressedImage"
     return topics
@@ -56,8 +121,9 @@ def record_bench(bench: Bench, duration_s: float, out: str | Path | None, *, liv
                  gripper_period_s: float = 0.05, jig_period_s: float = 0.1, jpeg: bool = True,
                  on_tick: Callable[[RecordOutcome], None] | None = None) -> RecordOutcome:
     """Record every device of ``bench`` for ``duration_s`` seconds into ``out`` (an .mcap path; None:
-    live only). ``live`` is a :class:`~tactile_rig.rig.live.LiveServer` (or None). ``on_tick`` is
-    called about once a second with the counts so far."""
+    live only). ``live`` is a :class:`~tactile_rig.rig.live.LiveServer` (or None): it gets every message
+    the recording gets and offers :class:`BenchServices`. ``on_tick`` is called about once a second
+    with the counts so far."""
     if not duration_s > 0:
         raise ValueError(f"duration_s={duration_s!r} must be > 0 s")
     if out is None and live is None:
@@ -66,9 +132,13 @@ def record_bench(bench: Bench, duration_s: float, out: str | Path | None, *, liv
     recorder = None
     try:
         clock = rig.clock
+        if live is not None:
+            live.use_clock(clock)
         if out is not None:
             recorder = Recorder(out, clock=clock)
-            recorder.add_bench(bench)
+        sink = Tee(recorder, live)
+        sink.add_bench(bench)
+        if recorder is not None:
             for name, cfg in bench.devices.items():
                 if cfg.calibration is not None and Path(cfg.calibration).is_file():
                     recorder.add_calibration(name, path=cfg.calibration)
@@ -76,9 +146,12 @@ def record_bench(bench: Bench, duration_s: float, out: str | Path | None, *, liv
                     model = getattr(cfg, key, None)  # a camera's learned models (json + npz)
                     if model is not None and model_json_path(model, stem).is_file():
                         recorder.add_calibration(f"{name}.{key}", path=model_json_path(model, stem))
-        sink = Tee(recorder, live)
+        services = BenchServices(rig)
         if live is not None:
-            live.use_clock(clock)
+            services.offer(live)
+            live.set_parameters({"bench.name": bench.name, "bench.source": str(bench.source),
+                                 "session.recording": str(out) if out is not None else "",
+                                 "session.duration_s": float(duration_s)})
         outcome = RecordOutcome(Path(out) if out is not None else None)
         counts = outcome.counts
 
@@ -101,17 +174,22 @@ def record_bench(bench: Bench, duration_s: float, out: str | Path | None, *, liv
                                    device=device) from exc
 
         def grip() -> None:
-            sink.write_state("gripper", rig.gripper.state())
+            state = rig.gripper.state()
+            services.gripper_moving = bool(getattr(state, "moving", False))
+            sink.write_state("gripper", state)
             put("/state/gripper")
+            put("/gripper/joint_states")
 
         def jig() -> None:
             st = rig.jig.status()
             pose = rig.jig.pose_from_status(st)
+            services.jig_state = st.state
             sink.write_state("jig", {"state": st.state, "mpos": st.mpos, "wpos": st.wpos,
                                      "feed_mm_per_min": st.feed_mm_per_min, "raw": st.raw})
             sink.write_jig_pose(pose.as_dict())
             put("/state/jig")
             put("/jig/pose")
+            put("/tf")
 
         if rig.jig is not None:
             rig.jig.status()  # a first report: GRBL's position is known before the first pose is written
@@ -123,6 +201,7 @@ def record_bench(bench: Bench, duration_s: float, out: str | Path | None, *, liv
             if rig.scale is not None:
                 for r in rig.scale.poll():
                     sink.write_scale(r.newtons, grams=r.grams, raw=r.raw, seq=r.seq, saturated=r.saturated)
+                    services.saw_force(now, float(r.newtons))
                     put("/scale/force")
             if rig.gripper is not None and now >= next_grip:
                 poll("gripper", grip)
@@ -141,6 +220,8 @@ def record_bench(bench: Bench, duration_s: float, out: str | Path | None, *, liv
                     continue
                 if fr.seq == last_seq[name]:
                     continue
+                if last_seq[name] >= 0 and fr.seq > last_seq[name] + 1:
+                    outcome.dropped[name] = outcome.dropped.get(name, 0) + fr.seq - last_seq[name] - 1
                 last_seq[name] = fr.seq
                 first_frame.setdefault(name, (fr.t_host_s, fr.seq))
                 sink.write_frame(name, fr.image, t_s=fr.t_host_s, compress="jpeg" if jpeg else "png")
@@ -148,6 +229,8 @@ def record_bench(bench: Bench, duration_s: float, out: str | Path | None, *, liv
                 t_first, seq_first = first_frame[name]
                 if fr.t_host_s > t_first:
                     outcome.camera_fps[name] = round((fr.seq - seq_first) / (fr.t_host_s - t_first), 2)
+            if live is not None:
+                live.run_pending(log=sink)
             if on_tick is not None and now >= next_tick:
                 on_tick(outcome)
                 next_tick = now + 1.0

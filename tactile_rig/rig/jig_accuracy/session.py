@@ -92,7 +92,7 @@ def open_run_recording(out_dir: Path, clock: Any, *, resume: bool, finished: int
     rec = Recorder(tmp, clock=clock, background_flush=False)
     try:
         for m in old:
-            rec.write(m.topic, m.data, t_s=m.t_s, schema=m.schema)
+            rec.write_message(m)  # bytes and schema as recorded (typed or JSON)
         recorded = {m.data.get("index") for m in old if m.topic == "/perception/jig_accuracy_point"}
         for r in sorted(points or [], key=lambda r: r.index):
             if r.index not in recorded:
