@@ -17,6 +17,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from tactile_rig.core.jsonable import to_jsonable
+from tactile_rig.rig.messages.schemas import SCHEMAS
 
 __all__ = ["SchemaDef", "Encoded", "foxglove_messages", "foxglove_schema", "json_schema", "schema_for",
            "encode_json", "timestamp", "is_typed"]
@@ -67,8 +68,6 @@ def foxglove_schema(type_name: str) -> SchemaDef:
 def json_schema(name: str) -> SchemaDef:
     """The JSON schema ``name`` of :data:`tactile_rig.rig.messages.schemas.SCHEMAS` (unknown names:
     the generic ``tactile_rig.Json``)."""
-    from tactile_rig.rig.messages.schemas import SCHEMAS
-
     body = SCHEMAS.get(name, SCHEMAS["tactile_rig.Json"])
     return SchemaDef(name, "jsonschema", json.dumps(body, separators=(",", ":")).encode(), "json")
 
