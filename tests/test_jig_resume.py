@@ -113,7 +113,9 @@ def test_a_crash_at_any_step_of_a_resume_loses_nothing(tmp_path, monkeypatch) ->
     run.mcap still holds every message of the earlier attempt, and a later resume completes."""
     path = tmp_path / "run.mcap"
     before = _old_recording(path, 30)
-    kept = before[:60]  # up to the 30th point message; the cut-short move goes
+    # Up to the 30th point message (each point: the move's command, its log line, the point); the
+    # cut-short move goes.
+    kept = before[: [i for i, (topic, _) in enumerate(before) if topic == "/perception/jig_accuracy_point"][29] + 1]
     steps = {"n": 0, "crash_at": 0}
     real = {"write": Recorder.publish, "sync": jig_session.os.replace}
 
@@ -141,7 +143,7 @@ def test_a_crash_at_any_step_of_a_resume_loses_nothing(tmp_path, monkeypatch) ->
             continue
         rec.close()
         break
-    assert crash_at > 60  # every write of the copy was a crash point
+    assert crash_at > len(kept)  # every write of the copy was a crash point
     assert _messages(path) == kept
 
 
