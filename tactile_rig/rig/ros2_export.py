@@ -36,7 +36,7 @@ import os
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Literal
 
 import numpy as np
 
@@ -47,7 +47,7 @@ from tactile_rig.rig.recording import LIBRARY, MAX_RECORDING_BYTES, Message, Rec
 
 __all__ = ["export_ros2", "Ros2Export", "require_rosbags", "BAG_VERSION"]
 
-BAG_VERSION = 8  # rosbag2 metadata version (rosbags writes 8 or 9)
+BAG_VERSION: Literal[8, 9] = 8  # rosbag2 metadata version (rosbags writes 8 or 9)
 MM = 1e-3  # m per mm
 _LOG_LEVELS = {1: 10, 2: 20, 3: 30, 4: 40, 5: 50}  # foxglove.LogLevel -> rcl_interfaces/msg/Log
 
