@@ -14,7 +14,7 @@ import numpy as np
 from tactile_rig.rig.messages.base import SchemaDef, foxglove_messages, foxglove_schema, timestamp
 from tactile_rig.rig.messages.geometry import pose
 
-__all__ = ["height_point_cloud", "POINT_FIELDS", "MAX_POINTS"]
+__all__ = ["height_point_cloud", "height_stride", "POINT_FIELDS", "MAX_POINTS"]
 
 MAX_POINTS = 20_000
 POINT_FIELDS = ("x", "y", "z", "height_mm")  # float32 each, 16 bytes a point
@@ -25,7 +25,10 @@ def height_stride(shape: tuple[int, int], max_points: int = MAX_POINTS) -> int:
     if max_points < 1:
         raise ValueError(f"max_points={max_points!r} must be >= 1")
     h, w = shape
-    return max(1, math.ceil(math.sqrt(h * w / max_points)))
+    step = max(1, math.ceil(math.sqrt(h * w / max_points)))
+    while math.ceil(h / step) * math.ceil(w / step) > max_points:  # a thin map rounds up its short side
+        step += 1
+    return step
 
 
 def height_point_cloud(camera: str, height_mm: np.ndarray, mm_per_px_x: float, mm_per_px_y: float,

@@ -133,13 +133,12 @@ def _arrow(x: float, y: float, z: float, dx: float, dy: float, dz: float, length
 
 
 def _quaternion_from_x(v: np.ndarray) -> tuple[float, float, float, float]:
-    """The shortest rotation taking +x onto ``v`` (x, y, z, w)."""
-    n = float(np.linalg.norm(v))
-    u = v / n
-    dot = float(u[0])
-    if dot < -1 + 1e-9:
-        return (0.0, 0.0, 1.0, 0.0)  # opposite: half a turn about z
-    axis = np.cross([1.0, 0.0, 0.0], u)
-    q = np.array([axis[0], axis[1], axis[2], 1.0 + dot])
-    q /= np.linalg.norm(q)
-    return (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
+    """The shortest rotation taking +x onto ``v`` (x, y, z, w): half a turn about the half-way
+    vector between the two (stable even for ``v`` close to -x, where 1 + cos loses its digits)."""
+    u = v / float(np.linalg.norm(v))
+    half = np.array([1.0 + u[0], u[1], u[2]])
+    n = float(np.linalg.norm(half))
+    if n < 1e-12:
+        return (0.0, 0.0, 1.0, 0.0)  # exactly opposite: half a turn about z
+    h = half / n
+    return (0.0, float(-h[2]), float(h[1]), float(h[0]))  # (x × h, x · h)
