@@ -191,7 +191,7 @@ class LiveServer(TopicWriter):
             message = call.future.result(timeout=SERVICE_TIMEOUT_S)
         except TimeoutError:
             call.future.cancel()
-            raise ValueError(f"{name}: the session did not take the request within {SERVICE_TIMEOUT_S:g} s") from None
+            raise ServiceRefused(f"{name}: the session did not take the request within {SERVICE_TIMEOUT_S:g} s") from None
         return json.dumps({"ok": True, "message": message}).encode()
 
     def run_pending(self, log: TopicWriter | None = None) -> int:
@@ -212,7 +212,7 @@ class LiveServer(TopicWriter):
                 message = self._services[call.name](call.args)
             except (RigError, ValueError) as exc:
                 sink.write_log("live", f"{call.name} refused: {exc}", level="warning")
-                call.future.set_exception(ValueError(f"{call.name} refused: {exc}"))
+                call.future.set_exception(ServiceRefused(f"{call.name} refused: {exc}"))
             else:
                 sink.write_log("live", f"{call.name}: {message}")
                 call.future.set_result(message)
