@@ -197,3 +197,29 @@ def test_json_schemas_name_their_units() -> None:
     scale = json.loads(json.dumps(SCHEMAS["tactile_rig.ScaleReading"]))
     assert "(N)" in scale["properties"]["force_n"]["description"]
     assert set(SCHEMAS["tactile_rig.Wrench"]["properties"]) == {"t_s", "frame_id", "force_n", "torque_nmm"}
+
+
+def test_the_layout_file_is_the_layout_the_package_makes(tmp_path: Path) -> None:
+    from tactile_rig.cli import main
+    from tactile_rig.rig.messages.layout import session_layout
+
+    repo = Path(__file__).resolve().parents[2] / "docs" / "foxglove" / "tactile-rig-layout.json"
+    assert repo.read_text() == session_layout()  # regenerate: tactile-rig export layout docs/foxglove/tactile-rig-layout.json
+    assert main(["export", "layout", str(tmp_path / "l.json"), "--camera", "cam_a"]) == 0
+    text = (tmp_path / "l.json").read_text()
+    doc = json.loads(text)
+    panels = []
+
+    def walk(node):
+        if isinstance(node, dict):
+            if node.get("type") == "panel":
+                panels.append(node["panelType"])
+            for v in node.values():
+                walk(v)
+        elif isinstance(node, list):
+            for v in node:
+                walk(v)
+
+    walk(doc)
+    assert {"Image", "ThreeDee", "Plot", "Log", "StateTransitions", "ServiceCall", "Parameters"} <= set(panels), panels
+    assert '"/cam_a/image/compressed"' in text and '"/cam_a/markers"' in text and '"/cam_a/height/points"' in text
