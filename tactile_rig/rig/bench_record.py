@@ -9,14 +9,18 @@ Topics (the one mapping of :mod:`tactile_rig.rig.messages`; ``docs/foxglove_and_
   sensors): the GRBL status report and work pose every ``jig_period_s``;
 * ``/<name>/image/compressed`` (``foxglove.CompressedImage``, JPEG): every new frame of every camera.
 
-One loop polls every device in turn (no thread per device): the scale driver queues its samples, the
-cameras capture on their own threads and keep the newest frame, so nothing waits on another device.
+One loop polls the serial devices in turn: the scale driver queues its samples, the gripper and the
+jig are asked at their periods. Each camera captures on its own thread (real time) and its frames are
+encoded and written by a thread of its own, so a slow serial reply never costs a frame; a frame the
+recording did not get is counted in ``dropped``.
 Live, the session offers the services ``tare_scale`` and ``stop_motion`` (:class:`BenchServices`),
 run by the same loop between two polls.
 """
 
 from __future__ import annotations
 
+import threading
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -40,9 +44,11 @@ class RecordOutcome:
     duration_s: float = 0.0
     camera_fps: dict[str, float] = field(default_factory=dict)
     missed: dict[str, int] = field(default_factory=dict)  # polls a device did not answer (skipped)
-    dropped: dict[str, int] = field(default_factory=dict)  # camera frames never recorded (sequence gaps)
+    dropped: dict[str, int] = field(default_factory=dict)  # frames the host captured that were not recorded
+    camera_dropped: dict[str, int] = field(default_factory=dict)  # gaps in a camera's own frame numbers
 
 
+QUEUE_S = 2.0  # a camera's frames wait this long for their writer before the oldest is dropped
 MOVING_STATES = ("Run", "Jog", "Home", "Hold")  # GRBL states in which the stage is (or may be) moving
 STEADY_SPAN_N = 0.05  # tare_scale: the last second's readings must lie within this (N) of each other
 
@@ -102,6 +108,96 @@ class BenchServices:
         live.add_service("stop_motion", self.stop_motion)
 
 
+class _FrameWriter:
+    """One camera's frames into the session: each new frame written once, the measured rate kept.
+
+    On a real-time bench (:meth:`start`) the camera's capture thread hands every frame to a bounded
+    queue (``QUEUE_S`` of frames) and a thread of this writer encodes and writes them, so neither a
+    slow serial reply in the poll loop nor a moment without the CPU costs a frame. ``dropped``
+    counts what the recording never got: frames the driver captured that were not written (a full
+    queue, or gaps between the frames a virtual-clock loop read) and gaps in the camera's own
+    sequence numbers (frames the camera or its link lost before the host saw them), apart."""
+
+    def __init__(self, name: str, cam: Any, sink: Any, outcome: RecordOutcome, put: Callable[[str], None],
+                 compress: str) -> None:
+        self.name, self.cam, self.sink, self.outcome, self.put, self.compress = name, cam, sink, outcome, put, compress
+        self.topic = camera_topic(name, compressed=True)
+        self.last_seq = -1
+        self.first: tuple[float, int] | None = None
+        self.error: BaseException | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._queue: deque[Any] = deque()
+        self._cond = threading.Condition()
+        self._max = max(2, int(QUEUE_S * float(cam.config.fps)))
+
+    def _count(self, key: str, n: int) -> None:
+        with _COUNTS:
+            table = self.outcome.dropped if key == "dropped" else self.outcome.camera_dropped
+            table[self.name] = table.get(self.name, 0) + n
+
+    def take(self, fr: Any) -> None:
+        if fr.seq == self.last_seq:
+            return
+        if self.last_seq >= 0 and fr.seq > self.last_seq + 1:
+            self._count("dropped", fr.seq - self.last_seq - 1)
+        self.last_seq = fr.seq
+        if self.first is None:
+            self.first = (fr.t_host_s, fr.seq)
+        self.sink.write_frame(self.name, fr.image, t_s=fr.t_host_s, compress=self.compress)
+        self.put(self.topic)
+        t_first, seq_first = self.first
+        if fr.t_host_s > t_first:
+            self.outcome.camera_fps[self.name] = round((fr.seq - seq_first) / (fr.t_host_s - t_first), 2)
+
+    def _offer(self, fr: Any) -> None:
+        """The capture thread's listener: queue the frame (a full queue drops its oldest: :meth:`take`
+        counts the gap it leaves)."""
+        with self._cond:
+            if len(self._queue) >= self._max:
+                self._queue.popleft()
+            self._queue.append(fr)
+            self._cond.notify()
+
+    def start(self) -> "_FrameWriter":
+        self._dev_dropped0 = int(self.cam.stats.dropped)
+        self.cam.add_listener(self._offer)
+        self._thread = threading.Thread(target=self._run, name=f"record-{self.name}", daemon=True)
+        self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._queue and not self._stop.is_set():
+                    self._cond.wait(0.2)
+                if not self._queue:
+                    return  # stopped and drained
+                fr = self._queue.popleft()
+            try:
+                self.take(fr)
+            except BaseException as exc:  # noqa: BLE001 - handed to the loop, which raises it
+                self.error = exc
+                return
+
+    def stop(self) -> None:
+        """Stop taking frames, write the ones queued, count the camera's own losses."""
+        if self._thread is None:
+            return
+        self.cam.remove_listener(self._offer)
+        with self._cond:
+            self._stop.set()
+            self._cond.notify()
+        self._thread.join(timeout=10.0)
+        self._thread = None
+        lost = int(self.cam.stats.dropped) - self._dev_dropped0
+        if lost > 0:
+            self._count("camera", lost)
+
+
+_COUNTS = threading.Lock()
+
+
 def record_topics(bench: Bench) -> dict[str, str]:
     """The topics (→ schema) a recording of ``bench`` writes."""
     topics: dict[str, str] = {}
@@ -130,6 +226,7 @@ def record_bench(bench: Bench, duration_s: float, out: str | Path | None, *, liv
         raise ValueError("nothing to record to: give an output file or a live server")
     rig = connect_bench(bench)
     recorder = None
+    writers: dict[str, _FrameWriter] = {}
     try:
         clock = rig.clock
         if live is not None:
@@ -195,8 +292,18 @@ def record_bench(bench: Bench, duration_s: float, out: str | Path | None, *, liv
             rig.jig.status()  # a first report: GRBL's position is known before the first pose is written
         t0 = clock.now_s()
         next_grip = next_jig = next_tick = t0
-        last_seq = {name: -1 for name in rig.cameras}
-        first_frame: dict[str, tuple[float, int]] = {}
+        count_lock = threading.Lock()
+
+        def put_locked(topic: str) -> None:
+            with count_lock:
+                put(topic)
+
+        writers.update({name: _FrameWriter(name, cam, sink, outcome, put_locked, "jpeg" if jpeg else "png")
+                        for name, cam in rig.cameras.items()})
+        # A camera that captures on its own thread (real time) gets a writer thread of its own: every
+        # frame it delivers is encoded and written there, so a slow serial poll never makes the
+        # loop miss a frame (encoding releases the GIL: two cameras encode on two cores).
+        threads = {name: w.start() for name, w in writers.items() if rig.cameras[name].threaded}
         while (now := clock.now_s()) - t0 < duration_s:
             if rig.scale is not None:
                 for r in rig.scale.poll():
@@ -210,25 +317,19 @@ def record_bench(bench: Bench, duration_s: float, out: str | Path | None, *, liv
                 poll("jig", jig)
                 next_jig = now + jig_period_s
             for name, cam in rig.cameras.items():
+                if name in threads:
+                    continue
                 try:
-                    # A capture thread keeps the newest frame (real time); without one (a virtual
-                    # clock) the read itself waits, in virtual time, up to one frame period for the
-                    # next frame (a simulated camera, like a V4L2 one, keeps only the newest).
-                    fr = (cam.read_latest(max_age_s=1.0) if cam.threaded
-                          else cam.read(timeout_s=1.0 / float(cam.config.fps)))
+                    # Without a capture thread (a virtual clock) the read itself waits, in virtual
+                    # time, up to one frame period for the next frame (a simulated camera, like a
+                    # V4L2 one, keeps only the newest).
+                    fr = cam.read(timeout_s=1.0 / float(cam.config.fps))
                 except DeviceTimeout:
                     continue
-                if fr.seq == last_seq[name]:
-                    continue
-                if last_seq[name] >= 0 and fr.seq > last_seq[name] + 1:
-                    outcome.dropped[name] = outcome.dropped.get(name, 0) + fr.seq - last_seq[name] - 1
-                last_seq[name] = fr.seq
-                first_frame.setdefault(name, (fr.t_host_s, fr.seq))
-                sink.write_frame(name, fr.image, t_s=fr.t_host_s, compress="jpeg" if jpeg else "png")
-                put(camera_topic(name, compressed=True))
-                t_first, seq_first = first_frame[name]
-                if fr.t_host_s > t_first:
-                    outcome.camera_fps[name] = round((fr.seq - seq_first) / (fr.t_host_s - t_first), 2)
+                writers[name].take(fr)
+            for name, w in writers.items():
+                if w.error is not None:
+                    raise w.error
             if live is not None:
                 live.run_pending(log=sink)
             if on_tick is not None and now >= next_tick:
@@ -236,8 +337,15 @@ def record_bench(bench: Bench, duration_s: float, out: str | Path | None, *, liv
                 next_tick = now + 1.0
             clock.sleep(POLL_S)
         outcome.duration_s = clock.now_s() - t0
+        for w in writers.values():
+            w.stop()
+        for w in writers.values():
+            if w.error is not None:
+                raise w.error
         return outcome
     finally:
+        for w in writers.values():
+            w.stop()  # a no-op for a writer that never started or has stopped
         rig.close()
         if recorder is not None:
             recorder.close()
