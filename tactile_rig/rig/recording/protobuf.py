@@ -24,25 +24,42 @@ def _repeated(f: Any) -> bool:
     return bool(rep) if rep is not None else f.label == f.LABEL_REPEATED
 
 
+_PLAN: dict[Any, list[tuple[str, int]]] = {}  # descriptor -> (field, kind): how to convert it
+_SCALAR, _LIST, _MESSAGE, _MESSAGES, _MAP = range(5)
+
+
+def _plan(desc: Any) -> list[tuple[str, int]]:
+    plan = _PLAN.get(desc)
+    if plan is None:
+        plan = []
+        for f in desc.fields:
+            if f.message_type is not None:
+                kind = _MAP if f.message_type.GetOptions().map_entry else _MESSAGES if _repeated(f) else _MESSAGE
+            else:
+                kind = _LIST if _repeated(f) else _SCALAR
+            plan.append((f.name, kind))
+        _PLAN[desc] = plan
+    return plan
+
+
 def to_dict(msg: Any) -> dict[str, Any]:
     """Every field of a protobuf message (defaults included) as a plain value."""
     desc = msg.DESCRIPTOR
     if desc.full_name in _TIME_TYPES:
         return {"sec": int(msg.seconds), "nsec": int(msg.nanos)}
     out: dict[str, Any] = {}
-    for f in desc.fields:
-        v = getattr(msg, f.name)
-        if f.message_type is not None:
-            if f.message_type.GetOptions().map_entry:
-                out[f.name] = {k: (to_dict(x) if hasattr(x, "DESCRIPTOR") else x) for k, x in v.items()}
-            elif _repeated(f):
-                out[f.name] = [to_dict(x) for x in v]
-            else:
-                out[f.name] = to_dict(v) if msg.HasField(f.name) else None
-        elif _repeated(f):
-            out[f.name] = list(v)
+    for name, kind in _plan(desc):
+        v = getattr(msg, name)
+        if kind == _SCALAR:
+            out[name] = v
+        elif kind == _LIST:
+            out[name] = list(v)
+        elif kind == _MESSAGE:
+            out[name] = to_dict(v) if msg.HasField(name) else None
+        elif kind == _MESSAGES:
+            out[name] = [to_dict(x) for x in v]
         else:
-            out[f.name] = v
+            out[name] = {k: (to_dict(x) if hasattr(x, "DESCRIPTOR") else x) for k, x in v.items()}
     return out
 
 
