@@ -1,5 +1,5 @@
 """Recordings in the JSON encoding (every channel ``json``, images base64; tests/data/recordings, written
-by the recorder before the protobuf encoding) still replay, serve as a camera, resume and export."""
+by the recorder at commit 61d975b) replay, serve as a camera, resume and export."""
 
 from __future__ import annotations
 

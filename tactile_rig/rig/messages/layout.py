@@ -21,7 +21,7 @@ DEFAULT_CAMERAS = ("camera_fingervision", "camera_gelsight")
 
 def session_layout(cameras: Sequence[str] = DEFAULT_CAMERAS) -> str:
     """The layout (JSON text) for a session of ``cameras`` (the first is shown in the Image panel)."""
-    import foxglove.layouts as fl
+    import foxglove.layouts as fl  # foxglove-sdk is the optional extra: imported when a layout is made
 
     if not cameras:
         raise ValueError("a layout needs at least one camera name (the Image panel shows its frames)")

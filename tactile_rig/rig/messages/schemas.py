@@ -58,7 +58,7 @@ SCHEMAS: dict[str, dict[str, Any]] = {
          "torque_nmm": {**_VEC3, "description": "torque on the sensor about its origin (N·mm)"}},
         ("frame_id", "force_n")),
     "tactile_rig.Json": {"title": "tactile_rig.Json", "type": "object"},
-    # The JSON encodings of Foxglove's image types (recordings made before the protobuf encoding).
+    # The JSON encodings of Foxglove's image types (recordings in the JSON encoding carry these).
     "foxglove.RawImage": {
         "title": "foxglove.RawImage", "type": "object",
         "properties": {"timestamp": _TIME, "frame_id": {"type": "string"},

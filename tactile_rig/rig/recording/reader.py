@@ -1,6 +1,6 @@
 """Reading session recordings: every complete chunk of a file cut off anywhere, CRCs checked, each
 message decoded by its channel's encoding (protobuf: Foxglove's types; json: the rig's own topics and
-recordings made before the protobuf encoding)."""
+recordings in the JSON encoding)."""
 
 from __future__ import annotations
 
