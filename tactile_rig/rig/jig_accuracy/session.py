@@ -42,10 +42,11 @@ class RunRecorder:
         self.recorder.flush()
 
     def record_point(self, result: PointResult) -> None:
-        self.recorder.write_perception("jig_accuracy_point", result.to_json())
         est = result.estimate
         if est is not None:  # the localized stage pose, beside the stage's frame in the 3-D panel
             self.recorder.write_contact_pose("jig_accuracy/estimate", WORLD, est.x_mm, est.y_mm, est.theta_deg)
+        # The point's message comes last: a resume keeps everything up to it (kept_messages).
+        self.recorder.write_perception("jig_accuracy_point", result.to_json())
         self.recorder.flush()  # the point is in points.jsonl: make it readable in the MCAP too
 
 
