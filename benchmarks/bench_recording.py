@@ -19,7 +19,11 @@ Part 2, live: the same JPEG frames published on a :class:`tactile_rig.rig.live.L
 subscribed WebSocket client (typed, and JSON on a JSON channel as the baseline): bytes per frame on
 the wire and CPU per message of the publishing thread.
 
-Part 3 (``--session``): ``tactile-rig record`` of a rehearsal bench with two cameras at 30 fps
+Part 3, the MCAP writer alone: the same pre-encoded typed JPEG messages (3000, 320x240) through the
+project's writer (:class:`Recorder`, ``publish``) and through foxglove-sdk's own ``MCAPWriter`` (a
+channel per topic, flushed once a second as the recorder does): CPU per message and bytes per message.
+
+Part 4 (``--session``): ``tactile-rig record`` of a rehearsal bench with two cameras at 30 fps
 (the GelSight stage camera and a 30-fps footage camera) for 60 s; reports per camera the frames
 recorded, those the host captured but the recording did not get (``dropped``) and the gaps in the
 camera's own frame numbers (``camera_dropped``: lost before the host saw them), and the file size.
@@ -172,6 +176,45 @@ def _live(kind: str, frames: list[np.ndarray]) -> dict[str, float]:
             "received": got["n"]}
 
 
+def _writers(tmp: Path, n: int) -> list[dict]:
+    """CPU and bytes per message of the project's MCAP writer and of foxglove-sdk's, the same messages."""
+    import foxglove
+    from foxglove.mcap import MCAPWriteOptions
+    from foxglove.messages import CompressedImage, Timestamp
+
+    from tactile_rig.rig.messages import foxglove_schema
+
+    ok, buf = cv2.imencode(".jpg", _frames((240, 320), 1)[0], [int(cv2.IMWRITE_JPEG_QUALITY), JPEG_QUALITY])
+    msgs = [CompressedImage(timestamp=Timestamp(i // 30, (i % 30) * 33_333_333), frame_id="cam", data=buf.tobytes(),
+                            format="jpeg").encode() for i in range(n)]
+    schema = foxglove_schema("CompressedImage")
+    topic = "/cam/image/compressed"
+    rows = []
+    path = tmp / "project.mcap"
+    clock = VirtualClock()
+    c0 = time.process_time()
+    with Recorder(path, clock=clock, background_flush=False) as rec:
+        for m in msgs:
+            clock.advance(1 / 30)
+            rec.publish(Encoded(topic, schema, m, clock.now_s(), rec.log_time_ns(clock.now_s())))
+    rows.append({"writer": "project (mcap.writer.Writer)", "cpu_us_per_message": 1e6 * (time.process_time() - c0) / n,
+                 "bytes_per_message": path.stat().st_size / n})
+    path = tmp / "foxglove.mcap"
+    ctx = foxglove.Context()
+    c0 = time.process_time()
+    with foxglove.open_mcap(path, context=ctx, writer_options=MCAPWriteOptions(chunk_size=256 * 1024)) as w:
+        ch = foxglove.Channel(topic, schema=foxglove.Schema(name=schema.name, encoding=schema.encoding, data=schema.data),
+                              message_encoding="protobuf", context=ctx)
+        for i, m in enumerate(msgs):
+            ch.log(m, log_time=int(i * 1e9 / 30))
+            if i % 30 == 29:
+                w.flush()
+    rows.append({"writer": "foxglove-sdk MCAPWriter", "cpu_us_per_message": 1e6 * (time.process_time() - c0) / n,
+                 "bytes_per_message": path.stat().st_size / n})
+    assert len(read_recording(path).messages) == n  # the project's reader reads it, CRCs checked
+    return rows
+
+
 def _session(seconds: float, tmp: Path) -> dict:
     """``tactile-rig record`` of a two-camera rehearsal bench at 30 fps for ``seconds``."""
     video = tmp / "footage_30fps.avi"
@@ -224,10 +267,11 @@ def main() -> None:
                 results.append({"size": size, "mode": mode, "frames": n, **_record(mode, frames, Path(tmp) / f"{mode}.bin")})
             for kind in ("json", "typed"):
                 live.append({"size": size, "mode": f"{kind}_jpeg", "frames": n, **_live(kind, frames)})
+        writers = _writers(Path(tmp), 600 if args.quick else 3000)
         session = _session(10.0 if args.quick else 60.0, Path(tmp)) if args.session else None
     out = {"benchmark": "recording", "python": platform.python_version(), "machine": platform.machine(),
            "cpus": os.cpu_count(), "load_avg": os.getloadavg(), "quick": args.quick, "jpeg_quality": JPEG_QUALITY,
-           "results": results, "live": live, "session": session}
+           "results": results, "live": live, "writers": writers, "session": session}
     save_json(args, out)
     print(f"{'size':>8} {'recording':>15} {'bytes/frame':>12} {'CPU us/msg':>11} {'fps wall':>9} {'read fps':>9}")
     for r in results:
@@ -236,6 +280,8 @@ def main() -> None:
     print(f"{'size':>8} {'live':>15} {'bytes/frame':>12} {'CPU us/msg':>11} {'received':>9}")
     for r in live:
         print(f"{r['size']:>8} {r['mode']:>15} {r['bytes_per_frame']:12.0f} {r['cpu_us_per_message']:11.1f} {r['received']:9d}")
+    for r in writers:
+        print(f"{'writer':>8} {r['writer']:>30} {r['bytes_per_message']:9.0f} B/msg {r['cpu_us_per_message']:8.1f} us/msg")
     if session is not None:
         print(f"session: {session['seconds']:.0f} s, frames {session['frames']}, fps {session['camera_fps']}, "
               f"dropped by the recording {session['dropped'] or 'none'}, missing from the cameras' own sequence "
