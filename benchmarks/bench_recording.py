@@ -19,7 +19,8 @@ Part 2, live: the same JPEG frames published on a :class:`tactile_rig.rig.live.L
 subscribed WebSocket client (typed, and JSON on a JSON channel as the baseline): bytes per frame on
 the wire and CPU per message of the publishing thread.
 
-Part 3, the MCAP writer alone: the same pre-encoded typed JPEG messages (3000, 320x240) through the
+Part 3, the MCAP writer alone: the same pre-encoded typed JPEG messages (3000, 320x240, 60 different
+frames in turn) through the
 project's writer (:class:`Recorder`, ``publish``) and through foxglove-sdk's own ``MCAPWriter`` (a
 channel per topic, flushed once a second as the recorder does): CPU per message and bytes per message.
 
@@ -184,9 +185,12 @@ def _writers(tmp: Path, n: int) -> list[dict]:
 
     from tactile_rig.rig.messages import foxglove_schema
 
-    ok, buf = cv2.imencode(".jpg", _frames((240, 320), 1)[0], [int(cv2.IMWRITE_JPEG_QUALITY), JPEG_QUALITY])
-    msgs = [CompressedImage(timestamp=Timestamp(i // 30, (i % 30) * 33_333_333), frame_id="cam", data=buf.tobytes(),
-                            format="jpeg").encode() for i in range(n)]
+    # 60 different frames in turn: a chunk (256 KiB, ~20 frames) never holds the same frame twice,
+    # so zstd compresses what a camera gives, not repeats.
+    jpegs = [cv2.imencode(".jpg", f, [int(cv2.IMWRITE_JPEG_QUALITY), JPEG_QUALITY])[1].tobytes()
+             for f in _frames((240, 320), 60)]
+    msgs = [CompressedImage(timestamp=Timestamp(i // 30, (i % 30) * 33_333_333), frame_id="cam",
+                            data=jpegs[i % len(jpegs)], format="jpeg").encode() for i in range(n)]
     schema = foxglove_schema("CompressedImage")
     topic = "/cam/image/compressed"
     rows = []
