@@ -35,6 +35,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "calibrate",
     "substance",
     "replay",
+    "export",
     "sweep",
     "trade",
 )

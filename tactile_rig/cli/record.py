@@ -2,6 +2,11 @@
 
     tactile-rig record --bench bench.toml --duration 10 --out session.mcap
     tactile-rig record --bench bench.toml --duration 60 --live       # + Foxglove WebSocket on 127.0.0.1:8765
+
+What is recorded and served: docs/foxglove_and_ros2.md (frames, the jig's frame tree, the gripper's
+joint, the scale; live, the services tare_scale and stop_motion). ``dropped`` counts the frames the
+host captured that the recording did not get; ``camera_dropped`` the gaps in a camera's own frame
+numbers (frames lost in the camera or its link, before the host saw them).
 """
 
 from __future__ import annotations
@@ -53,7 +58,8 @@ def _record(args: argparse.Namespace) -> int:
     if tty and not args.json:
         print(file=sys.stderr)
     summary = {"out": str(outcome.path), "duration_s": round(outcome.duration_s, 3), "topics": outcome.counts,
-               "camera_fps": outcome.camera_fps, "missed": outcome.missed}
+               "camera_fps": outcome.camera_fps, "dropped": outcome.dropped,
+               "camera_dropped": outcome.camera_dropped, "missed": outcome.missed}
     if args.json:
         print_json(summary)
     else:
@@ -62,4 +68,8 @@ def _record(args: argparse.Namespace) -> int:
             print(f"  {topic:<40} {n:>7}")
         for device, n in sorted(outcome.missed.items()):
             print(f"  {device}: {n} poll(s) unanswered and skipped")
+        for camera, n in sorted(outcome.dropped.items()):
+            print(f"  {camera}: {n} frame(s) captured but not recorded")
+        for camera, n in sorted(outcome.camera_dropped.items()):
+            print(f"  {camera}: {n} frame(s) missing from the camera's own sequence (lost before the host)")
     return 0
