@@ -13,17 +13,16 @@ import os
 import sys
 from typing import Any
 
-from tactile_rig.cli.args import any_int, finite_float, output_dir
+from tactile_rig.cli.args import float_in, int_in, output_dir
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
-from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.cli.common import add_command_group, add_json_flag, print_json
 from tactile_rig.rig.bench_camera import camera_name, grab_frames, measure_fps, open_camera, video_devices
 from tactile_rig.rig.bench_check import check_device, format_check_table
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser("camera", help="list, check, grab from and time the bench's cameras",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    csub = p.add_subparsers(dest="camera_command", metavar="ACTION")
+    _, csub = add_command_group(sub, "camera", help="list, check, grab from and time the bench's cameras",
+                                description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
 
     ls = csub.add_parser("list", help="the bench's cameras and this machine's V4L2 devices")
     add_bench_arguments(ls)
@@ -37,13 +36,12 @@ def register(sub: Any) -> None:
         add_bench_arguments(c)
         c.add_argument("--camera", metavar="NAME", help="which camera of the bench (default: the first)")
         if name == "grab":
-            c.add_argument("--count", type=any_int, default=1, help="frames to save (default 1)")
+            c.add_argument("--count", type=int_in(1, 100_000), default=1, help="frames to save (default 1)")
             c.add_argument("--out", default=".", metavar="DIR", type=output_dir, help="folder for the PNG files (default .)")
         if name == "fps":
-            c.add_argument("--duration", type=finite_float, default=3.0, metavar="S", help="measuring window (default 3 s)")
+            c.add_argument("--duration", type=float_in(0.0, 3600.0, "s", low_open=True), default=3.0, metavar="S", help="measuring window (default 3 s)")
         add_json_flag(c)
         c.set_defaults(func=func)
-    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
 def _list(args: argparse.Namespace) -> int:

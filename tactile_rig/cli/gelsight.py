@@ -16,7 +16,7 @@ import numpy as np
 
 from tactile_rig.cli import bench_live
 from tactile_rig.cli.args import float_in, int_in, output_dir, output_file
-from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.cli.common import add_command_group, add_json_flag, print_json
 from tactile_rig.core.memory import keep_freed_memory
 from tactile_rig.rig.loaders import (
     load_gelsight_calibration,
@@ -254,10 +254,10 @@ MM_PER_PX = float_in(1e-4, 10.0, "mm/px")  # 0.1 µm .. 10 mm a pixel: beyond ei
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``gelsight`` command group."""
-    g = subparsers.add_parser("gelsight", help="GelSight calibration, height maps, registration, tactile maps",
-                              description="Exit codes: 0 done, 1 refused (register/localize) or a touch rejected "
-                              "(map), 2 bad input (file, frame or map the pipeline cannot read; one line).")
-    sub = g.add_subparsers(dest="gelsight_command", metavar="SUBCOMMAND", required=True)
+    _, sub = add_command_group(subparsers, "gelsight", metavar="SUBCOMMAND",
+                               help="GelSight calibration, height maps, registration, tactile maps",
+                               description="Exit codes: 0 done, 1 refused (register/localize) or a touch rejected "
+                               "(map), 2 bad input (file, frame or map the pipeline cannot read; one line).")
 
     p = sub.add_parser("calibrate", help="fit a colour->gradient calibration from ball presses")
     p.add_argument("press_dir", help="folder with background.png, press images and labels.csv")
