@@ -14,7 +14,7 @@ from typing import Any
 
 from tactile_rig.cli.args import DURATION_S, SEED, float_in, int_in, output_dir
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
-from tactile_rig.cli.common import add_command_group, add_json_flag, print_json
+from tactile_rig.cli.common import EXIT_FAILED, EXIT_FAULT, add_command_group, add_json_flag, print_json
 from tactile_rig.rig.bench_check import check_bench, format_check_table
 from tactile_rig.rig.rehearsal import RehearsalBench, RehearsalOptions
 
@@ -105,7 +105,7 @@ def _rehearse(args: argparse.Namespace) -> int:
             broken = rb.problems()
             if broken:
                 print("tactile-rig: rehearsal device process stopped: " + "; ".join(broken), file=sys.stderr)
-                return 3
+                return EXIT_FAULT
             if args.duration is not None and waited >= args.duration:
                 break
     return 0
@@ -122,5 +122,5 @@ def _check(args: argparse.Namespace) -> int:
     failed = [r.device for r in rows if not r.ok]
     if failed:
         print(f"tactile-rig: bench check failed: {', '.join(failed)}", file=sys.stderr)
-        return 1
+        return EXIT_FAILED
     return 0

@@ -19,9 +19,8 @@ from tactile_rig.rig.camera_calibrations import camera_calibrations
 from tactile_rig.rig.jig_accuracy import sim_camera_connector
 from tactile_rig.rig.learning import DEFAULT_GAMMA, force_map_session, substance_session
 from tactile_rig.rig.live_collection import PressPlan, collect_force_map, collect_stirring
+from tactile_rig.sim.scenes import FORCE_MAP_PRESS_SCENE
 from tactile_rig.sim.world.stick_press import increasing_peaks
-
-MOCK_PRESS_SCENE = "force_map_press"  # the simulated fingertip pressing on the scale
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -177,7 +176,7 @@ def _press_collector(args: argparse.Namespace, bench: Any, camera: str, plan: Pr
     """``collect(path)`` for the force-map session: connect the devices, press, record, close."""
 
     def collect(path: Path) -> Path:
-        rig = connect_session_rig(args, ["gripper", "scale", camera], scene=MOCK_PRESS_SCENE,
+        rig = connect_session_rig(args, ["gripper", "scale", camera], scene=FORCE_MAP_PRESS_SCENE,
                                   connectors={"camera": sim_camera_connector("fingervision")})
         try:
             cal = camera_calibrations(rig.bench, camera, load=("calibration",), defaults=not bench.is_mock)

@@ -21,6 +21,7 @@ from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.drivers.dynamixel import DynamixelGripper
+from tactile_rig.devices.scale import STANDARD_GRAVITY_MPS2
 from tactile_rig.mocks.registry import device_from_url
 from tactile_rig.mocks.scale import ScaleMock
 from tactile_rig.rig.bench import Bench, connect_bench
@@ -32,14 +33,8 @@ from tactile_rig.rig.calibration_sessions import (
     gripper_session,
     scale_session,
 )
-from tactile_rig.rig.jig_accuracy import (
-    MOCK_PRESS_SCENE,
-    DeviceJigRig,
-    prepare_jig,
-    sim_camera_connector,
-)
-
-GRAVITY_MPS2 = 9.80665
+from tactile_rig.rig.jig_accuracy import DeviceJigRig, prepare_jig, sim_camera_connector
+from tactile_rig.sim.scenes import GELSIGHT_BALL_PRESS_SCENE
 
 
 def register_sessions(csub: Any) -> None:
@@ -154,7 +149,7 @@ def _gelsight(args: argparse.Namespace) -> int:
                          grid_y_mm=(args.grid_y[0], args.grid_y[1], int(args.grid_y[2])),
                          background_mm=tuple(args.background_mm), method=args.method)
     cam = _camera_name(args, "gelsight")
-    rig = connect_session_rig(args, ["jig", cam], scene=MOCK_PRESS_SCENE,
+    rig = connect_session_rig(args, ["jig", cam], scene=GELSIGHT_BALL_PRESS_SCENE,
                               connectors={"camera": sim_camera_connector("gelsight")})
 
     def session(rig: Any) -> Any:
@@ -190,7 +185,7 @@ def _mock_mass_placer(rig: Any) -> Callable[[float], None]:
 
     def place(grams: float) -> None:
         cell.set_force_source(None)
-        cell.applied_force_n = float(grams) / 1000.0 * GRAVITY_MPS2
+        cell.applied_force_n = float(grams) / 1000.0 * STANDARD_GRAVITY_MPS2
 
     return place
 

@@ -15,7 +15,7 @@ from typing import Any
 
 from tactile_rig.cli.args import float_in, int_in, output_dir
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
-from tactile_rig.cli.common import add_command_group, add_json_flag, print_json
+from tactile_rig.cli.common import EXIT_FAILED, add_command_group, add_json_flag, print_json
 from tactile_rig.rig.bench_camera import camera_name, grab_frames, measure_fps, open_camera, video_devices
 from tactile_rig.rig.bench_check import check_device, format_check_table
 
@@ -78,7 +78,7 @@ def _check(args: argparse.Namespace) -> int:
         print(format_check_table([row]))
         for k, v in row.details.get("controls", {}).items():
             print(f"  {k:<28} {v}")
-    return 0 if row.ok else 1
+    return 0 if row.ok else EXIT_FAILED
 
 
 def _grab(args: argparse.Namespace) -> int:
@@ -108,5 +108,5 @@ def _fps(args: argparse.Namespace) -> int:
               f"longest gap {m.max_gap_s * 1000:.0f} ms")
     if m.dropped or m.host_fps < 0.8 * m.configured_fps:
         print(f"tactile-rig: {name} delivers {m.host_fps:g} fps, configured {m.configured_fps:g}", file=sys.stderr)
-        return 1
+        return EXIT_FAILED
     return 0

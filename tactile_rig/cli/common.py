@@ -12,6 +12,7 @@ import functools
 import json
 import logging
 import sys
+import textwrap
 import traceback
 from typing import Any, Callable, NoReturn
 
@@ -38,25 +39,26 @@ EXIT_FAULT = 3
 EXIT_INTERNAL = 70  # sysexits' EX_SOFTWARE: a bug of ours, not the user's input
 EXIT_INTERRUPTED = 130  # the shell's code for SIGINT (128 + 2)
 
-EXIT_CODES: dict[int, str] = {
-    EXIT_OK: "done",
-    EXIT_FAILED: "a failed verdict: the command ran and its answer is no (a touch the registration refused, "
-                 "a device check that failed, an accuracy beyond --max-*, an episode that missed its property)",
-    EXIT_ERROR: "bad input or usage, one line on stderr: a bad file or argument, a target outside the limits, "
-                "a command the device refused, a device that does not answer",
-    EXIT_FAULT: "a device fault: the device latched an error of its own (overload, a GRBL alarm, an unasked "
-                "reset) and motion stopped",
-    EXIT_INTERNAL: "a bug in tactile-rig (one line; the traceback with --log-level DEBUG)",
-    EXIT_INTERRUPTED: "interrupted (Ctrl-C)",
+EXIT_CODES: dict[int, tuple[str, str]] = {
+    EXIT_OK: ("done", "the command did what it was asked"),
+    EXIT_FAILED: ("a failed verdict", "the command ran and its answer is no: a touch the registration refused, "
+                  "a device check that failed, an accuracy beyond --max-*, an episode that missed its property"),
+    EXIT_ERROR: ("bad input or usage", "one line on stderr naming the file or argument, the problem and what "
+                 "was expected: a malformed file, an argument out of range, a target outside the limits, a "
+                 "command the device refused, a device that does not answer on that port"),
+    EXIT_FAULT: ("a device fault", "the device latched an error of its own (an overload, a GRBL alarm, an unasked "
+                 "reset) and motion stopped"),
+    EXIT_INTERNAL: ("a bug in tactile-rig", "one line; rerun with --log-level DEBUG for the traceback"),
+    EXIT_INTERRUPTED: ("interrupted", "Ctrl-C"),
 }
-"""Every exit code of the ``tactile-rig`` command and what it means."""
+"""Every exit code of the ``tactile-rig`` command: (what it means in a few words, the detail)."""
 
 
 def exit_codes_text() -> str:
     """:data:`EXIT_CODES` as the lines ``--help`` ends with."""
-    return "exit codes:\n" + "\n".join(f"  {code:<4} {meaning}" for code, meaning in EXIT_CODES.items())
-
-_log = logging.getLogger("tactile_rig.cli")
+    rows = (textwrap.fill(f"{label}: {detail}", 94, initial_indent=f"  {code:<4} ", subsequent_indent=" " * 7)
+            for code, (label, detail) in EXIT_CODES.items())
+    return "exit codes:\n" + "\n".join(rows)
 
 
 class OneLineParser(argparse.ArgumentParser):

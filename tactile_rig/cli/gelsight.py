@@ -16,7 +16,7 @@ import numpy as np
 
 from tactile_rig.cli import bench_live
 from tactile_rig.cli.args import float_in, int_in, output_dir, output_file
-from tactile_rig.cli.common import add_command_group, add_json_flag, print_json
+from tactile_rig.cli.common import EXIT_FAILED, add_command_group, add_json_flag, print_json
 from tactile_rig.core.memory import keep_freed_memory
 from tactile_rig.rig.loaders import (
     load_gelsight_calibration,
@@ -162,7 +162,7 @@ def _print_result(res, as_json: bool) -> int:
               f"confidence: {res.confidence:.4f}\ninliers: {res.inliers}\nmethod: {res.method}")
     else:
         print(f"refused: {res.reason} (confidence {res.confidence:.3f}, inliers {res.inliers})")
-    return 0 if res.ok else 1
+    return 0 if res.ok else EXIT_FAILED
 
 
 # Every registration threshold and its flag; defaults and meanings come from RegistrationParams.
@@ -224,7 +224,7 @@ def _cmd_map(args: argparse.Namespace) -> int:
         for r in rows:
             print(f"{r['touch']}: {'accepted' if r['accepted'] else 'rejected (' + str(r['reason']) + ')'}")
         print(f"map: {saved}" + (f" ({rejected} of {len(rows)} touches rejected)" if rejected else ""))
-    return 1 if rejected else 0
+    return EXIT_FAILED if rejected else 0
 
 
 def _cmd_localize(args: argparse.Namespace) -> int:

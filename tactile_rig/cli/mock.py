@@ -10,7 +10,7 @@ import threading
 from typing import Any
 
 from tactile_rig.cli.args import BAUD, SEED, int_in
-from tactile_rig.cli.common import add_command_group, print_json
+from tactile_rig.cli.common import EXIT_FAULT, add_command_group, print_json
 from tactile_rig.core.clock import RealClock
 from tactile_rig.mocks.pty_server import PtyServer
 from tactile_rig.mocks.registry import Params, create_device, kinds
@@ -111,7 +111,7 @@ def _serve(args: argparse.Namespace) -> int:
         while not stop.wait(0.2):
             if server.error is not None:
                 print(f"tactile-rig: mock {args.device} failed: {server.error}", file=sys.stderr)
-                return 1
+                return EXIT_FAULT
     return 0
 
 
@@ -179,5 +179,5 @@ def _serve_firmware(args: argparse.Namespace) -> int:
         while not stop.wait(0.2):
             if board.proc is None or board.proc.poll() is not None:
                 print(f"tactile-rig: the simulated scale board stopped: {board.exit_reason()}", file=sys.stderr)
-                return 3
+                return EXIT_FAULT
     return 0

@@ -18,7 +18,7 @@ from typing import Any
 from tactile_rig.cli.args import SEED, finite_float, float_in, output_dir
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.bench_live import JIG_ACCURACY_TOPICS, add_live_arguments, live_from_args
-from tactile_rig.cli.common import add_command_group, add_json_flag, print_json
+from tactile_rig.cli.common import EXIT_FAILED, add_command_group, add_json_flag, print_json
 from tactile_rig.rig.jig_accuracy import (
     JigAccuracyConfig,
     execute_jig_accuracy,
@@ -119,7 +119,7 @@ def _jig_accuracy(args: argparse.Namespace) -> int:
         failed.append(f"translation MAE {s.get('translation_mae_mm')} mm > {args.max_translation_mae_mm}")
     if failed:
         print("tactile-rig: accuracy check failed: " + "; ".join(failed), file=sys.stderr)
-        return 1
+        return EXIT_FAILED
     return 0
 
 

@@ -12,7 +12,7 @@ import argparse
 
 from tactile_rig.cli.args import COUNT, SEED, float_in
 from tactile_rig.cli import bench_live
-from tactile_rig.cli.common import add_command_group, add_json_flag, print_json
+from tactile_rig.cli.common import EXIT_FAILED, add_command_group, add_json_flag, print_json
 from tactile_rig.rig.scene_runner import list_scenes, run_episodes
 
 
@@ -63,4 +63,4 @@ def _run(args: argparse.Namespace) -> int:
         print(f"{summary['ok']}/{summary['episodes']} episodes ok; outcomes {summary['outcomes']}; "
               f"{summary['sim_s']} s simulated in {summary['wall_s']} s wall "
               f"({summary['sim_per_wall']}x real time)")
-    return 0 if summary["ok"] == summary["episodes"] else 1
+    return 0 if summary["ok"] == summary["episodes"] else EXIT_FAILED

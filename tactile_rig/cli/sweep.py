@@ -8,7 +8,7 @@ import importlib.util
 from pathlib import Path
 
 from tactile_rig.cli.args import COUNT, int_in, output_dir, output_file
-from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.cli.common import EXIT_FAILED, add_json_flag, print_json
 from tactile_rig.rig.progress import Progress
 from tactile_rig.rig.sweep import _scalar, grid, make_executor, parse_axis, run_sweep
 from tactile_rig.rig.sweep_report import format_table, plot_table, sweep_table, table_json
@@ -81,4 +81,4 @@ def _sweep(args: argparse.Namespace) -> int:
                 print(f"  FAILED {p.key} {p.params} episode {p.episode}: {p.error}")
         if plot:
             print(f"plot: {plot}")
-    return 1 if counts["failed"] else 0
+    return EXIT_FAILED if counts["failed"] else 0
