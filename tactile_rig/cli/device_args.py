@@ -1,12 +1,12 @@
 """The arguments of a command that opens one device, and the device they name.
 
 Every device command (``gripper``, ``scale``, ``jig``) takes the same ones: ``--port`` (a device
-path or URL), ``--bench FILE`` / ``--mock`` (a device of a bench file, or of the built-in bench of
-mocks; ``$TACTILE_RIG_BENCH`` when neither is given), ``--device TABLE`` (which table of the bench;
-default the table named after the kind), ``--baud`` and ``--json``. :func:`open_device` opens the
-device they name.
+path or URL), ``--bench FILE`` / ``--mock`` (the device of a bench file, or of the built-in bench of
+mocks; ``$TACTILE_RIG_BENCH`` when neither is given), ``--baud`` and ``--json``. :func:`open_device`
+opens the device they name.
 
-With a bench, the device is its table, with the bench's settings and limits (servo IDs, latency
+With a bench, the device is its table (``[gripper]``, ``[scale]``, ``[jig]``: a bench has one of
+each), with the bench's settings and limits (servo IDs, latency
 timer, calibration, a jig's travel); ``--port`` and ``--baud`` replace only the port and the baud
 rate. Without one, ``--port`` is required and the kind's defaults apply (:mod:`tactile_rig.rig.bench`:
 a jig's ±20 mm and θ ±180°). A bench device is connected as every session connects it
@@ -46,12 +46,10 @@ class DeviceTarget(Generic[C]):
 
 def add_device_arguments(parser: argparse.ArgumentParser, kind: str, *, port_example: str,
                          baud_default: str) -> None:
-    """Add ``--port``, ``--bench``/``--mock``, ``--device``, ``--baud`` and ``--json`` for a device of
-    ``kind`` (a bench device kind: gripper, scale, jig); ``baud_default`` says the bare port's default."""
+    """Add ``--port``, ``--bench``/``--mock``, ``--baud`` and ``--json`` for a device of ``kind`` (a
+    bench device kind: gripper, scale, jig); ``baud_default`` says the bare port's default."""
     parser.add_argument("--port", help=f"device path or URL ({port_example}); default: the bench's [{kind}]")
     add_bench_arguments(parser)
-    parser.add_argument("--device", metavar="TABLE",
-                        help=f"which table of the bench (default [{kind}])")
     parser.add_argument("--baud", type=BAUD, help=f"baud rate (default: the bench's; with a bare --port {baud_default})")
     add_json_flag(parser)
 
@@ -68,17 +66,13 @@ def device_target(args: argparse.Namespace, cls: type[C], **overrides: Any) -> D
     kind = cls.kind
     given = {k: v for k, v in {"port": args.port, "baud": args.baud, **overrides}.items() if v is not None}
     if not _uses_bench(args):
-        if args.device:
-            raise ValueError(f"--device {args.device} names a table of a bench; pass --bench FILE or --mock too")
         if not args.port:
             raise ValueError(f"{kind}: pass --port DEVICE, or --bench FILE / --mock to use the bench's [{kind}]")
         return DeviceTarget(cls(name=kind, **given), f"the default {kind} limits and settings (no bench given)")
     bench = bench_from_args(args, check_files=False)
-    table = args.device or kind
-    cfg = bench.device(table)
+    cfg = bench.device(kind)  # a BenchError naming the tables the bench has when it has none
     if not isinstance(cfg, cls):
-        raise ValueError(f"{bench.source}: [{table}] is a {cfg.kind} table; expected a {kind} "
-                         f"(tables: {', '.join(bench.devices)})")
+        raise TypeError(f"{bench.source}: [{kind}] configures a {type(cfg).__name__}; expected a {cls.__name__}")
     return DeviceTarget(dataclasses.replace(cfg, **given), bench.source, bench)
 
 

@@ -43,7 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="no-contact frames refining the markers' rest positions (ids exist from the first frame); "
                         "with --init frames, the baseline frames (overrides the config; default 10)")
     t.add_argument("--init", choices=("lattice", "frames"),
-                   help="lattice (default): marker ids from the first frame; frames: the older scheme, ids only "
+                   help="lattice (default): marker ids from the first frame; frames: the reference's scheme, ids only "
                         "after --calib-frames baseline frames (overrides the config)")
     t.add_argument("--fps", type=float_in(0.0, 100_000.0, "frames/s", low_open=True), help="frame rate, for timestamps t_s = index / fps (Kalman time step)")
     t.add_argument("--object-rect", type=int_in(0, 65535, "px"), nargs=4, metavar=("X", "Y", "W", "H"),

@@ -36,12 +36,14 @@ MM_PER_PX = "0.0634"
 
 @dataclass(frozen=True)
 class BadCase:
-    """One malformed input: the kind, a short name of the malformation, the file and the argv."""
+    """One input of a file-reading command: the kind, a short name of the malformation, the file, the
+    argv, and the exit code the command must give (2 for a malformed input; a valid one's own)."""
 
     kind: str
     name: str
     path: str
     argv: tuple[str, ...]
+    exit_code: int = 2
 
 
 # -- valid companions -------------------------------------------------------------------------
@@ -548,8 +550,9 @@ def generate(kind: str, out_dir: str | Path, *, seed: int = 0) -> list[BadCase]:
 
 
 def good_case(kind: str, out_dir: str | Path, *, seed: int = 0) -> BadCase | None:
-    """The baseline of ``kind``: the same command on a valid file (exit 0, or 1 for a refused
-    registration, never 2); None where the valid run is a long session (bench, press folder)."""
+    """The baseline of ``kind``: the same command on a valid file, with the exit code it gives (0, or 1
+    where the valid map refuses the unrelated touch: a failed verdict, not bad input); None where the
+    valid run is a long session (bench, press folder)."""
     out = Path(out_dir) / kind / "good"
     out.mkdir(parents=True, exist_ok=True)
     nrng = np.random.default_rng(seed)
@@ -558,28 +561,28 @@ def good_case(kind: str, out_dir: str | Path, *, seed: int = 0) -> BadCase | Non
     png = out / "f.png"
     png.write_bytes(_png(good_image(np.random.default_rng(seed + 2))))
     if kind == "npy":
-        return BadCase(kind, "valid", str(h), ("gelsight", "register", str(h), str(h), "--mm-per-px", MM_PER_PX))
+        return BadCase(kind, "valid", str(h), ("gelsight", "register", str(h), str(h), "--mm-per-px", MM_PER_PX), exit_code=0)
     if kind == "tactile-map":
         m = out / "map.npz"
         m.write_bytes(_write_npz(_map_members(nrng)))
-        return BadCase(kind, "valid", str(m), ("gelsight", "localize", str(m), str(h)))
+        return BadCase(kind, "valid", str(m), ("gelsight", "localize", str(m), str(h)), exit_code=1)
     fv = out / "fv.png"
     fv.write_bytes(_png(FingerVisionRenderer(seed=seed).render()[0]))  # a rest frame with its markers
     if kind == "image":
-        return BadCase(kind, "valid", str(fv), ("fingervision", "track", str(fv)))
+        return BadCase(kind, "valid", str(fv), ("fingervision", "track", str(fv)), exit_code=0)
     if kind == "fv-config":
         c = out / "fv.json"
         c.write_text(json.dumps({"n_calib_frames": 1}))
-        return BadCase(kind, "valid", str(c), ("fingervision", "track", str(fv), "--config", str(c)))
+        return BadCase(kind, "valid", str(c), ("fingervision", "track", str(fv), "--config", str(c)), exit_code=0)
     if kind == "mcap":
         m = out / "good.mcap"
         m.write_bytes(_good_mcap(nrng))
-        return BadCase(kind, "valid", str(m), ("replay", str(m)))
+        return BadCase(kind, "valid", str(m), ("replay", str(m)), exit_code=0)
     if kind == "gripper-calibration":
         c = out / "gripper.json"
         c.write_text(json.dumps({"closed_ticks": 1024, "open_ticks": 3072, "max_opening_m": 0.1}))
         return BadCase(kind, "valid", str(c), ("gripper", "state", "--port", "rigsim://dynamixel?ids=1",
-                                               "--calibration", str(c)))
+                                               "--calibration", str(c)), exit_code=0)
     if kind == "calibration":
         base = out / "cal"
         base.with_suffix(".json").write_text(json.dumps({
@@ -589,10 +592,10 @@ def good_case(kind: str, out_dir: str | Path, *, seed: int = 0) -> BadCase | Non
         base.with_suffix(".npz").write_bytes(_write_npz({f"{k}.npy": _npy_bytes(v) for k, v in {
             "background": bg, "model_hyper": np.array([8.0, 128.0]), "model_table": np.zeros((8, 8, 8, 2), np.float32),
             "model_filled": np.ones((8, 8, 8), bool)}.items()}))
-        return BadCase(kind, "valid", str(base), ("gelsight", "height", str(base), str(png), "-o", str(out / "h_out.npy")))
+        return BadCase(kind, "valid", str(base), ("gelsight", "height", str(base), str(png), "-o", str(out / "h_out.npy")), exit_code=0)
     if kind == "arguments":
         return BadCase(kind, "valid", str(h), ("gelsight", "register", str(h), str(h), "--mm-per-px", MM_PER_PX,
-                                               "--ransac-iters", "256"))
+                                               "--ransac-iters", "256"), exit_code=0)
     return None
 
 

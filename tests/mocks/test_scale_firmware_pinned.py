@@ -159,7 +159,7 @@ def test_thousandths_print_with_three_decimals_and_no_negative_zero(v: int) -> N
 
 
 def test_raw_is_absolute_counts_the_tare_only_moves_grams() -> None:
-    # The host keeps its own zero from raw across a reboot of the board (issue #11).
+    # The host keeps its own zero from raw across a reboot of the board.
     s = Script().at(0.0, "open")
     t0 = QUIET.bootloader_s + 0.4
     s.at(t0, "force_n", 0.1 * G).at(t0 + 0.5, "send", b"t\n").at(t0 + 1.2, "reset")

@@ -1,5 +1,5 @@
 """MCAP recordings read back only when intact: every CRC checked, a damaged chunk named, a zero-byte
-or bit-flipped file refused by `replay` with exit 2 and one line (issue 11, item 7)."""
+or bit-flipped file refused by `replay` with exit 2 and one line."""
 
 from __future__ import annotations
 

@@ -78,7 +78,7 @@ def test_without_retries_the_late_status_is_a_timeout_and_never_the_next_answer(
         LateReplies(dev, [0.060])
         with pytest.raises(DeviceTimeout):
             bus.read(1, "Goal Position")
-        # issue #11 saw this ping return 2048: the late read status answered it
+        # the bare SDK returns 2048 here: the late read status answers the ping
         assert bus.ping(1) == MODEL[protocol]
         assert bus.stats.stale_packets == 1
         LateReplies(dev, [0.060])
@@ -497,8 +497,8 @@ def test_group_reads_discard_a_late_status_and_return_the_true_values(protocol: 
 
 @pytest.mark.parametrize("protocol", [2, 1])
 def test_the_gripper_state_after_a_late_one_byte_status_is_the_true_state(protocol: int) -> None:
-    """Issue #11's sequence: a 1-byte read times out, its status comes 60 ms late, and the next
-    block read (the gripper's state) took it: a 24-byte read returning 1 byte, an opening of -0.05 m."""
+    """A 1-byte read times out, its status comes 60 ms late, and the next block read (the gripper's
+    state) must not take it: a 24-byte read returning 1 byte would read as an opening of -0.05 m."""
     dev = make_bus(protocol=protocol, ids=[1], timing=True, return_delay_us=0)
     with serve_in_process(dev) as url:
         with DynamixelBus(url, protocol=protocol, baudrate=dev.baud, retries=0) as bus:

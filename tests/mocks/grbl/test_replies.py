@@ -1,4 +1,4 @@
-"""Issue #16's table, row by row: what a sender sees must be what GRBL 1.1h prints.
+"""GRBL 1.1h's replies, row by row: what a sender sees must be what GRBL 1.1h prints.
 
 Each test's docstring names the firmware function (gnea/grbl v1.1h) whose behaviour it pins.
 The host is virtual (tests/_grbl.py): bytes in at a time, the mock's exact output back.

@@ -1,6 +1,6 @@
 """bench.toml refused with its line (or the environment variable) for every value that cannot be a
 setting: non-finite limits and forces, duplicate IDs, empty ports, absurd frame sizes, seeds NumPy
-refuses, nesting no bench needs, a folder or non-UTF-8 file in its place (issue 11, item 9)."""
+refuses, nesting no bench needs, a folder or non-UTF-8 file in its place."""
 
 from __future__ import annotations
 

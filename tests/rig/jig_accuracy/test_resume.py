@@ -1,5 +1,5 @@
 """A resumed mock jig accuracy run equals an uninterrupted one, and a resume loses no recording
-(issue 11, item 8): per-point noise seeded from (seed, point), run.mcap never truncated."""
+: per-point noise seeded from (seed, point), run.mcap never truncated."""
 
 from __future__ import annotations
 
