@@ -1,7 +1,7 @@
 """``tactile-rig gelsight``: calibrate from ball presses, height maps, registration, tactile maps.
 
-Exit codes: 0 done; 1 a refusal (``register``/``localize`` refused the touch, ``map`` rejected at
-least one touch; the JSON says why); 2 bad input (a missing file, a frame the calibration cannot read:
+Exit codes: 0 done; 1 a failed verdict (``register``/``localize`` refused the touch, ``map`` rejected
+at least one touch; the JSON says why); 2 bad input (a missing file, a frame the calibration cannot read:
 saturated, colours beyond its range, heights no gel shows, one line naming the reason).
 """
 
@@ -256,8 +256,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``gelsight`` command group."""
     _, sub = add_command_group(subparsers, "gelsight", metavar="SUBCOMMAND",
                                help="GelSight calibration, height maps, registration, tactile maps",
-                               description="Exit codes: 0 done, 1 refused (register/localize) or a touch rejected "
-                               "(map), 2 bad input (file, frame or map the pipeline cannot read; one line).")
+                               description="Exit codes: 0 done, 1 a failed verdict: the touch refused (register/localize) or "
+                               "a touch rejected (map), 2 bad input (file, frame or map the pipeline cannot read; "
+                               "one line).")
 
     p = sub.add_parser("calibrate", help="fit a colour->gradient calibration from ball presses")
     p.add_argument("press_dir", help="folder with background.png, press images and labels.csv")
