@@ -1,7 +1,7 @@
 """Helpers shared by the command modules: JSON output, command groups, and the exit codes (one line
 on stderr per error; a traceback only with ``--log-level DEBUG``).
 
-The exit codes are :data:`EXIT_CODES`; README.md and docs/rig.md quote that table and
+The exit codes are :data:`EXIT_CODES`; README.md and docs/files_and_recordings.md quote that table and
 ``tests/cli/test_exit_codes.py`` holds them to it.
 """
 
