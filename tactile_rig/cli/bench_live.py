@@ -21,7 +21,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from tactile_rig.cli.args import any_int, finite_float, output_file
+from tactile_rig.cli.args import COUNT, DURATION_S, float_in, int_in, output_file
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.common import print_json
 from tactile_rig.perception.gelsight import IntegrationParams
@@ -46,9 +46,9 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--live", action="store_true",
                         help=f"serve the session live over the Foxglove WebSocket protocol on 127.0.0.1 "
                              f"(ws://127.0.0.1:{DEFAULT_LIVE_PORT} in Foxglove; needs tactile-rig[live])")
-    parser.add_argument("--live-port", type=any_int, default=DEFAULT_LIVE_PORT, metavar="PORT",
+    parser.add_argument("--live-port", type=int_in(0, 65535), default=DEFAULT_LIVE_PORT, metavar="PORT",
                         help=f"port of the live view (default {DEFAULT_LIVE_PORT}; 0: any free port, printed)")
-    parser.add_argument("--live-wait", type=finite_float, default=0.0, metavar="S",
+    parser.add_argument("--live-wait", type=float_in(0.0, 3600.0, "s"), default=0.0, metavar="S",
                         help="with --live: wait up to S s for a viewer to subscribe before starting (default 0)")
 
 
@@ -84,8 +84,6 @@ def live_from_args(args: argparse.Namespace, clock: Any = None,
     waits up to S s for a viewer subscribed to all of them (or, without ``topics``, to anything)."""
     if not getattr(args, "live", False):
         return None
-    if args.live_wait < 0:
-        raise ValueError(f"--live-wait {args.live_wait} must be >= 0 s")
     live = LiveServer(port=args.live_port, clock=clock)
     print(f"live view: {live.url} (Foxglove: Open connection -> Foxglove WebSocket)", file=sys.stderr, flush=True)
     if isinstance(topics, tuple):
@@ -102,8 +100,8 @@ def add_bench_camera_arguments(parser: argparse.ArgumentParser) -> None:
     """What a perception command needs to run live from a bench camera."""
     add_bench_arguments(parser)
     parser.add_argument("--camera", metavar="NAME", help="which camera of the bench (default: the first of the sensor)")
-    parser.add_argument("--duration", type=finite_float, metavar="S", help="stop after S seconds (default: at Ctrl-C)")
-    parser.add_argument("--frames-max", dest="frames_max", type=any_int, metavar="N", help="stop after N frames")
+    parser.add_argument("--duration", type=DURATION_S, metavar="S", help="stop after S seconds (default: at Ctrl-C)")
+    parser.add_argument("--frames-max", dest="frames_max", type=COUNT, metavar="N", help="stop after N frames")
     parser.add_argument("--record", metavar="OUT.mcap", type=output_file(".mcap"),
                         help="also record what the live view shows (frames, results, markers, point clouds) to an MCAP")
     add_live_arguments(parser)

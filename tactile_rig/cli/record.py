@@ -16,7 +16,7 @@ import sys
 import time
 from typing import Any
 
-from tactile_rig.cli.args import finite_float, output_file
+from tactile_rig.cli.args import DURATION_S, output_file
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.bench_live import add_live_arguments, live_from_args
 from tactile_rig.cli.common import add_json_flag, print_json
@@ -27,7 +27,7 @@ def register(sub: Any) -> None:
     p = sub.add_parser("record", help="record every device of a bench to one MCAP (optionally live)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_bench_arguments(p)
-    p.add_argument("--duration", type=finite_float, required=True, metavar="S", help="how long to record (s)")
+    p.add_argument("--duration", type=DURATION_S, required=True, metavar="S", help="how long to record (s)")
     p.add_argument("--out", metavar="FILE.mcap", type=output_file(".mcap"), help="output file (default: recordings/session-<time>.mcap)")
     p.add_argument("--png", action="store_true", help="store frames as PNG (lossless) instead of JPEG")
     add_live_arguments(p)
@@ -36,8 +36,6 @@ def register(sub: Any) -> None:
 
 
 def _record(args: argparse.Namespace) -> int:
-    if not args.duration > 0:
-        raise ValueError(f"--duration {args.duration} must be > 0 s")
     bench = bench_from_args(args)
     out = args.out or f"recordings/session-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
     if not out.endswith(".mcap"):

@@ -23,7 +23,8 @@ from tactile_rig.rig.calibration_sessions import (
     wait_for_load,
     write_calibration,
 )
-from tactile_rig.rig.jig_accuracy import MOCK_PRESS_SCENE, DeviceJigRig, connect_mock_jig_rig, prepare_jig
+from tactile_rig.rig.jig_accuracy import DeviceJigRig, connect_mock_jig_rig, prepare_jig
+from tactile_rig.sim.scenes import GELSIGHT_BALL_PRESS_SCENE
 
 
 # -- pure helpers --------------------------------------------------------------------------------
@@ -124,7 +125,7 @@ def test_guide_prompts_only_on_a_terminal():
 # -- GelSight on the mock jig ------------------------------------------------------------------
 def test_ball_presses_with_the_jig_measure_an_offset_ball(tmp_path):
     """A ball that is not centred on the jig (as on a real bench) is found from the frames."""
-    rig = connect_mock_jig_rig(scene=MOCK_PRESS_SCENE, seed=1)
+    rig = connect_mock_jig_rig(scene=GELSIGHT_BALL_PRESS_SCENE, seed=1)
     try:
         prepare_jig(rig.jig)
         ball = rig.world.require("object")
@@ -149,7 +150,7 @@ def test_ball_presses_with_the_jig_measure_an_offset_ball(tmp_path):
 
 
 def test_presses_without_contact_are_refused():
-    rig = connect_mock_jig_rig(scene=MOCK_PRESS_SCENE, seed=0)
+    rig = connect_mock_jig_rig(scene=GELSIGHT_BALL_PRESS_SCENE, seed=0)
     try:
         prepare_jig(rig.jig)
         rig.world.require("object").press_depth_mm = 0.0  # the ball never touches the gel

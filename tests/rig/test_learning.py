@@ -168,8 +168,9 @@ def test_calibrate_cli(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     assert main(["calibrate", "substance", "--per-substance", "4", "--out", str(tmp_path / "s"),
                  "--no-figures"]) == 0
     assert "held-out accuracy" in capsys.readouterr().out
-    assert main(["calibrate", "force-map", "--trials", "1", "--out", str(tmp_path / "x")]) == 2
-    assert "--trials 1 must be >= 2" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as info:  # a usage error: one trial leaves none to train on
+        main(["calibrate", "force-map", "--trials", "1", "--out", str(tmp_path / "x")])
+    assert info.value.code == 2 and "--trials: 1 is outside the allowed range [2, 10000]" in capsys.readouterr().err
 
 
 def test_calibrate_on_a_hardware_bench_without_the_devices_says_what_is_missing(tmp_path: Path,

@@ -11,7 +11,6 @@ from typing import Any
 from tactile_rig.core.errors import BadFile, CalibrationError
 from tactile_rig.rig.calibration_sessions import BallPressPlan, gelsight_session
 from tactile_rig.rig.jig_accuracy.devices import (
-    MOCK_PRESS_SCENE,
     MOCK_SCENE,
     DeviceJigRig,
     connect_bench_jig_rig,
@@ -28,6 +27,7 @@ from tactile_rig.rig.live import Tee
 from tactile_rig.rig.loaders import load_gelsight_calibration
 from tactile_rig.rig.messages.frames import WORLD
 from tactile_rig.rig.recording import Recorder, iter_messages
+from tactile_rig.sim.scenes import GELSIGHT_BALL_PRESS_SCENE
 
 
 class RunRecorder:
@@ -111,7 +111,7 @@ def open_run_recording(out_dir: Path, clock: Any, *, resume: bool, finished: int
 
 def mock_gelsight_calibration(out: Path, *, seed: int = 0, guide: Any = None) -> Path:
     """Run the GelSight calibration session on the mocks (ball scene) and return the calibration path."""
-    rig = connect_mock_jig_rig(scene=MOCK_PRESS_SCENE, seed=seed)
+    rig = connect_mock_jig_rig(scene=GELSIGHT_BALL_PRESS_SCENE, seed=seed)
     try:
         prepare_jig(rig.jig)
         cam = rig.bench.devices["camera"]
