@@ -17,16 +17,14 @@ from pathlib import Path
 from typing import Any
 
 from tactile_rig.cli.args import output_file
-from tactile_rig.cli.common import add_json_flag, print_json
-from tactile_rig.cli.replay import extras_as_errors
+from tactile_rig.cli.common import add_command_group, add_json_flag, extras_as_errors, print_json
 from tactile_rig.rig.messages.layout import DEFAULT_CAMERAS, session_layout
 from tactile_rig.rig.ros2_export import export_ros2
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser("export", help="export a session recording (ROS 2 bag)", description=__doc__,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
-    esub = p.add_subparsers(dest="format", metavar="FORMAT", required=True)
+    _, esub = add_command_group(sub, "export", metavar="FORMAT", help="export a session recording (ROS 2 bag)",
+                                description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     r = esub.add_parser("ros2", help="a ROS 2 bag (rosbag2, MCAP storage, CDR) with the standard message types")
     r.add_argument("session", metavar="SESSION.mcap", help="the session recording (.mcap)")
     r.add_argument("out", metavar="OUT", help="the bag folder to write (must not exist, unless --force)")
