@@ -15,18 +15,10 @@ import cv2
 import numpy as np
 
 from tactile_rig.core.geometry import invert_rigid
-from tactile_rig.perception.gelsight.registration import (
-    Features,
-    RegistrationParams,
-    RegistrationResult,
-    _check_height,
-    _pinned,
-    _result,
-    dense_refine,
-    detect_scale,
-    extract_features,
-    register,
-)
+from tactile_rig.perception.gelsight.dense_refinement import dense_refine, pose_pinned
+from tactile_rig.perception.gelsight.features import Features, check_height, detect_scale, extract_features
+from tactile_rig.perception.gelsight.registration import RegistrationResult, register
+from tactile_rig.perception.gelsight.registration_params import RegistrationParams
 
 MAP_FORMAT_VERSION = 1
 ACCEPT_CONFIDENCE = 0.98  # Li 2014: a touch joins the map only above this confidence
@@ -130,7 +122,7 @@ class TactileMap:
         The first touch becomes the root (identity pose). pose_hint: optional 2x3 (mm) touch -> map
         transform (e.g. from the jig) used as the start of a dense alignment when keypoints refuse.
         """
-        z = _check_height(height_mm, "height_mm")
+        z = check_height(height_mm, "height_mm")
         if self.total is None:
             h, w = z.shape
             self._touch_shape = (h, w)
@@ -141,8 +133,8 @@ class TactileMap:
             self._place(z, m_px)
             pose = self._touch_px_to_mm(m_px, z.shape)
             self.poses.append(invert_rigid(pose))
-            res = _result(True, m_px, self.total.shape, z.shape, (self.mm_per_px,) * 2, 1.0, 0, "root",
-                          None, 0, 1.0)
+            res = RegistrationResult.placed(m_px, self.total.shape, z.shape, (self.mm_per_px,) * 2,
+                                            confidence=1.0, inliers=0, method="root", matches=0, ncc=1.0)
             res.matrix_mm = pose
             res.translation_mm = pose[:, 2].copy()
             return TouchRecord(True, res, self.poses[-1])
@@ -162,13 +154,12 @@ class TactileMap:
         fit = dense_refine(fa, fb.smooth, self._mm_to_px(hint_mm, z.shape), self.params.refine_iters,  # type: ignore[arg-type]
                            gain_fit=self.params.dense_gain, valid_b=fb.valid,
                            bias_order=self.params.dense_bias_order)
-        ok = fit.ncc >= self.params.min_ncc and fit.overlap >= self.params.min_overlap and _pinned(fit, self.params)
+        ok = fit.ncc >= self.params.min_ncc and fit.overlap >= self.params.min_overlap and pose_pinned(fit, self.params)
         assert self.total is not None
         if not ok:
-            return _result(False, None, self.total.shape, z.shape, (self.mm_per_px,) * 2, 0.0, 0, "hint",
-                           "hint_not_confirmed", 0, fit.ncc)
-        return _result(True, fit.matrix_px, self.total.shape, z.shape, (self.mm_per_px,) * 2, 1.0, 0,
-                       "hint", None, 0, fit.ncc)
+            return RegistrationResult.refused("hint_not_confirmed", "hint", ncc=fit.ncc)
+        return RegistrationResult.placed(fit.matrix_px, self.total.shape, z.shape, (self.mm_per_px,) * 2,
+                                         confidence=1.0, inliers=0, method="hint", matches=0, ncc=fit.ncc)
 
     def _map_features(self) -> Features:
         if self._features is None:
@@ -183,7 +174,7 @@ class TactileMap:
         refusals (``no_contact``, ``degenerate_transform``, ...) as :func:`register`."""
         if self.total is None:
             raise ValueError("the tactile map is empty: add a touch first")
-        z = _check_height(height_mm, "height_mm")
+        z = check_height(height_mm, "height_mm")
         res = register(self._mosaic(), z, self.mm_per_px, self.params, features_a=self._map_features())
         return res
 
