@@ -43,7 +43,7 @@ import numpy as np
 
 from tactile_rig.core.clock import Deadline, utc_now
 from tactile_rig.core.errors import CalibrationError, DeviceTimeout, check_range
-from tactile_rig.core.files import load_json
+from tactile_rig.rig.files import load_json
 from tactile_rig.core.geometry import Pose
 from tactile_rig.core.jsonable import to_jsonable
 from tactile_rig.perception.fingervision import (

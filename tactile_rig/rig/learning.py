@@ -36,7 +36,7 @@ import numpy as np
 
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.core.errors import CalibrationError
-from tactile_rig.core.files import checked, load_json, load_npz
+from tactile_rig.rig.files import checked, load_json, load_npz
 from tactile_rig.core.jsonable import to_jsonable
 from tactile_rig.rig.calibrations import plan_version, publish
 from tactile_rig.rig.recording import Recorder, read_recording

@@ -1,7 +1,7 @@
 """Checked loaders for the project's own file formats (GelSight calibration, tactile map,
 press folders, height maps, FingerVision configs, gripper calibrations).
 
-Each one checks the file with :mod:`tactile_rig.core.files` (size, dtype, shape, finiteness,
+Each one checks the file with :mod:`tactile_rig.rig.files` (size, dtype, shape, finiteness,
 nesting) before the format's own reader sees it, and turns whatever that reader still raises into
 a :class:`~tactile_rig.core.errors.BadFile` naming the file, so the command exits 2 with one line.
 """
@@ -16,7 +16,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from tactile_rig.core import files
+from tactile_rig.rig import files
 from tactile_rig.core.errors import BadFile, CalibrationError, MissingFile
 from tactile_rig.drivers.dynamixel.gripper import GripperCalibration
 from tactile_rig.perception.fingervision import FingerVisionParams

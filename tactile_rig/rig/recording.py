@@ -40,7 +40,7 @@ import numpy as np
 
 from tactile_rig.core.clock import Clock, RealClock
 from tactile_rig.core.errors import BadFile
-from tactile_rig.core.files import MAX_JSON_DEPTH, check_file, decode_image_bytes, json_depth
+from tactile_rig.rig.files import MAX_JSON_DEPTH, check_file, decode_image_bytes, json_depth
 from tactile_rig.core.jsonable import to_jsonable
 
 __all__ = ["Recorder", "Recording", "Message", "read_recording", "iter_messages", "SCHEMAS", "camera_topic", "MAX_RECORDING_BYTES"]

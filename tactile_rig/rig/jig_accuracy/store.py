@@ -10,7 +10,7 @@ from typing import Any
 
 from tactile_rig.core.clock import utc_now
 from tactile_rig.core.errors import RunConflict
-from tactile_rig.core.files import load_json
+from tactile_rig.rig.files import load_json
 from tactile_rig.rig.jig_accuracy.plan import JigAccuracyConfig, plan_points
 from tactile_rig.rig.jig_accuracy.results import PointResult
 
