@@ -17,18 +17,21 @@ from typing import Any, Mapping
 import cv2
 import numpy as np
 
-from tactile_rig.core.errors import CalibrationError, GradientOutOfRange, SaturatedFrame
+from tactile_rig.core.envelope import FileFormat
+from tactile_rig.core.errors import BadFile, CalibrationError, GradientOutOfRange, SaturatedFrame
 from tactile_rig.core.geometry import pitch_xy_mm
 from tactile_rig.perception.gelsight.models import COLOUR_SCALE, MODELS, LutModel
 
-FORMAT_VERSION = 1
+# The .json of a saved calibration (its .npz holds the arrays).
+CALIBRATION_FILE = FileFormat("gelsight.calibration", 1, "GelSight calibration")
+FORMAT_VERSION = CALIBRATION_FILE.version
 # A labelled contact radius is clamped to this fraction of the ball radius: a contact circle as wide
 # as the ball would mean the ball sank to its equator, and the source's labels overshoot the rim.
 DEFAULT_MAX_RADIUS_FRACTION = 0.95
 # A frame is refused when more than this fraction of its pixels is newly clipped (0 or 255 in a
 # channel where the background was not) or differs from the background by more than the
 # calibration's colour range: a covered lens, lights off or over-exposure, whose "slopes" would be
-# invented by the table's edge bins (an all-black frame read -7..+7 mm before this check).
+# invented by the table's edge bins (unchecked, an all-black frame reads -7..+7 mm).
 MAX_SATURATED_FRACTION = 0.2
 MAX_OUT_OF_RANGE_FRACTION = 0.2
 
@@ -390,8 +393,7 @@ class GelSightCalibration:
 
     # -- persistence ---------------------------------------------------------------------------
     def metadata(self) -> dict:
-        return {"format": "tactile_rig.gelsight.calibration", "version": FORMAT_VERSION,
-                "sensor": self.sensor, "mm_per_px_x": self.mm_per_px_x, "mm_per_px_y": self.mm_per_px_y,
+        return {**CALIBRATION_FILE.header(), "sensor": self.sensor, "mm_per_px_x": self.mm_per_px_x, "mm_per_px_y": self.mm_per_px_y,
                 "ball_radius_mm": self.ball_radius_mm, "date": self.date,
                 "model": self.model.kind, "bake_bins": self.bake_bins,  # type: ignore[attr-defined]
                 "bake_cells": list(self.bake_cells), "colour_range": self.colour_range,
@@ -439,26 +441,34 @@ class GelSightCalibration:
         meta = json.loads(jpath.read_text())
         with np.load(npath, allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}
-        return cls.from_saved(meta, arrays, str(jpath))
+        return cls.from_saved(meta, arrays, str(jpath), str(npath))
 
     @classmethod
     def from_saved(cls, meta: Mapping[str, Any], arrays: Mapping[str, np.ndarray],
-                   source: str = "calibration") -> "GelSightCalibration":
+                   source: str = "calibration", arrays_source: str | None = None) -> "GelSightCalibration":
         """A calibration from what :meth:`save` wrote, already read by the caller: the JSON metadata
         and the npz's arrays by name (``background``, ``model_*``, ``baked_table``). ``source`` names
-        the file in messages. Raises CalibrationError (a checked loader reads the files once)."""
-        if meta.get("format") != "tactile_rig.gelsight.calibration":
-            raise CalibrationError(f"{source} is not a GelSight calibration", device="gelsight.calibration")
-        if meta.get("version") != FORMAT_VERSION:
-            raise CalibrationError(f"{source}: calibration format version {meta.get('version')!r}, "
-                                   f"this code reads version {FORMAT_VERSION}", device="gelsight.calibration")
+        the metadata file in messages, ``arrays_source`` the arrays' (default ``source``). Raises
+        CalibrationError: another format or version, an unknown model, a model array missing, of
+        another shape than the model declares, or not finite (a checked loader reads the files once)."""
+        arrays_source = source if arrays_source is None else arrays_source
+        try:
+            CALIBRATION_FILE.check(meta, source)
+        except BadFile as exc:
+            raise CalibrationError(str(exc), device="gelsight.calibration") from None
         kind = meta.get("model")
         if kind not in MODELS:
             raise CalibrationError(f"{source}: unknown model {kind!r}", device="gelsight.calibration")
+        if "background" not in arrays:
+            raise CalibrationError(f"{arrays_source}: the array 'background' is missing", device="gelsight.calibration")
         model_arrays = {k[len("model_"):]: v for k, v in arrays.items() if k.startswith("model_")}
         background = arrays["background"]
         baked = arrays["baked_table"].astype(np.float32, copy=False) if "baked_table" in arrays else None
-        model = MODELS[kind].from_arrays(model_arrays)
+        try:
+            model = MODELS[kind].from_arrays(model_arrays)
+        except CalibrationError as exc:
+            raise CalibrationError(f"{arrays_source}: {exc.args[0]} ({kind} model)",
+                                   device="gelsight.calibration") from None
         cells = tuple(meta.get("bake_cells", (6, 8)))
         cal = cls(model, background, meta["mm_per_px_x"], meta["mm_per_px_y"], meta["ball_radius_mm"],
                   meta.get("sensor", "gelsight"), meta.get("date"), meta.get("bake_bins"),

@@ -14,13 +14,17 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from tactile_rig.core.envelope import FileFormat
+from tactile_rig.core.errors import BadFile
 from tactile_rig.core.geometry import invert_rigid
 from tactile_rig.perception.gelsight.dense_refinement import dense_refine, pose_pinned
 from tactile_rig.perception.gelsight.features import Features, check_height, detect_scale, extract_features
 from tactile_rig.perception.gelsight.registration import RegistrationResult, register
 from tactile_rig.perception.gelsight.registration_params import RegistrationParams
 
-MAP_FORMAT_VERSION = 1
+# The metadata (a JSON string) inside a saved map's .npz.
+MAP_FILE = FileFormat("gelsight.tactile_map", 1, "tactile map")
+MAP_FORMAT_VERSION = MAP_FILE.version
 ACCEPT_CONFIDENCE = 0.98  # Li 2014: a touch joins the map only above this confidence
 
 
@@ -187,8 +191,7 @@ class TactileMap:
         if p.suffix != ".npz":
             p = p.with_suffix(".npz")
         p.parent.mkdir(parents=True, exist_ok=True)
-        meta = {"format": "tactile_rig.gelsight.tactile_map", "version": MAP_FORMAT_VERSION,
-                "mm_per_px": self.mm_per_px, "canvas_factor": self.canvas_factor,
+        meta = {**MAP_FILE.header(), "mm_per_px": self.mm_per_px, "canvas_factor": self.canvas_factor,
                 "accept_confidence": self.accept_confidence, "touches": len(self.poses),
                 "touch_shape": list(self._touch_shape) if self._touch_shape else None}
         np.savez_compressed(p, total=self.total, count=self.count,
@@ -198,14 +201,11 @@ class TactileMap:
 
     @classmethod
     def load(cls, path: str | Path, params: RegistrationParams | None = None) -> "TactileMap":
-        """Read a map written by :meth:`save`."""
+        """Read a map written by :meth:`save`; another file is a :class:`BadFile` (a ValueError)."""
         with np.load(Path(path), allow_pickle=False) as d:
             if "meta" not in d.files:
-                raise ValueError(f"{path} is not a tactile map (no metadata)")
-            meta = json.loads(str(d["meta"]))
-            if meta.get("format") != "tactile_rig.gelsight.tactile_map" or meta.get("version") != MAP_FORMAT_VERSION:
-                raise ValueError(f"{path}: unsupported tactile map format/version {meta.get('format')!r} "
-                                 f"v{meta.get('version')!r}")
+                raise BadFile(path, "it holds no 'meta' array", f"a {MAP_FILE.what} written by TactileMap.save")
+            meta = MAP_FILE.check(json.loads(str(d["meta"])), path)
             m = cls(float(meta["mm_per_px"]), float(meta["canvas_factor"]), float(meta["accept_confidence"]),
                     params or RegistrationParams())
             m.total = d["total"].astype(np.float32)
