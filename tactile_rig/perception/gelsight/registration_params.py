@@ -25,17 +25,16 @@ class RegistrationParams:
     """ORB keypoints per touch-sized area (a larger map gets proportionally more); with fewer the
     plate's keypoint path fails more often and the slower dense search takes over."""
     orb_levels: int = 6
-    """ORB pyramid levels; fewer detect faster but refuse more independent touches."""
+    """ORB pyramid levels (the detector's scale-space depth); fewer detect faster."""
     orb_scale: float = 1.2
     """Scale step between ORB pyramid levels (> 1)."""
     orb_fast_threshold: int = 5
-    """ORB's FAST threshold (grey levels of the rendering); higher detects faster but refuses more
-    independent touches."""
+    """ORB's FAST threshold (grey levels of the rendering); higher finds fewer keypoints, faster."""
     detect_scale: float | None = None
     """Resize factor of the maps for detection (0.1-4); None picks the factor that makes the touch's
     short side ``detect_short_px`` (the dense polish restores full-resolution accuracy)."""
     detect_short_px: int = 120
-    """Short side (px) of a touch resized for detection when ``detect_scale`` is None: 96 loses the
+    """Short side (px) of a touch resized for detection when ``detect_scale`` is None: 96 halves the
     detail of a 120x160 touch, more costs time and places nothing more."""
     band_px: tuple[float, float] = (0.0, 4.0)
     """(fine, coarse) Gaussian sigmas (px) of the band-pass rendering the keypoints are found on:
@@ -43,8 +42,8 @@ class RegistrationParams:
     ransac_iters: int = 256
     """Most two-pair RANSAC samples (scoring stops early once the consensus is clear)."""
     inlier_px: float = 4.0
-    """RANSAC residual (px) of an inlier: keypoints of an independent re-touch move by a few px, so
-    2 px refused most of them; 6 px lines up unrelated touches."""
+    """RANSAC residual (px) of an inlier: keypoints of an independent re-touch move by a few px, so at
+    2 px the keypoint path fails more often and the slower dense search takes over."""
     min_inliers: int = 8
     """Fewest RANSAC inliers (>= 2) of a keypoint answer; fewer is a refusal of that answer."""
     min_confidence: float = 0.9
@@ -99,8 +98,8 @@ class RegistrationParams:
     """A search pose must agree on this many times more patches than any distinct candidate, else
     the content is ambiguous (blobs and domes fit several poses)."""
     search_min_support: int = 0
-    """Keypoint matches that must lie within ``inlier_px`` of a search pose (0: not asked; a right
-    re-touch that keypoints failed on keeps 1-3, a wrong pose of tiled domes up to 15)."""
+    """Keypoint matches that must lie within ``inlier_px`` of a search pose (0: not asked; a re-touch
+    that keypoints failed on keeps too few true matches for the count to separate right from wrong)."""
     search_patch_px: int = 24
     """Side (px) of the square patches whose agreement counts as evidence for a pose."""
     search_min_patches: int = 23
