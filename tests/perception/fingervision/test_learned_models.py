@@ -6,10 +6,12 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from tactile_rig.core.errors import CalibrationError
 from tactile_rig.perception.fingervision.force_map import FORCE_FEATURES, ForceMapModel
-from tactile_rig.perception.fingervision.substance import SubstanceModel
+from tactile_rig.perception.fingervision.substance import STIR_FEATURES, SubstanceModel, stirring_features
 from tests._data import test_data
 
 FILES = test_data("file_formats")
@@ -69,3 +71,12 @@ def test_a_substance_metadata_that_does_not_fit_its_arrays_is_refused(change: di
     meta, arrays = _saved("substance")
     with pytest.raises(CalibrationError, match=problem):
         SubstanceModel.from_saved({**meta, **change}, arrays, "s.npz")
+
+
+@given(st.sampled_from(["zeros", "const", "huge", "nan", "spiky"]), st.integers(8, 200))
+def test_stirring_features_are_finite_on_extreme_series(kind: str, n: int) -> None:
+    rng = np.random.default_rng(n)
+    s = {"zeros": np.zeros((n, 3)), "const": np.full((n, 3), 3.0), "huge": rng.normal(0, 1e12, (n, 3)),
+         "nan": np.where(rng.random((n, 3)) < 0.3, np.nan, 1.0), "spiky": (rng.random((n, 3)) > 0.95) * 1e6}[kind]
+    f = stirring_features(s, 30.0, window_s=8 / 30)
+    assert f.shape == (n // 8, len(STIR_FEATURES)) and np.all(np.isfinite(f))
