@@ -24,7 +24,7 @@ from tactile_rig.cli import bench_live
 from tactile_rig.cli.args import float_in, int_in
 from tactile_rig.cli.common import add_command_group, add_json_flag, print_json
 from tactile_rig.core.errors import MarkersNotFound
-from tactile_rig.core.files import check_file, check_image_dims, quiet_opencv
+from tactile_rig.rig.files import check_file, check_image_dims, quiet_opencv
 from tactile_rig.perception.fingervision import FingerVision, FingerVisionParams
 from tactile_rig.rig.loaders import load_fingervision_params, read_frame
 from tactile_rig.rig.bench import load_bench

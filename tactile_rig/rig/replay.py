@@ -16,7 +16,7 @@ import numpy as np
 
 from tactile_rig.core.clock import Clock
 from tactile_rig.core.errors import NotConnected
-from tactile_rig.core.files import check_file
+from tactile_rig.rig.files import check_file
 from tactile_rig.drivers.camera import RawFrame
 from tactile_rig.rig.messages import IMAGE_SCHEMAS
 from tactile_rig.rig.recording import (

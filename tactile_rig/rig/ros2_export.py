@@ -41,7 +41,7 @@ from typing import Any, Callable, Literal
 import numpy as np
 
 from tactile_rig.core.errors import BadFile
-from tactile_rig.core.files import check_file
+from tactile_rig.rig.files import check_file
 from tactile_rig.rig.messages.frames import WORLD, moves
 from tactile_rig.rig.recording import LIBRARY, MAX_RECORDING_BYTES, Message, Recording, iter_messages
 

@@ -14,7 +14,7 @@ from typing import Any, Iterator, Mapping
 import numpy as np
 
 from tactile_rig.core.errors import BadFile
-from tactile_rig.core.files import MAX_JSON_DEPTH, check_file, decode_image_bytes, json_depth
+from tactile_rig.rig.files import MAX_JSON_DEPTH, check_file, decode_image_bytes, json_depth
 from tactile_rig.rig.messages import SchemaDef
 from tactile_rig.rig.recording.protobuf import ProtobufDecoder
 from tactile_rig.rig.recording.writer import require_mcap
