@@ -16,7 +16,6 @@ return False/-1, ``read()`` has no timeout, and after an unplug ``isOpened()`` s
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any, Callable
 
 import cv2
@@ -26,53 +25,17 @@ from tactile_rig.core.clock import Clock, RealClock
 from tactile_rig.core.errors import NotConnected
 from tactile_rig.core.types import RawFrame
 from tactile_rig.devices.camera import canonical_control, fourcc_text
+from tactile_rig.devices.camera_models import C310_CONTROLS, C310_MODES, UvcControl
 from tactile_rig.sim.render.gelsight import SensorNoise
 
 __all__ = ["UvcControl", "C310_CONTROLS", "C310_MODES", "UvcControlTable", "SimulatedCamera", "FakeVideoCapture"]
-
-
-@dataclass(frozen=True)
-class UvcControl:
-    """One V4L2 control: ``kind`` is int, bool or menu; ``active_when`` = (switch, value) for manual controls."""
-
-    name: str
-    cid: int
-    kind: str
-    minimum: int
-    maximum: int
-    default: int
-    step: int = 1
-    menu: tuple[int, ...] = ()
-    active_when: tuple[str, int] | None = None
-
-
-C310_CONTROLS: tuple[UvcControl, ...] = (
-    UvcControl("brightness", 0x00980900, "int", 0, 255, 128),
-    UvcControl("contrast", 0x00980901, "int", 0, 255, 32),
-    UvcControl("saturation", 0x00980902, "int", 0, 255, 32),
-    UvcControl("white_balance_automatic", 0x0098090C, "bool", 0, 1, 1),
-    UvcControl("gain", 0x00980913, "int", 0, 255, 64),
-    UvcControl("power_line_frequency", 0x00980918, "menu", 0, 2, 2, menu=(0, 1, 2)),
-    UvcControl("white_balance_temperature", 0x0098091A, "int", 0, 10000, 4000, step=10,
-               active_when=("white_balance_automatic", 0)),
-    UvcControl("sharpness", 0x0098091B, "int", 0, 255, 24),
-    UvcControl("backlight_compensation", 0x0098091C, "int", 0, 1, 0),
-    UvcControl("auto_exposure", 0x009A0901, "menu", 1, 3, 3, menu=(1, 3)),
-    UvcControl("exposure_time_absolute", 0x009A0902, "int", 1, 10000, 166, active_when=("auto_exposure", 1)),
-    UvcControl("exposure_dynamic_framerate", 0x009A0903, "bool", 0, 1, 0),
-)
-
-# (fourcc, width, height) -> max fps (C310: YUYV large modes only at low fps).
-C310_MODES: dict[tuple[str, int, int], float] = {
-    ("MJPG", 160, 120): 30, ("MJPG", 320, 240): 30, ("MJPG", 640, 480): 30, ("MJPG", 1280, 720): 30,
-    ("MJPG", 1280, 960): 30, ("YUYV", 160, 120): 30, ("YUYV", 320, 240): 30, ("YUYV", 640, 480): 30,
-    ("YUYV", 1280, 720): 7.5, ("YUYV", 1280, 960): 5,
-}
+# UvcControl, C310_CONTROLS and C310_MODES live in tactile_rig.devices.camera_models; re-exported here.
 
 
 class UvcControlTable:
-    """Values of a control table with the kernel's rules: clamp ints to range and step, reject bad
-    menu values and writes to inactive controls."""
+    """Values of a control table with uvcvideo's rules (:meth:`UvcControl.clamp`): ints rounded to the
+    nearest step and clamped, menu indices the camera does not offer and writes to inactive controls
+    refused. A new table, and :meth:`reset`, hold the camera's power-on values."""
 
     def __init__(self, controls: tuple[UvcControl, ...] = C310_CONTROLS) -> None:
         self.controls = {c.name: c for c in controls}
@@ -80,7 +43,12 @@ class UvcControlTable:
         self.reset()
 
     def reset(self) -> None:
-        self.values = {c.name: c.default for c in self.controls.values()}
+        """The values the camera powers up with."""
+        self.values = {c.name: c.initial for c in self.controls.values()}
+
+    def by_id(self, cid: int) -> UvcControl | None:
+        """The control with V4L2 id ``cid``, or None."""
+        return next((c for c in self.controls.values() if c.cid == cid), None)
 
     def is_active(self, name: str) -> bool:
         c = self.controls[name]
@@ -92,12 +60,13 @@ class UvcControlTable:
         if c is None or not math.isfinite(value) or not self.is_active(name):
             return False
         v = int(round(value))
+        if not -2**31 <= v < 2**31:  # a V4L2 control value is an s32
+            return False
         if c.kind == "menu":
-            if v not in c.menu:
+            if c.menu_errno(v):
                 return False
         else:
-            v = min(max(v, c.minimum), c.maximum)
-            v = c.minimum + (v - c.minimum) // c.step * c.step
+            v = c.clamp(v)
         self.values[name] = v
         return True
 
