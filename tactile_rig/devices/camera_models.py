@@ -185,7 +185,12 @@ class CameraModel:
     (the first is the default). ``format_change_resets``: controls a format change puts back to
     their defaults. ``background``: the real no-contact frame its renderer composites on (a name of
     :data:`tactile_rig.sim.render.gelsight.BACKGROUNDS`); ``mm_per_px`` the scale of that frame.
-    ``sdk_views``: what the vendor SDKs do to a raw frame.
+    ``sdk_views``: what the vendor SDKs do to a raw frame. ``inactive_write_errno_legacy``: what a
+    write to an inactive manual control returned before Linux 6.3, when uvcvideo passed it to the
+    camera: the camera stalls the request and uvc_query_ctrl maps its error code (Invalid
+    control/request: EIO; Wrong state: EILSEQ). A Logitech HD Webcam C525 on Linux 5.15 gave EIO
+    for exposure and white balance temperature (its v4l2-compliance 1.22.1 log on linux-media,
+    "Re: [PATCH 0/4] Follow-up patches for uvc v4l2-compliance", November 2021).
     """
 
     key: str
@@ -203,6 +208,7 @@ class CameraModel:
     format_change_resets: tuple[str, ...] = ()
     background: str = "gsmini"
     sdk_views: tuple[SdkView, ...] = ()
+    inactive_write_errno_legacy: int = errno.EIO
     sources: tuple[str, ...] = ()
     notes: tuple[str, ...] = field(default=())
 

@@ -125,9 +125,12 @@ class SimulatedCamera:
                  modes: dict[tuple[str, int, int], float] | None = None,
                  controls: tuple[UvcControl, ...] = C310_CONTROLS, auto_drift: bool = True,
                  reset_controls_on_format: bool = True, ignore_controls: tuple[str, ...] = (),
-                 channel_order: str = "BGR", noise_sigma: float = 0.5, seed: int = 0, world: Any = None) -> None:
+                 channel_order: str = "BGR", noise_sigma: float = 0.5, seed: int = 0, world: Any = None,
+                 optics: Callable[[np.ndarray, int, int], np.ndarray] | None = None) -> None:
         """``render``: a function ``t_s -> BGR``, a renderer model (``render_now()``), None (a test
-        pattern), or a ``rigsim://camera?model=NAME`` URL naming the renderer model in ``world``."""
+        pattern), or a ``rigsim://camera?model=NAME`` URL naming the renderer model in ``world``.
+        ``optics(image, width, height)``: how the lens places the rendered (and exposed) scene on the
+        sensor at a mode's size (default: a resize before exposure)."""
         if isinstance(render, str):
             render = _renderer_from_url(render, world)
         self.name = name
@@ -140,6 +143,7 @@ class SimulatedCamera:
         self.ignore_controls = {canonical_control(n) for n in ignore_controls}
         self.channel_order = channel_order
         self._render_fn = render
+        self.optics = optics
         self._seed = int(seed)
         self._rng = np.random.default_rng(seed)
         self.noise_sigma = float(noise_sigma)  # read noise: no two live frames are byte-identical
@@ -254,41 +258,70 @@ class SimulatedCamera:
         if self._in(self.freezes, t_frame) and self._last_image is not None:
             img = self._last_image
         else:
-            img = self._expose(self._render(t_frame), t_frame)
+            img = self.render_frame(t_frame)
         self._k_last, self._last_image, self._last_t_dev = k, img, t_frame - self._t0
         out = img[..., ::-1].copy() if self.channel_order == "RGB" else img
         return RawFrame(out, t_frame - self._t0, k)
 
     # -- image formation ------------------------------------------------------------------------
-    def _render(self, t_s: float) -> np.ndarray:
+    def render_frame(self, t_s: float, width: int | None = None, height: int | None = None) -> np.ndarray:
+        """The image the sensor forms at ``t_s`` (BGR, ``height`` x ``width`` px, default the current
+        format's): the scene rendered, exposed with the current controls, placed on the sensor."""
+        w = self.width if width is None else int(width)
+        h = self.height if height is None else int(height)
+        if self.optics is None:
+            return self._expose(self._render(t_s, (h, w)), t_s)
+        return self.optics(self._expose(self._render(t_s, None), t_s), w, h)
+
+    def _render(self, t_s: float, shape_px: tuple[int, int] | None) -> np.ndarray:
         fn = self._render_fn
         if fn is None:
-            self._render_fn = fn = moving_bar_pattern((self.height, self.width))
+            self._render_fn = fn = moving_bar_pattern(shape_px or (self.height, self.width))
         img = fn.render_now() if hasattr(fn, "render_now") else fn(t_s)
-        if img.shape[:2] != (self.height, self.width):
-            img = cv2.resize(img, (self.width, self.height), interpolation=cv2.INTER_AREA)
+        if shape_px is not None and img.shape[:2] != shape_px:
+            img = cv2.resize(img, (shape_px[1], shape_px[0]), interpolation=cv2.INTER_AREA)
         return img
 
+    def _relative(self, name: str) -> float | None:
+        """A control's value relative to its default (1.0 at the default), None if the camera lacks it.
+        A control whose default is 0 counts from a quarter of its range."""
+        c = self.table.controls.get(name)
+        if c is None:
+            return None
+        ref = c.default if c.default > 0 else (c.maximum - c.minimum) / 4.0
+        return (self.table.values[name] + (ref - c.default)) / ref
+
     def effective_exposure(self, t_s: float) -> float:
-        """Exposure (100 µs units) in use: the manual value, or auto exposure's drifting choice."""
+        """Exposure relative to the camera's default: the manual value, or auto exposure's drifting choice
+        (1.0 for a camera without exposure controls)."""
         if self.table.get("auto_exposure") == 1:
-            return float(self.table.value("exposure_time_absolute"))
+            return self._relative("exposure_time_absolute") or 1.0
+        if "auto_exposure" not in self.table.controls:
+            return 1.0
         drift = 0.25 * math.sin(2 * math.pi * t_s / 7.0) if self.auto_drift else 0.0
-        return 166.0 * (1.0 + drift)
+        return 1.0 + drift
 
     def channel_gains(self, t_s: float) -> np.ndarray:
-        """BGR gains from white balance: manual temperature, or auto WB's drifting choice."""
-        if self.table.get("white_balance_automatic") == 0:
-            shift = (self.table.value("white_balance_temperature") - 4000.0) / 20000.0
-        else:
-            shift = 0.08 * math.sin(2 * math.pi * t_s / 5.0) if self.auto_drift else 0.0
-        return np.array([1.0 + shift, 1.0, 1.0 - shift], dtype=np.float32)
+        """BGR gains from white balance (manual temperature, or auto WB's drifting choice) and, on a
+        camera whose LEDs are a control (the DIGIT's ``zoom_absolute``: 4 bits each of R, G, B), the LEDs."""
+        shift = 0.0
+        wb = self.table.controls.get("white_balance_temperature")
+        if self.table.get("white_balance_automatic") == 0 and wb is not None:
+            shift = (self.table.values[wb.name] - wb.default) / 20000.0
+        elif "white_balance_automatic" in self.table.controls and self.auto_drift:
+            shift = 0.08 * math.sin(2 * math.pi * t_s / 5.0)
+        gains = np.array([1.0 + shift, 1.0, 1.0 - shift], dtype=np.float32)
+        led = self.table.get("zoom_absolute")
+        if led is not None:
+            gains *= np.array([(led & 15) / 15.0, ((led >> 4) & 15) / 15.0, ((led >> 8) & 15) / 15.0], np.float32)
+        return gains
 
     def _expose(self, img: np.ndarray, t_s: float) -> np.ndarray:
         """Exposure x gain x white balance, brightness offset, read noise; saturating 8-bit arithmetic."""
-        gain = (self.effective_exposure(t_s) / 166.0) * (self.table.value("gain") / 64.0) ** 0.5
+        gain = self.effective_exposure(t_s) * max(0.0, self._relative("gain") or 1.0) ** 0.5
         wb = self.channel_gains(t_s) * gain
-        bright = (self.table.value("brightness") - 128) * 0.5
+        b = self.table.controls.get("brightness")
+        bright = (self.table.values[b.name] - b.default) * 0.5 * 255.0 / (b.maximum - b.minimum) if b else 0.0
         out = img
         if not np.allclose(wb, 1.0):
             out = cv2.multiply(out, (float(wb[0]), float(wb[1]), float(wb[2]), 0.0))
