@@ -353,7 +353,6 @@ C310 = CameraModel(
     ),
     controls=C310_CONTROLS,
     bcd_device=0x0010,
-    format_change_resets=tuple(c.name for c in C310_CONTROLS),
     background="gsmini",
     sources=(
         "USB ids 046d:081b and card 'UVC Camera (046d:081b)' (no product string: dmesg 'Found UVC 1.00 device "
@@ -365,8 +364,9 @@ C310 = CameraModel(
     notes=(
         "frame intervals are modelled: no public capture of the C310's interval lists was found; YUYV follows the "
         "C270's published rates (same Logitech UVC family), MJPG offers 30..5 fps at every size",
-        "format_change_resets (every control back to its default on a format change) is the project's driver "
-        "assumption, not a measured C310 behaviour",
+        "no control is known to reset on a format change: uvcvideo keeps the values (it writes them back only "
+        "after a USB reset or resume, uvc_ctrl_restore_values) and no public C310 capture shows the firmware "
+        "resetting any; format_change_resets is empty",
         "serial is an example; a real C310 reports its own 8-character serial",
     ),
 )

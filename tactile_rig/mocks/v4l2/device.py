@@ -27,8 +27,11 @@ Frames are made by a thread at the negotiated interval: a frame starts (its time
 CLOCK_MONOTONIC, is taken then, ``V4L2_BUF_FLAG_TSTAMP_SRC_SOE``), the sequence number advances
 whether or not a buffer is queued (a host that does not requeue sees a gap, as on uvcvideo:
 uvc_video.c counts frames regardless of buffer state), the first queued buffer receives the
-image the simulated sensor forms, encoded in the negotiated format. A frame the emulation cannot
-make in time is not made (the camera runs slower; no gap is invented).
+image the simulated sensor forms, encoded in the negotiated format; the buffer is done when the
+frame is made (the time a camera takes to send it). Frames start on the grid of the interval; when
+the machine cannot render and encode a frame within one interval the slots it overran are not made
+(their timestamps are missing from the stream, the sequence does not count them: the camera did
+not send them).
 
 After an unplug (:meth:`UvcNode.disconnect`) every ioctl, mmap and read fails with ENODEV and poll
 reports POLLERR | POLLHUP | POLLPRI, as the V4L2 core does once the device is unregistered.
@@ -781,8 +784,8 @@ class UvcNode:
                 t_frame = t_next
                 now = time.monotonic()
                 t_next += period
-                if t_next < now:  # could not keep up: the next frame starts now, none are invented
-                    t_next = now + period
+                while t_next < now:  # could not keep up: the frames of the missed slots are not made
+                    t_next += period
                 if self.stalled(t_frame):
                     continue
                 self.sequence += 1

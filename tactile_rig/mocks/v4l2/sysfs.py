@@ -87,9 +87,25 @@ def node_paths(root: Path, model: CameraModel, ident: NodeIdentity) -> dict[str,
     }
 
 
+def _drop_links_to(directory: Path, target: str) -> None:
+    """Remove links in ``directory`` pointing at ``target`` (left by a server that died without cleaning up)."""
+    try:
+        entries = list(directory.iterdir())
+    except OSError:
+        return
+    for e in entries:
+        try:
+            if e.is_symlink() and os.readlink(e) == target:
+                e.unlink()
+        except OSError:
+            pass
+
+
 def write_node(root: Path, model: CameraModel, ident: NodeIdentity) -> dict[str, Path]:
     """Create the node's files and links (not the socket); returns :func:`node_paths`."""
     p = node_paths(root, model, ident)
+    for links in ("by-id", "by-path"):
+        _drop_links_to(root / "dev" / "v4l" / links, f"../../{ident.name}")
     usb, iface = p["usb"], p["usb"] / f"{ident.usb_name}:1.0"
     vid, pid = model.vendor_id or 0, model.product_id or 0
     bcd = model.bcd_device or 0
