@@ -115,9 +115,10 @@ def _child_main(fd: int) -> None:
         data = pickle.dumps(result)
     except BaseException as exc:  # noqa: BLE001  (every failure goes back to the parent)
         tb = traceback.format_exc()
+        exc_bytes: bytes | None
         try:
-            exc_bytes: bytes | None = pickle.dumps(exc)
-            pickle.loads(exc_bytes)
+            exc_bytes = pickle.dumps(exc)
+            pickle.loads(exc_bytes)  # some exceptions pickle but cannot be rebuilt
         except Exception:  # noqa: BLE001
             exc_bytes = None
         data = pickle.dumps(("error", (exc_bytes, type(exc).__qualname__, str(exc), tb)))
