@@ -400,3 +400,4 @@ def fourcc_str(code: int) -> str:
 
 # Format descriptions the V4L2 core fills in for ENUM_FMT (v4l2-ioctl.c, v4l_fill_fmtdesc).
 FORMAT_DESCRIPTIONS = {"YUYV": "YUYV 4:2:2", "MJPG": "Motion-JPEG"}
+

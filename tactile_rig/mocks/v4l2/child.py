@@ -39,7 +39,7 @@ def run_in_child(fn: Callable[..., Any], *args: Any, env: Mapping[str, str] | No
     child_env.update(env or {})
     r, w = os.pipe()
     try:
-        proc = subprocess.Popen([sys.executable, "-m", __name__, str(w)], stdin=subprocess.PIPE,
+        proc = subprocess.Popen([sys.executable, "-c", _CHILD, str(w)], stdin=subprocess.PIPE,
                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=child_env,
                                 pass_fds=(w,))
     except BaseException:
@@ -105,26 +105,24 @@ def _tail(err: list[bytes]) -> str:
     return b"".join(err)[-_STDERR_TAIL:].decode("utf-8", "replace")
 
 
-def _child_main(fd: int) -> None:
-    out = os.fdopen(fd, "wb")
+# The child's whole program: the standard library only, so that the child imports nothing but what
+# ``fn`` needs (this package's own import would cost the child half a second).
+_CHILD = """
+import os, pickle, sys, traceback
+out = os.fdopen(int(sys.argv[1]), "wb")
+try:
+    path, inner = pickle.loads(sys.stdin.buffer.read())
+    sys.path[:] = path
+    fn, args, kwargs = pickle.loads(inner)
+    data = pickle.dumps(("ok", fn(*args, **kwargs)))
+except BaseException as exc:
+    tb = traceback.format_exc()
     try:
-        path, inner = pickle.loads(sys.stdin.buffer.read())
-        sys.path[:] = path
-        fn, args, kwargs = pickle.loads(inner)
-        result: tuple[str, Any] = ("ok", fn(*args, **kwargs))
-        data = pickle.dumps(result)
-    except BaseException as exc:  # noqa: BLE001  (every failure goes back to the parent)
-        tb = traceback.format_exc()
-        exc_bytes: bytes | None
-        try:
-            exc_bytes = pickle.dumps(exc)
-            pickle.loads(exc_bytes)  # some exceptions pickle but cannot be rebuilt
-        except Exception:  # noqa: BLE001
-            exc_bytes = None
-        data = pickle.dumps(("error", (exc_bytes, type(exc).__qualname__, str(exc), tb)))
-    out.write(data)
-    out.close()
-
-
-if __name__ == "__main__":
-    _child_main(int(sys.argv[1]))
+        exc_bytes = pickle.dumps(exc)
+        pickle.loads(exc_bytes)
+    except Exception:
+        exc_bytes = None
+    data = pickle.dumps(("error", (exc_bytes, type(exc).__qualname__, str(exc), tb)))
+out.write(data)
+out.close()
+"""

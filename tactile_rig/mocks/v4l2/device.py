@@ -186,6 +186,8 @@ class UvcNode:
         self.history: deque[RenderedFrame] = deque(maxlen=history)
         self.frames_delivered = 0
         self.frames_lost = 0
+        #: (file handle id, ioctl name, errno or 0) of every ioctl, when a list is set here.
+        self.trace: deque[tuple[int, str, int]] | None = None
 
     # -- file handles ---------------------------------------------------------------------------
     def open(self) -> FileHandle:
@@ -277,15 +279,18 @@ class UvcNode:
     def ioctl(self, fh: FileHandle, cmd: int, payload: bytes, array: bytes) -> tuple[int, bytes, bytes, list[int]]:
         """(result, argument out, control array out, descriptors to send)."""
         with self.lock:
-            if self.gone:
-                return -errno.ENODEV, b"", b"", []
             handler = self._HANDLERS.get(cmd)
-            if handler is None:
-                return -errno.ENOTTY, b"", b"", []
-            if cmd in _PRIO_IOCTLS and fh.prio < self._max_prio():
-                return -errno.EBUSY, b"", b"", []
-            result = handler(self, fh, payload, array)
-            self._sync_all()
+            if self.gone:
+                result: tuple[int, bytes, bytes, list[int]] = (-errno.ENODEV, b"", b"", [])
+            elif handler is None:
+                result = (-errno.ENOTTY, b"", b"", [])
+            elif cmd in _PRIO_IOCTLS and fh.prio < self._max_prio():
+                result = (-errno.EBUSY, b"", b"", [])
+            else:
+                result = handler(self, fh, payload, array)
+                self._sync_all()
+            if self.trace is not None:
+                self.trace.append((fh.id, abi.IOCTL_NAMES.get(cmd, hex(cmd)), -result[0]))
             return result
 
     def _max_prio(self) -> int:

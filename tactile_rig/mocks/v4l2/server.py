@@ -19,6 +19,7 @@ import stat
 import tempfile
 import threading
 import time
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -70,7 +71,8 @@ class V4L2Camera:
     served (default: :func:`~.frames.build_camera` with ``renderer``, ``video``, ``scene``, ``seed``).
     ``node`` fixes the node number, ``registry`` the registry directory. ``kernel`` (major, minor) is
     the uvcvideo generation to answer as (default: the running kernel's; it decides the version
-    QUERYCAP reports and the error for writing an inactive control, see :mod:`.controls`). Use as a
+    QUERYCAP reports, the error for writing an inactive control and who may use the stream, see
+    :mod:`.device`). ``trace`` keeps the ioctls clients made (:attr:`trace`). Use as a
     context manager or :meth:`start` / :meth:`stop`.
     """
 
@@ -79,7 +81,7 @@ class V4L2Camera:
                  seed: int = 0, node: int | None = None, registry: str | Path | None = None,
                  serial: str | None = None, usb_port: int | None = None, jpeg_quality: int = 90,
                  faults: CameraFaults | None = None, control_fifo: bool = False,
-                 kernel: tuple[int, ...] | None = None) -> None:
+                 kernel: tuple[int, ...] | None = None, trace: bool = False) -> None:
         self.model = camera_model(model) if isinstance(model, str) else model
         if not 1 <= jpeg_quality <= 100:
             raise ValueError(f"jpeg_quality={jpeg_quality!r} must be in 1..100")
@@ -96,6 +98,8 @@ class V4L2Camera:
         if kernel is not None and (len(kernel) < 2 or any(int(k) < 0 for k in kernel)):
             raise ValueError(f"kernel={kernel!r} must be (major, minor[, patch])")
         self.kernel = tuple(int(k) for k in kernel) if kernel is not None else None
+        #: (file handle id, ioctl name, errno or 0) of the last 10000 ioctls, with ``trace=True``.
+        self.trace: deque[tuple[int, str, int]] | None = deque(maxlen=10000) if trace else None
         self.ident: NodeIdentity | None = None
         self.node: UvcNode | None = None
         self.library: Path | None = None
@@ -236,6 +240,7 @@ class V4L2Camera:
             self.node = UvcNode(self.model, self.sim, self.ident, jpeg_quality=self.jpeg_quality,
                                 stalled=self._is_stalled, frozen=self._is_frozen, on_frame=self._on_frame,
                                 kernel=self.kernel)
+            self.node.trace = self.trace
             sysfs.write_node(self.root, self.model, self.ident)
             self._listener = s
             threading.Thread(target=self._accept, args=(s, self.node), daemon=True,
