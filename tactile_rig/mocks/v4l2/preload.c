@@ -16,7 +16,9 @@
  * that resolves to a socket under $DIR/root/dev is the device node: stat() calls it a character
  * device 81:N, open() connects to the server and returns a descriptor whose readiness the server
  * drives (an eventfd), and ioctl/mmap/munmap/poll/select/read/write/close on that descriptor go to
- * the server. Every other path and descriptor goes straight to the C library.
+ * the server. A listing of /dev (opendir/readdir) ends with the registry's video nodes and its v4l
+ * directory, where the real /dev has no entry of that name. Every other path and descriptor goes
+ * straight to the C library.
  *
  * The wire protocol is tactile_rig/mocks/v4l2/protocol.py (one request message, one reply message,
  * descriptors passed with SCM_RIGHTS). Arguments are copied in and out of the caller's memory with
@@ -85,6 +87,10 @@ static int (*real___openat64_2)(int, const char *, int);
 static FILE *(*real_fopen)(const char *, const char *);
 static FILE *(*real_fopen64)(const char *, const char *);
 static DIR *(*real_opendir)(const char *);
+static struct dirent *(*real_readdir)(DIR *);
+static struct dirent64 *(*real_readdir64)(DIR *);
+static void (*real_rewinddir)(DIR *);
+static int (*real_closedir)(DIR *);
 static int (*real_access)(const char *, int);
 static int (*real_eaccess)(const char *, int);
 static int (*real_euidaccess)(const char *, int);
@@ -612,10 +618,161 @@ EXPORT FILE *fopen64(const char *path, const char *mode)
     return REAL(fopen64)(redirect(path, r) ? r : path, mode);
 }
 
+/* -- the /dev listing --------------------------------------------------------------------------
+ * A directory stream opened on /dev is given, after the real entries, the registry's video nodes
+ * (as character devices) and its v4l directory, unless the real /dev has an entry of that name. */
+#define MAX_LISTINGS 8
+#define MAX_EXTRA 64
+struct listing {
+    DIR *dir;
+    int n, next;
+    char names[MAX_EXTRA][32];
+    unsigned char types[MAX_EXTRA];
+    struct dirent ent;
+    struct dirent64 ent64;
+};
+static struct listing listings[MAX_LISTINGS];
+static int listings_open; /* how many slots are in use: 0 keeps readdir() on its fast path */
+static pthread_mutex_t listing_lock = PTHREAD_MUTEX_INITIALIZER;
+
+static int is_dev_dir(const char *path)
+{
+    return path && (strcmp(path, "/dev") == 0 || strcmp(path, "/dev/") == 0);
+}
+
+static void add_listing(DIR *d)
+{
+    char dir[PATH_MAX], real_path[PATH_MAX];
+    struct listing *l = NULL;
+    struct dirent *e;
+    struct stat st;
+    DIR *reg;
+    int saved = errno;
+
+    if (snprintf(dir, sizeof dir, "%s/root/dev", registry) >= (int)sizeof dir || !(reg = REAL(opendir)(dir)))
+        goto out;
+    pthread_mutex_lock(&listing_lock);
+    for (int i = 0; i < MAX_LISTINGS; i++)
+        if (!listings[i].dir) {
+            l = &listings[i];
+            break;
+        }
+    if (l) {
+        memset(l, 0, sizeof *l);
+        while ((e = REAL(readdir)(reg)) && l->n < MAX_EXTRA) {
+            int video = strncmp(e->d_name, "video", 5) == 0, v4l = strcmp(e->d_name, "v4l") == 0;
+            if ((!video && !v4l) || strlen(e->d_name) >= sizeof l->names[0])
+                continue;
+            snprintf(real_path, sizeof real_path, "/dev/%s", e->d_name);
+            if (raw_stat(real_path, &st, 0) == 0)
+                continue; /* the real /dev has it */
+            snprintf(l->names[l->n], sizeof l->names[0], "%s", e->d_name);
+            l->types[l->n++] = video ? DT_CHR : DT_DIR;
+        }
+        l->dir = d;
+        listings_open++;
+    }
+    pthread_mutex_unlock(&listing_lock);
+    REAL(closedir)(reg);
+out:
+    errno = saved;
+}
+
+static struct listing *find_listing(DIR *d)
+{
+    for (int i = 0; i < MAX_LISTINGS; i++)
+        if (listings[i].dir == d)
+            return &listings[i];
+    return NULL;
+}
+
 EXPORT DIR *opendir(const char *path)
 {
     char r[PATH_MAX];
-    return REAL(opendir)(redirect(path, r) ? r : path);
+    DIR *d = REAL(opendir)(redirect(path, r) ? r : path);
+    if (d && registry[0] && is_dev_dir(path))
+        add_listing(d);
+    return d;
+}
+
+/* The next registry entry of a /dev stream whose real entries are exhausted (NULL: none left). */
+static const char *next_extra(DIR *d, unsigned char *type, long *ino)
+{
+    const char *name = NULL;
+    struct listing *l;
+
+    pthread_mutex_lock(&listing_lock);
+    l = find_listing(d);
+    if (l && l->next < l->n) {
+        name = l->names[l->next];
+        *type = l->types[l->next];
+        *ino = 0x7e570000L + l->next;
+        l->next++;
+    }
+    pthread_mutex_unlock(&listing_lock);
+    return name;
+}
+
+EXPORT struct dirent *readdir(DIR *d)
+{
+    struct dirent *e = REAL(readdir)(d);
+    unsigned char type;
+    long ino;
+    const char *name;
+
+    if (e || !__atomic_load_n(&listings_open, __ATOMIC_ACQUIRE) || !(name = next_extra(d, &type, &ino)))
+        return e;
+    struct listing *l = find_listing(d);
+    memset(&l->ent, 0, sizeof l->ent);
+    l->ent.d_ino = (ino_t)ino;
+    l->ent.d_type = type;
+    l->ent.d_reclen = sizeof l->ent;
+    snprintf(l->ent.d_name, sizeof l->ent.d_name, "%s", name);
+    return &l->ent;
+}
+
+EXPORT struct dirent64 *readdir64(DIR *d)
+{
+    struct dirent64 *e = REAL(readdir64)(d);
+    unsigned char type;
+    long ino;
+    const char *name;
+
+    if (e || !__atomic_load_n(&listings_open, __ATOMIC_ACQUIRE) || !(name = next_extra(d, &type, &ino)))
+        return e;
+    struct listing *l = find_listing(d);
+    memset(&l->ent64, 0, sizeof l->ent64);
+    l->ent64.d_ino = (ino64_t)ino;
+    l->ent64.d_type = type;
+    l->ent64.d_reclen = sizeof l->ent64;
+    snprintf(l->ent64.d_name, sizeof l->ent64.d_name, "%s", name);
+    return &l->ent64;
+}
+
+EXPORT void rewinddir(DIR *d)
+{
+    if (__atomic_load_n(&listings_open, __ATOMIC_ACQUIRE)) {
+        pthread_mutex_lock(&listing_lock);
+        struct listing *l = find_listing(d);
+        if (l)
+            l->next = 0;
+        pthread_mutex_unlock(&listing_lock);
+    }
+    REAL(rewinddir)(d);
+}
+
+EXPORT int closedir(DIR *d)
+{
+    if (__atomic_load_n(&listings_open, __ATOMIC_ACQUIRE)) {
+        pthread_mutex_lock(&listing_lock);
+        struct listing *l = find_listing(d);
+        if (l) {
+            l->dir = NULL;
+            listings_open--;
+        }
+        pthread_mutex_unlock(&listing_lock);
+    }
+    return REAL(closedir)(d);
 }
 
 EXPORT int access(const char *path, int mode)

@@ -250,6 +250,12 @@ class V4L2Camera:
         with self._lock:
             node, listener = self.node, self._listener
             self.node, self._listener = None, None
+        # As video_unregister_device: the open handles fail first (ENODEV), then the node goes.
+        if node is not None:
+            if final:
+                node.shutdown()
+            else:
+                node.disconnect()
         if listener is not None:
             try:
                 listener.shutdown(socket.SHUT_RDWR)
@@ -258,11 +264,6 @@ class V4L2Camera:
             listener.close()
         if self.ident is not None and (node is not None or final):
             sysfs.remove_node(self.root, self.model, self.ident)
-        if node is not None:
-            if final:
-                node.shutdown()
-            else:
-                node.disconnect()
 
     # -- faults ---------------------------------------------------------------------------------------
     def stall(self, duration_s: float) -> None:
