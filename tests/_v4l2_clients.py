@@ -98,3 +98,30 @@ def opens_and_reads(port: str) -> tuple[bool, bool, float, float]:
     cap.release()
     return out
 
+
+
+def width_then_height(port: str) -> list[tuple[int, int]]:
+    """(width, height) OpenCV reports after setting the width alone, then the height."""
+    cap = open_capture(port)
+    out = [(int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))]
+    cap.set(cv2.CAP_PROP_FRAME_WIDTH, 320)
+    out.append((int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))))
+    cap.set(cv2.CAP_PROP_FRAME_HEIGHT, 240)
+    out.append((int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))))
+    ok, img = cap.read()
+    out.append(tuple(img.shape[:2][::-1]) if ok else (0, 0))
+    cap.release()
+    return out
+
+
+def fourcc_change_keeps_controls(port: str) -> tuple[float, float, bool]:
+    """Gain set, a frame read, FOURCC changed to MJPG: (gain before, gain after, read ok after)."""
+    cap = open_capture(port)
+    cap.set(cv2.CAP_PROP_GAIN, 100)
+    cap.read()
+    before = cap.get(cv2.CAP_PROP_GAIN)
+    cap.set(cv2.CAP_PROP_FOURCC, FOURCC_MJPG)
+    after = cap.get(cv2.CAP_PROP_GAIN)
+    ok = bool(cap.read()[0])
+    cap.release()
+    return before, after, ok

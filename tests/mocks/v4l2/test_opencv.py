@@ -19,8 +19,9 @@ from tactile_rig.mocks.v4l2 import CameraFaults, V4L2Camera
 from tactile_rig.mocks.v4l2.child import run_in_child
 from tactile_rig.mocks.v4l2.frames import encode_frame
 from tests._v4l2 import emulated
-from tests._v4l2_clients import (FOURCC_MJPG, FOURCC_YUYV, PHOTOMETRIC, defaults_then_writes, grab_frames,
-                                 opens_and_reads, read_log)
+from tests._v4l2_clients import (FOURCC_MJPG, FOURCC_YUYV, PHOTOMETRIC, defaults_then_writes,
+                                 fourcc_change_keeps_controls, grab_frames, opens_and_reads, read_log,
+                                 width_then_height)
 
 
 # -- helpers (parent) ------------------------------------------------------------------------------------
@@ -196,3 +197,20 @@ def test_a_replugged_camera_has_its_power_on_controls() -> None:
         cam.replug()
         fresh = run_in_child(opens_and_reads, cam.port, env=cam.env)
     assert fresh == (True, True, 166.0, 3.0)
+
+
+def test_opencv_applies_width_and_height_as_a_pair() -> None:
+    with emulated("c310") as cam:
+        got = run_in_child(width_then_height, cam.port, env=cam.env)
+    assert got == [(640, 480), (640, 480), (320, 240), (320, 240)]
+
+
+def test_a_fourcc_change_restarts_the_stream_and_keeps_the_c310s_controls() -> None:
+    """OpenCV stops streaming, frees the buffers and sets the format again; uvcvideo keeps the
+    control values (no evidence that a C310's firmware resets them on a format change)."""
+    with emulated("c310", trace=True) as cam:
+        before, after, ok = run_in_child(fourcc_change_keeps_controls, cam.port, env=cam.env)
+        names = _ioctl_names(cam)
+    assert (before, after, ok) == (100.0, 100.0, True)
+    i = names.index("STREAMON")
+    assert "STREAMOFF" in names[i:] and "S_FMT" in names[names.index("STREAMOFF", i):]
