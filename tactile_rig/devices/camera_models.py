@@ -282,6 +282,14 @@ def uvc_simplify_fraction(numerator: int, denominator: int, n_terms: int = 8, th
     return Fraction(num, den) if den else Fraction(num, 1)
 
 
+def uvc_size_distance(width: int, height: int, want_width: int, want_height: int) -> int:
+    """uvcvideo's distance between a frame size and a requested one (uvc_v4l2.c, uvc_v4l2_try_format):
+    the area of the two rectangles that does not overlap. The first frame of the format at the
+    smallest distance is chosen."""
+    overlap = min(width, want_width) * min(height, want_height)
+    return width * height + want_width * want_height - 2 * overlap
+
+
 def fps_of_interval(interval_100ns: int) -> float:
     """Frames per second of a UVC frame interval (100 ns units), from the fraction uvcvideo reports."""
     period = uvc_simplify_fraction(int(interval_100ns), 10_000_000)

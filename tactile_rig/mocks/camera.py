@@ -16,6 +16,7 @@ return False/-1, ``read()`` has no timeout, and after an unplug ``isOpened()`` s
 from __future__ import annotations
 
 import math
+import os
 from typing import Any, Callable
 
 import cv2
@@ -25,7 +26,7 @@ from tactile_rig.core.clock import Clock, RealClock
 from tactile_rig.core.errors import NotConnected
 from tactile_rig.core.types import RawFrame
 from tactile_rig.devices.camera import canonical_control, fourcc_text
-from tactile_rig.devices.camera_models import C310_CONTROLS, C310_MODES, UvcControl
+from tactile_rig.devices.camera_models import C310_CONTROLS, C310_MODES, UvcControl, uvc_size_distance
 from tactile_rig.sim.render.gelsight import SensorNoise
 
 __all__ = ["UvcControl", "C310_CONTROLS", "C310_MODES", "UvcControlTable", "SimulatedCamera", "FakeVideoCapture"]
@@ -124,7 +125,7 @@ class SimulatedCamera:
                  name: str = "simcam", fourcc: str = "MJPG", width: int = 320, height: int = 240, fps: float = 30.0,
                  modes: dict[tuple[str, int, int], float] | None = None,
                  controls: tuple[UvcControl, ...] = C310_CONTROLS, auto_drift: bool = True,
-                 reset_controls_on_format: bool = True, ignore_controls: tuple[str, ...] = (),
+                 reset_controls_on_format: bool = False, ignore_controls: tuple[str, ...] = (),
                  channel_order: str = "BGR", noise_sigma: float = 0.5, seed: int = 0, world: Any = None,
                  optics: Callable[[np.ndarray, int, int], np.ndarray] | None = None) -> None:
         """``render``: a function ``t_s -> BGR``, a renderer model (``render_now()``), None (a test
@@ -214,9 +215,9 @@ class SimulatedCamera:
     def set_format(self, fourcc: str, width: int, height: int, fps: float) -> tuple[str, int, int, float]:
         self._check()
         key = (fourcc, int(width), int(height))
-        if key not in self.modes:  # uvcvideo snaps to the closest mode of that fourcc (or any)
-            cands = [m for m in self.modes if m[0] == fourcc] or list(self.modes)
-            key = min(cands, key=lambda m: abs(m[1] * m[2] - int(width) * int(height)))
+        if key not in self.modes:  # uvcvideo: the closest size of that fourcc (else of the first format)
+            cands = [m for m in self.modes if m[0] == fourcc] or [m for m in self.modes if m[0] == next(iter(self.modes))[0]]
+            key = min(cands, key=lambda m: uvc_size_distance(m[1], m[2], int(width), int(height)))
         self.fourcc, self.width, self.height = key
         self.fps = min(float(fps), self.modes[key]) if fps > 0 else self.modes[key]
         if self.reset_controls_on_format:
@@ -337,6 +338,14 @@ class SimulatedCamera:
         return out
 
 
+def _select_timeout_s() -> float:
+    """cap_v4l's select() timeout: ``OPENCV_VIDEOIO_V4L_SELECT_TIMEOUT`` seconds, default 10."""
+    try:
+        return max(0.0, float(os.environ.get("OPENCV_VIDEOIO_V4L_SELECT_TIMEOUT", "10")))
+    except ValueError:
+        return 10.0
+
+
 class FakeVideoCapture:
     """``cv2.VideoCapture`` over a :class:`SimulatedCamera`, with the V4L2 backend's behaviour.
 
@@ -358,6 +367,7 @@ class FakeVideoCapture:
         self._released = sim is None
         self._t_ms = 0.0
         self.buffersize = 4
+        self.select_timeout_s = _select_timeout_s()
         if sim is not None:
             try:
                 sim.open()
@@ -386,8 +396,8 @@ class FakeVideoCapture:
             return False
         s = self.sim
         if prop == cv2.CAP_PROP_FOURCC:
-            s.set_format(fourcc_text(value), s.width, s.height, s.fps)  # re-inits the stream: controls reset
-            return True
+            s.set_format(fourcc_text(value), s.width, s.height, s.fps)  # re-inits the stream; the camera
+            return True                                                   # decides what its controls do
         if prop == cv2.CAP_PROP_FRAME_WIDTH:
             self._pending_width = int(value)  # applied together with the height
             return True
@@ -427,11 +437,12 @@ class FakeVideoCapture:
         return -1.0 if v is None else float(v)
 
     def read(self) -> tuple[bool, np.ndarray | None]:
-        """Blocks until a frame comes (no timeout, as in cap_v4l); (False, None) when gone."""
+        """Blocks until a frame comes, at most ``select_timeout_s`` (cap_v4l's select() timeout,
+        ``OPENCV_VIDEOIO_V4L_SELECT_TIMEOUT``, default 10 s); (False, None) on that timeout or when gone."""
         if self._released or self.sim is None:
             return False, None
         try:
-            raw = self.sim.read(None)
+            raw = self.sim.read(self.select_timeout_s)
         except NotConnected:
             return False, None
         if raw is None:
