@@ -31,11 +31,23 @@ def _failures(out: str) -> list[str]:
     return re.findall(r"^\s*fail: (.*)$", out, re.M)
 
 
+def _warnings(out: str) -> list[str]:
+    return re.findall(r"^\s*warn: (.*)$", out, re.M)
+
+
+def _load_warnings_only(out: str) -> bool:
+    """Streaming on a loaded machine may lose a frame the tool did not requeue in time (it warns of
+    the sequence gap, as it does on hardware); no other warning is expected."""
+    return all(re.fullmatch(r"v4l2-test-buffers\.cpp\(\d+\): got sequence number \d+, expected \d+", w)
+               for w in _warnings(out))
+
+
 def test_digit_passes_every_test_with_streaming() -> None:
     """No auto/manual control pair, a current uvcvideo: all 54 tests pass, streaming included
     (MMAP with no poll, select and epoll; 60 frames each)."""
     out = _compliance("digit", KERNEL_CURRENT, "-s")
-    assert _total(out) == (54, 54, 0, 0), "\n".join(_failures(out))
+    assert _total(out)[:3] == (54, 54, 0), "\n".join(_failures(out))
+    assert _load_warnings_only(out), _warnings(out)
     for test in ("MMAP (no poll)", "MMAP (select)", "MMAP (epoll)", "blocking wait", "VIDIOC_EXPBUF",
                  "VIDIOC_REQBUFS/CREATE_BUFS/QUERYBUF", "VIDIOC_(UN)SUBSCRIBE_EVENT/DQEVENT"):
         assert re.search(rf"test {re.escape(test)}: OK$", out, re.M), test
@@ -45,7 +57,8 @@ def test_c310_on_a_current_kernel_fails_only_where_the_tool_predates_uvcvideos_e
     """Streaming passes; the two control tests fail on EACCES for the inactive manual controls,
     exactly as a real Logitech camera does with this tool on Linux >= 6.3 (v4l-utils 1.24 learnt it)."""
     out = _compliance("c310", KERNEL_CURRENT, "-s")
-    assert _total(out) == (54, 52, 2, 0)
+    assert _total(out)[:3] == (54, 52, 2)
+    assert _load_warnings_only(out), _warnings(out)
     assert _failures(out) == ["v4l2-test-controls.cpp(489): s_ctrl returned an error (13)",
                               "v4l2-test-controls.cpp(736): s_ext_ctrls returned an error (13)"]
     assert re.search(r"test MMAP \(select\): OK$", out, re.M)
@@ -59,8 +72,7 @@ def test_c310_on_linux_6_1_matches_a_real_logitech_cameras_log() -> None:
     total, ok, failed, _ = _total(out)
     assert (total, ok, failed) == (45, 45, 0), "\n".join(_failures(out))
     assert "test MC information" not in out
-    warnings = re.findall(r"^\s*warn: (.*)$", out, re.M)
-    assert warnings == ["v4l2-test-controls.cpp(483): s_ctrl returned EIO"] * 2 + \
+    assert _warnings(out) == ["v4l2-test-controls.cpp(483): s_ctrl returned EIO"] * 2 + \
         ["v4l2-test-controls.cpp(729): s_ext_ctrls returned EIO"] * 2 + \
         ["v4l2-test-controls.cpp(805): s_ext_ctrls returned EIO", "v4l2-test-formats.cpp(1036): Could not set fmt2"]
 
