@@ -6,6 +6,8 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
@@ -13,6 +15,7 @@ from hypothesis import strategies as st
 import tactile_rig.mocks.v4l2.abi as abi
 from tactile_rig.devices.camera_models import C310, DIGIT, GELSIGHT_MINI
 from tactile_rig.mocks.v4l2 import CameraFaults, PreloadUnavailable, build, formats, protocol
+from tactile_rig.mocks.v4l2.frames import build_camera
 from tactile_rig.mocks.v4l2.protocol import ProtocolError, Request
 
 
@@ -91,3 +94,21 @@ def test_fault_queries_are_checked() -> None:
         CameraFaults.from_query("stall=2")
     with pytest.raises(ValueError, match="is not a number"):
         CameraFaults.from_query("freeze_s=soon")
+
+
+def test_a_recorded_video_is_the_sensors_view(tmp_path: Path) -> None:
+    """Frame k of the file is what the sensor sees from k/fps to (k+1)/fps, looped, through the
+    camera's exposure and noise."""
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (160, 120))
+    colours = [(200, 30, 30), (30, 200, 30), (30, 30, 200)]  # BGR: blue, green, red frames
+    for c in colours:
+        writer.write(np.full((120, 160, 3), c, np.uint8))
+    writer.release()
+    sim = build_camera(C310, video=path)
+    for k in range(6):
+        img = sim.render_frame((k + 0.5) / 10.0, 640, 480)
+        assert img.shape == (480, 640, 3)
+        assert int(np.argmax(img.reshape(-1, 3).mean(axis=0))) == k % 3
+    with pytest.raises(ValueError, match="OpenCV cannot open it"):
+        build_camera(C310, video=tmp_path / "missing.avi")
