@@ -2,12 +2,12 @@
 
     python benchmarks/bench_bad_files.py [--quick] [--kinds npy,mcap] [--save]
 
-The files come from :mod:`tactile_rig.testing.bad_files` (deterministic from ``--seed``). Each case runs
+The files come from ``tests/_bad_files.py`` (deterministic from ``--seed``). Each case runs
 ``tactile_rig.cli.main(argv)`` in this process (no subprocess: fast), with stdout and stderr captured,
 the process's file descriptor 2 included (a C library's warning counts as a line too). The table, per
 kind: cases, exit codes, tracebacks, stderr lines > 1, and the goal: every case exit 2 with one line.
-The baseline in the same run is the same command on a valid file of each kind (exit 0, or 1 for a
-refused registration; never 2), with its time next to the mean time to refuse a malformed one.
+The baseline in the same run is the same command on a valid file of each kind (exit 0), with its time
+next to the mean time to refuse a malformed one.
 ``--save`` writes ``benchmarks/results/bad_files.json`` (full runs only; ``--out PATH`` anywhere).
 """
 
@@ -31,7 +31,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from _output import add_save_args, parse_args, save_json  # noqa: E402
 
 from tactile_rig.cli import main  # noqa: E402
-from tactile_rig.testing.bad_files import KINDS, BadCase, generate, good_case  # noqa: E402
+from tests._bad_files import KINDS, BadCase, generate, good_case  # noqa: E402
 
 
 @contextlib.contextmanager

@@ -4,7 +4,7 @@ Wall clock, over ptys: each device in its own process (``tactile-rig mock serve 
 read by the same plain pyserial loop: boot silence (port open -> banner), samples per second and
 lost ones, tare latency (``t`` -> ``T,ok``) and answer latency (``?`` -> ``I``).
 
-Simulated time (deterministic): the reference session of ``tests/test_firmware_differential.py`` on
+Simulated time (deterministic): the reference session of ``tests/mocks/test_scale_firmware_differential.py`` on
 the board and on the mock: lines identical or not, and how far apart each kind of line starts.
 
 The board's cost: CPU seconds per simulated second when it runs a script as fast as it can.

@@ -39,7 +39,7 @@ import serial
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from tactile_rig.drivers.jig import Jig  # noqa: E402
+from tactile_rig.drivers.grbl import Jig  # noqa: E402
 from tactile_rig.drivers.scale import Scale  # noqa: E402
 from tactile_rig.mocks.grbl import GrblMock  # noqa: E402
 

@@ -35,6 +35,8 @@ MOVED: dict[str, str] = {
     "tactile_rig.rig.stirring": "tactile_rig.sim.world.stirring",
     "tactile_rig.rig.stick_press": "tactile_rig.sim.world.stick_press",
     "tactile_rig.mocks.grbl_motion": "tactile_rig.mocks.grbl.planner",
+    "tactile_rig.drivers.jig": "tactile_rig.drivers.grbl",
+    "tactile_rig.drivers.jig_limits": "tactile_rig.drivers.grbl.limits",
 }
 
 

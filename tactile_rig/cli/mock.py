@@ -10,8 +10,8 @@ import sys
 import threading
 from typing import Any
 
-from tactile_rig.cli.args import SEED, any_int
-from tactile_rig.cli.common import print_json
+from tactile_rig.cli.args import BAUD, SEED, int_in
+from tactile_rig.cli.common import EXIT_FAULT, add_command_group, print_json
 from tactile_rig.core.clock import RealClock
 from tactile_rig.devices.camera_models import CAMERA_MODELS
 from tactile_rig.mocks.v4l2 import CameraFaults, V4L2Camera
@@ -23,8 +23,7 @@ from tactile_rig.sim.scenes import load_scene
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("mock", help="serve faithful device mocks on pseudo-terminals")
-    msub = p.add_subparsers(dest="mock_command", metavar="ACTION")
+    _, msub = add_command_group(sub, "mock", help="serve faithful device mocks on pseudo-terminals")
 
     ls = msub.add_parser("list", help="list the mock devices")
     ls.add_argument("--json", action="store_true", help="print JSON")
@@ -36,11 +35,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     serve.add_argument("device", help="device kind: dynamixel, scale, jig, or camera (with --v4l2)")
     serve.add_argument("--protocol", choices=["1", "2"], help="Dynamixel protocol version (default 2)")
-    serve.add_argument("--id", dest="ids", type=any_int, action="append", help="servo ID (repeat for several)")
-    serve.add_argument("--baud", type=any_int, help="the device's baud rate (default: the device's own)")
+    serve.add_argument("--id", dest="ids", type=int_in(0, 252), action="append", help="servo ID (repeat for several)")
+    serve.add_argument("--baud", type=BAUD, help="the device's baud rate (default: the device's own)")
     serve.add_argument("--scene", help="scene file or built-in scene name for the world the device sees")
     serve.add_argument("--seed", type=SEED, help="seed of the scene's noise")
-    serve.add_argument("--rate", help="scale samples per second (10 or 80)")
+    serve.add_argument("--rate", choices=["10", "80"], help="scale samples per second (the HX711 RATE pin)")
     serve.add_argument("--no-timing", action="store_true", help="answer instantly instead of at wire speed")
     serve.add_argument(
         "--firmware",
@@ -74,7 +73,6 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="answer as uvcvideo of that Linux version (default: the running kernel's)")
     cam.add_argument("--jpeg-quality", type=int, default=90, help="MJPG quality 1..100 (default 90)")
     serve.set_defaults(func=_serve)
-    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
 def _list(args: argparse.Namespace) -> int:
@@ -139,7 +137,7 @@ def _serve(args: argparse.Namespace) -> int:
         while not stop.wait(0.2):
             if server.error is not None:
                 print(f"tactile-rig: mock {args.device} failed: {server.error}", file=sys.stderr)
-                return 1
+                return EXIT_FAULT
     return 0
 
 
@@ -168,10 +166,7 @@ def firmware_config(args: argparse.Namespace) -> tuple[Any, str | None]:
     kw: dict[str, Any] = {}
     eeprom = None
     if args.rate:
-        try:
-            kw["rate_sps"] = int(args.rate)
-        except ValueError:
-            raise ValueError(f"--rate {args.rate!r}: expected 10 or 80 samples per second") from None
+        kw["rate_sps"] = int(args.rate)
     if args.seed is not None:
         kw["seed"] = args.seed
     for item in args.param:
@@ -210,7 +205,7 @@ def _serve_firmware(args: argparse.Namespace) -> int:
         while not stop.wait(0.2):
             if board.proc is None or board.proc.poll() is not None:
                 print(f"tactile-rig: the simulated scale board stopped: {board.exit_reason()}", file=sys.stderr)
-                return 3
+                return EXIT_FAULT
     return 0
 
 

@@ -30,10 +30,10 @@ class Gripper(Protocol):
     """A parallel gripper: go to an opening with an effort cap; read its state."""
 
     def gripper_go(
-        self, position: float, effort: float, *, blocking: bool = True, timeout_s: float | None = None
+        self, opening_m: float, effort_frac: float, *, blocking: bool = True, timeout_s: float | None = None
     ) -> GripperOutcome:
-        """Move to ``position`` (metres of opening, or 0-1 with ``normalized`` drivers) with
-        ``effort`` ∈ [0, 1] the fraction of the current limit."""
+        """Move the fingertips to ``opening_m`` metres apart with ``effort_frac`` ∈ [0, 1] the
+        fraction of the current limit."""
         ...
 
     def state(self) -> GripperState: ...
@@ -43,8 +43,11 @@ class Gripper(Protocol):
 class Motion(Protocol):
     """A Cartesian axis or arm: move toward a pose at a speed, read the pose, stop."""
 
-    def move_toward(self, target: Pose, speed_mps: float) -> None:
-        """Start moving toward ``target`` at ``speed_mps`` (non-blocking)."""
+    def move_toward(self, target: Pose, path_speed_mps: float) -> None:
+        """Start moving toward ``target`` (non-blocking) at ``path_speed_mps`` along the straight line
+        in (x, y, z, θ) with a degree of θ counted as a millimetre, as GRBL's feed counts a rotary
+        axis: a translation runs at ``path_speed_mps`` m/s, a pure rotation at ``1000 ×
+        path_speed_mps`` deg/s."""
         ...
 
     def pose(self) -> Pose: ...
@@ -67,4 +70,6 @@ class TactileSensor(Protocol):
 class ForceGauge(Protocol):
     """A load reading in newtons (the scale under the assembly fixture)."""
 
-    def read_n(self, timeout_s: float | None = None) -> float: ...
+    def read_force_n(self, timeout_s: float | None = None) -> float:
+        """The load now, in newtons."""
+        ...

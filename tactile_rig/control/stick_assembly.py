@@ -152,7 +152,7 @@ class StickAssembly:
         self.motion.move_toward(Pose(q.x_mm, q.y_mm, q.z_mm - self.p.press_limit_mm, q.theta_deg),
                                 self.p.press_speed_mps)
         while True:
-            load = self.scale.read_n(self.p.scale_timeout_s)
+            load = self.scale.read_force_n(self.p.scale_timeout_s)
             z = self.motion.pose().z_mm
             self.trace.append(self.clock.now_s(), phase=4.0, load_n=load, z_mm=z)
             if load >= self.p.target_load_n:

@@ -11,7 +11,7 @@ from tactile_rig.core.errors import GrblAlarm, GrblError
 
 BAUD = 115200
 VERSION = "1.1h"
-BUILD_DATE = "20190825"
+BUILD_DATE = "20190830"  # grbl/grbl.h GRBL_VERSION_BUILD in gnea/grbl's 1.1h source ($I prints it)
 BANNER_PREFIX = "Grbl "
 BANNER = f"Grbl {VERSION} ['$' for help]"
 RX_BUFFER_SIZE = 128  # serial receive buffer (usable bytes, character-counting budget)

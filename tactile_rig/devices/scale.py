@@ -29,6 +29,7 @@ RAW_MAX = (1 << 23) - 1
 RATES_SPS = (10, 80)  # the HX711's RATE pin: low 10, high 80 samples per second
 SMOOTHING_SAMPLES = 16  # HX711_ADC config.h SAMPLES (plus one high and one low value ignored)
 DEFAULT_CAL_FACTOR = 696.0  # counts per gram in the HX711_ADC examples
+#: standard gravity (CGPM 1901), the one constant that turns a mass on the scale into a force
 STANDARD_GRAVITY_MPS2 = 9.80665
 
 TAG_BANNER = "B"

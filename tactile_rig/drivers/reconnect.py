@@ -2,21 +2,11 @@
 
 A driver whose port fails (USB unplugged: EIO) calls :meth:`Reconnect.lost`; from then on every
 call asks :meth:`Reconnect.due` and, when it is not yet time, fails fast with ``NotConnected``
-(:meth:`Reconnect.not_connected` builds the message). When it is time the driver tries to reopen
-and reports :meth:`Reconnect.failed` or :meth:`Reconnect.succeeded`. The waits grow from
-``initial_s`` by ``factor`` up to ``max_s``; with a VirtualClock they pass in virtual time.
-
-Typical use in a driver::
-
-    if self.reconnect.away:
-        if not self.reconnect.due():
-            raise self.reconnect.not_connected(self.device, self.port_name)
-        try:
-            self._reopen()
-        except NotConnected:
-            self.reconnect.failed()
-            raise
-        self.reconnect.succeeded()
+(:meth:`Reconnect.not_connected` builds the message: the port, how long it has been gone, why, and
+when the next attempt is). When it is time the driver tries to reopen and reports
+:meth:`Reconnect.failed` or :meth:`Reconnect.succeeded`. The waits grow from ``initial_s`` by
+``factor`` up to ``max_s``; with a VirtualClock they pass in virtual time. The choreography that
+uses it is written once, in :class:`tactile_rig.drivers.base.PortDriver`.
 """
 
 from __future__ import annotations

@@ -13,6 +13,7 @@ import errno
 import logging
 import os
 import threading
+from pathlib import Path
 from typing import Any
 
 import serial
@@ -35,6 +36,19 @@ def bus_lock(port: str) -> threading.RLock:
 def is_device_path(port: str) -> bool:
     """True for a device path (``/dev/ttyUSB0``, a pty), False for a pyserial URL (``rigsim://...``)."""
     return "://" not in port
+
+
+def stable_port_path(port: str, by_id_dir: str | os.PathLike[str] = "/dev/serial/by-id") -> str:
+    """The ``/dev/serial/by-id`` link of ``port`` if there is one (survives re-enumeration), else ``port``."""
+    if "://" in port or not os.path.exists(port):
+        return port
+    real = os.path.realpath(port)
+    folder = Path(by_id_dir)
+    if folder.is_dir():
+        for link in sorted(folder.iterdir()):
+            if os.path.realpath(link) == real:
+                return str(link)
+    return port
 
 
 def open_serial(port: str, *, baudrate: int, device: str, timeout_s: float | None = 0.0,

@@ -1,7 +1,7 @@
 """The Arduino HX711 scale, emulated: ``firmware/arduino_scale`` (or the stock HX711_ADC example).
 
 This is the compiled sketch's behaviour retold in Python, held against the real thing: the
-differential test (``tests/test_firmware_differential.py``) plays the same sessions against this
+differential test (``tests/mocks/test_scale_firmware_differential.py``) plays the same sessions against this
 mock and against the sketch compiled for the ATmega328P running on the simulated board
 (``firmware/sim``), and requires the same lines, byte for byte. What the host sees, and why:
 

@@ -80,7 +80,7 @@ def _scale(dev: Any, cfg: Any, row: CheckRow) -> None:
     reading = dev.read(timeout_s=2.0)
     row.identity = f"{info.firmware} {info.version}, {info.rate_sps} samples/s"
     row.details = {"firmware": info.firmware, "version": info.version, "rate_sps": info.rate_sps,
-                   "cal_factor": info.cal_factor, "force_n": round(float(reading.newtons), 4)}
+                   "cal_factor": info.cal_factor_counts_per_g, "force_n": round(float(reading.newtons), 4)}
     if info.rate_sps is not None and float(info.rate_sps) != float(cfg.rate_hz):
         row.problem = f"the sketch samples at {info.rate_sps}/s but the bench says rate_hz = {cfg.rate_hz}"
         return

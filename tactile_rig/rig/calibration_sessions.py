@@ -46,6 +46,7 @@ from tactile_rig.core.errors import CalibrationError, DeviceTimeout, check_range
 from tactile_rig.core.files import load_json
 from tactile_rig.core.geometry import Pose
 from tactile_rig.core.jsonable import to_jsonable
+from tactile_rig.devices.scale import STANDARD_GRAVITY_MPS2
 from tactile_rig.perception.fingervision import (
     FingerVision,
     FingerVisionParams,
@@ -108,7 +109,7 @@ class SessionRecording:
     def scale(self, reading: Any, **extra: Any) -> None:
         if self.rec is not None:
             grams = float(reading.grams)
-            self.rec.write_scale(grams / 1000.0 * 9.80665, grams=grams, seq=reading.seq, **extra)
+            self.rec.write_scale(grams / 1000.0 * STANDARD_GRAVITY_MPS2, grams=grams, seq=reading.seq, **extra)
 
     def frame(self, camera: str, image: np.ndarray, **extra: Any) -> None:
         if self.rec is not None:

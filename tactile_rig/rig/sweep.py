@@ -459,7 +459,8 @@ def run_sweep(target: str, points: list[dict[str, Any]], out_dir: str | Path, *,
 
     Parameter names are checked against the target first (one ``ValueError`` for all of them,
     before anything runs). ``progress`` is a :class:`~tactile_rig.rig.progress.Progress` (or
-    anything with ``update``), told once per episode. Duplicate points run once.
+    anything with ``update``), told once per episode as it ends. Duplicate points run once. The
+    summary lists the episodes in the order of ``points`` (episodes in order), however they finished.
     """
     if not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes={episodes!r} must be an integer >= 1")
@@ -471,12 +472,12 @@ def run_sweep(target: str, points: list[dict[str, Any]], out_dir: str | Path, *,
     out.mkdir(parents=True, exist_ok=True)
     summary = SweepSummary(out, target=target, episodes=episodes)
     todo: dict[str, tuple[dict[str, Any], int]] = {}
-    seen: set[str] = set()
+    order: dict[str, int] = {}  # point key -> its place in ``points``
     for params in points:
         pkey = point_key(target, params)
-        if pkey in seen:
+        if pkey in order:
             continue
-        seen.add(pkey)
+        order[pkey] = len(order)
         for ep in range(episodes):
             key = episode_key(target, params, ep)
             done = out / key / RESULT_FILE
@@ -514,6 +515,8 @@ def run_sweep(target: str, points: list[dict[str, Any]], out_dir: str | Path, *,
     finally:
         if own:
             ex.shutdown(wait=True)
+    # as_completed yields in finishing order, which differs from run to run on a pool
+    summary.points.sort(key=lambda p: (order[p.point], p.episode))
     return summary
 
 

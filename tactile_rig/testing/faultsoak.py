@@ -15,7 +15,7 @@ real time, :class:`~tactile_rig.mocks.relay.PtyRelay` in between). Each operatio
 * a **hang**: an operation that took longer than ``hang_s`` (on the port's clock).
 
 :func:`soak_row` runs one cell of the table, :func:`soak` the whole table; ``benchmarks/bench_faults.py``
-prints it and saves it; ``tests/test_fault_soak.py`` runs a short deterministic subset.
+prints it and saves it; ``tests/testing/test_fault_soak.py`` runs a short deterministic subset.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from tactile_rig.core.clock import Clock, RealClock, VirtualClock
 from tactile_rig.core.errors import DeviceFault, RigError
 from tactile_rig.devices import scale as sp
 from tactile_rig.drivers.dynamixel.bus import DynamixelBus
-from tactile_rig.drivers.jig import Jig
+from tactile_rig.drivers.grbl import Jig
 from tactile_rig.drivers.scale import Scale
 from tactile_rig.mocks.dynamixel import make_bus
 from tactile_rig.mocks.faults import KINDS, FaultInjector

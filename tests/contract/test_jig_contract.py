@@ -10,7 +10,7 @@ import pytest
 
 from tactile_rig.core.errors import GrblError, LimitError, NotConnected
 from tactile_rig.drivers.base import Lifecycle
-from tactile_rig.drivers.jig import Jig
+from tactile_rig.drivers.grbl import Jig
 
 pytestmark = pytest.mark.pty
 

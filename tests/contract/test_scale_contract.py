@@ -26,7 +26,7 @@ def test_identity_is_the_projects_sketch(scale_endpoint) -> None:
         assert scale.format == "tactile"
         info = scale.info or scale.identify(timeout_s=1.0)
         assert info.firmware == sp.FIRMWARE_NAME and info.rate_sps in sp.RATES_SPS
-        assert info.cal_factor > 0
+        assert info.cal_factor_counts_per_g > 0
 
 
 def test_readings_are_numbered_finite_and_arrive_at_the_rate(scale_endpoint) -> None:
@@ -42,7 +42,7 @@ def test_tare_zeroes_what_is_on_the_scale(scale_endpoint) -> None:
     with _scale(scale_endpoint) as scale:
         scale.tare()
         after = scale.read_many(8, timeout_s=2.0)
-        spread_g = 5.0 / (scale.info.cal_factor / sp.DEFAULT_CAL_FACTOR) if scale.info else 5.0
+        spread_g = 5.0 / (scale.info.cal_factor_counts_per_g / sp.DEFAULT_CAL_FACTOR) if scale.info else 5.0
         assert abs(sum(r.grams for r in after) / len(after)) < spread_g
 
 

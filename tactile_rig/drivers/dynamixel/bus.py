@@ -1,19 +1,9 @@
 """The Dynamixel bus: dynamixel-sdk sends, :mod:`.wire` checks every status packet, typed errors.
 
-:class:`UrlPortHandler` is the SDK's ``PortHandler`` opening its port with pyserial's
-``serial_for_url`` so ``rigsim://`` and ``rigfault://`` URLs work as well as device paths (a device
-path is opened exclusively). :class:`DynamixelBus` holds the bus lock for every transaction (the
-SDK's ``is_using`` flag is not a lock) and, per transaction:
-
-1. flushes stale input (counted in :attr:`DynamixelBus.stats`);
-2. if an earlier request to the same ID failed (its status may still be in flight), first runs a
-   *resync* read whose parameter length no in-flight status can have: once its answer arrives,
-   every older status of that servo has arrived too (a servo answers in order) and was discarded;
-3. sends the instruction through the SDK's ``PacketHandler.txPacket``;
-4. receives with :class:`~tactile_rig.drivers.dynamixel.wire.StatusScanner` until the packet
-   timeout (wire time + return delay + twice the adapter's latency timer): only a status from the
-   request's ID with the parameter length the request implies is the answer; any other
-   well-formed status is stale (discarded, counted), never returned.
+:class:`DynamixelBus` speaks the instructions (ping, read and write items or raw bytes, reboot,
+factory reset, Sync/Bulk Read and their Fast variants, Sync Write) through one validated exchange
+at a time (:class:`~tactile_rig.drivers.dynamixel.link.BusLink`: the bus lock, stale input
+flushed, late statuses resynchronised, the port's loss and return).
 
 Reads and pings are retried (``retries``, default 2) on ``DeviceTimeout`` / ``LinkCorrupt``; a
 write whose status was lost is never blindly repeated: the bus reads the register back, and
@@ -32,383 +22,52 @@ writes again only if the value is not there. Errors:
 
 from __future__ import annotations
 
-import errno
 import logging
-import os
-from dataclasses import asdict, dataclass
-from pathlib import Path
-from typing import Callable, Iterable, TypeVar
+from typing import Iterable
 
-import dynamixel_sdk as sdk
-import serial
-
-import tactile_rig.drivers.transport as transport
-from tactile_rig.core.clock import Clock, Deadline
+import tactile_rig.drivers.dynamixel.wire as wire
+from tactile_rig.core.deprecation import renamed_kwargs
 from tactile_rig.core.errors import (
     CommandRejected,
     DeviceFault,
     DeviceTimeout,
     LimitError,
     LinkCorrupt,
-    NotConnected,
-    PortInUse,
-    RigError,
 )
-from tactile_rig.devices.dynamixel import control_table as ct
 from tactile_rig.devices.dynamixel import error_codes as de
-from tactile_rig.drivers.base import Driver
-import tactile_rig.drivers.dynamixel.wire as wire
+from tactile_rig.devices.dynamixel import packets as pk
+from tactile_rig.drivers.dynamixel.link import LATE_HORIZON_S, BusLink, BusStats
+from tactile_rig.drivers.dynamixel.port import DEFAULT_LATENCY_TIMER_MS, UrlPortHandler, check_latency_timer
 from tactile_rig.drivers.reconnect import Reconnect
+
+__all__ = [
+    "BusStats", "CommandRejected", "DEFAULT_LATENCY_TIMER_MS", "DynamixelBus", "LATE_HORIZON_S", "UrlPortHandler",
+    "check_latency_timer",
+]
 
 log = logging.getLogger("tactile_rig.dynamixel")
 
-T = TypeVar("T")
 
-#: the SDK's own assumption for the FTDI latency timer (ms); a U2D2 ships with 16
-DEFAULT_LATENCY_TIMER_MS = 16.0
-_MAX_RETURN_DELAY_S = 254 * 2e-6  # Return Delay Time at its maximum (2 µs/unit)
-_TIMEOUT_MARGIN_S = 0.002  # the SDK's 2 ms
-_RESYNC_ADDRESS = 0  # Model Number: readable on both protocols, EEPROM, no side effects
-#: a status later than this after its request failed is not guarded against by a resync
-LATE_HORIZON_S = 1.0
-#: resync reads use lengths 1..this (from address 0; gaps in the table read as zeros)
-_RESYNC_MAX_LENGTH = 64
-
-
-def check_latency_timer(port: str, *, sysfs_root: str | Path = "/sys") -> int | None:
-    """The FTDI latency timer (ms) of ``port`` if it is a USB serial adapter, else None.
-
-    Logs a warning when it is not 1 ms: at the default 16 ms a status packet can take 16-32 ms,
-    the most common cause of slow or missing status packets with a U2D2.
-    """
-    if "://" in port:
-        return None
-    name = os.path.basename(os.path.realpath(port))
-    path = Path(sysfs_root) / "bus" / "usb-serial" / "devices" / name / "latency_timer"
-    try:
-        ms = int(path.read_text().strip())
-    except (OSError, ValueError):
-        return None
-    if ms != 1:
-        log.warning(
-            "%s: FTDI latency timer is %d ms (expected 1 ms); status packets will be slow or time out. "
-            "Fix: echo 1 | sudo tee %s", port, ms, path)
-    return ms
-
-
-class UrlPortHandler(sdk.PortHandler):
-    """The SDK's PortHandler, opening paths and pyserial URLs (``rigsim://``, ``rigfault://``).
-
-    A device path is opened exclusively (``exclusive=None``: paths yes, URLs no), so a second
-    process opening the same gripper port gets :class:`PortInUse` instead of silently stealing
-    the bytes. ``lock`` is the bus lock of the port (shared with every tactile-rig driver on it):
-    hold it around each SDK transaction when using the SDK directly from several threads.
-    """
-
-    is_open: bool
-    is_using: bool
-
-    def __init__(self, port_name: str, *, exclusive: bool | None = None) -> None:
-        super().__init__(port_name)
-        self.lock = transport.bus_lock(port_name)
-        self.exclusive = ("://" not in port_name) if exclusive is None else bool(exclusive)
-
-    def setupPort(self, cflag_baud: int) -> bool:  # noqa: N802 - the SDK's name
-        if self.is_open:
-            self.closePort()
-        device = f"dynamixel@{self.port_name}"
-        kwargs = {"exclusive": True} if self.exclusive else {}
-        try:
-            self.ser = transport.open_serial(self.port_name, baudrate=self.baudrate, device=device, timeout_s=0,
-                                             **kwargs)
-        except NotConnected as exc:
-            cause = exc.__cause__
-            if self.exclusive and cause is not None and "exclusively lock" in str(cause):
-                raise PortInUse(f"port {self.port_name!r} is already in use by another process or handle "
-                                "(it is opened exclusively); close the other user or share one DynamixelBus",
-                                device=device, port=self.port_name) from cause
-            raise
-        self.is_open = True
-        self.ser.reset_input_buffer()
-        self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
-        return True
-
-    def closePort(self) -> None:  # noqa: N802 - the SDK's name
-        """Close; a port that already vanished closes quietly."""
-        try:
-            if self.ser is not None:
-                self.ser.close()
-        except (serial.SerialException, OSError):
-            pass
-        self.is_open = False
-        self.is_using = False
-
-
-@dataclass
-class BusStats:
-    """What the bus saw on the wire since it opened (counters)."""
-
-    transactions: int = 0
-    stale_bytes: int = 0  #: flushed before a transaction
-    stale_packets: int = 0  #: well-formed status packets that were not the answer (discarded)
-    corrupt_packets: int = 0  #: CRC/checksum failures
-    foreign_packets: int = 0  #: well-formed non-status packets (echoes)
-    skipped_bytes: int = 0  #: bytes that could not start a packet
-    timeouts: int = 0
-    retries: int = 0
-    resyncs: int = 0
-    writes_confirmed_by_readback: int = 0  #: writes whose status was lost but whose value read back
-    writes_repeated_after_readback: int = 0  #: writes read back as not applied, then sent again
-    verify_mismatches: int = 0  #: read-verify pairs that disagreed
-    implausible_values: int = 0  #: reads of a writable item outside its range (damaged, read again)
-    disconnects: int = 0
-    reconnects: int = 0
-
-    def to_dict(self) -> dict[str, int]:
-        return asdict(self)
-
-
-class DynamixelBus(Driver):
+class DynamixelBus(BusLink):
     """One Dynamixel bus: a port at a baud rate speaking one protocol.
 
-    ``port`` is a device path or a URL. Every method takes the bus lock, so drivers for several
+    ``port`` is a device path or URL. Every method takes the bus lock, so drivers for several
     servos on one port may run in several threads.
 
     ``latency_timer_ms`` is the USB adapter's latency timer (FTDI default 16 ms; 1 ms after
     ``echo 1 > /sys/bus/usb-serial/devices/ttyUSBn/latency_timer``): the packet timeout allows
     twice it, and the value read from sysfs is used when it is larger. ``retries`` bounds the
-    retries of idempotent reads. ``reconnect`` is the backoff policy after an unplug.
+    retries of idempotent reads. ``reconnect_policy`` is the backoff policy after an unplug.
     """
 
+    @renamed_kwargs(reconnect="reconnect_policy")
     def __init__(self, port: str, *, baudrate: int = 1_000_000, protocol: int = 2,
                  latency_timer_ms: float = DEFAULT_LATENCY_TIMER_MS, retries: int = 2,
-                 reconnect: Reconnect | None = None, exclusive: bool | None = None) -> None:
-        if protocol not in (1, 2):
-            raise ValueError(f"protocol={protocol!r} must be 1 or 2")
-        if not latency_timer_ms >= 0:
-            raise ValueError(f"latency_timer_ms={latency_timer_ms!r} must be >= 0 (FTDI: 1-255 ms)")
-        if not 0 <= int(retries) <= 10:
-            raise ValueError(f"retries={retries!r} must be in [0, 10]")
-        self.port_name = port
-        super().__init__(f"dynamixel@{port}")
-        self.protocol = protocol
-        self.baudrate = baudrate
-        self.table = ct.TABLES[protocol]
-        self.retries = int(retries)
-        measured = check_latency_timer(port)
-        #: the latency timer the packet timeout allows for (ms)
-        self.latency_timer_ms = max(float(latency_timer_ms), float(measured or 0))
-        self.stats = BusStats()
-        #: ID → {status parameter count: when its request failed} for statuses that may still come
-        self._in_flight: dict[int, dict[int, float]] = {}
-        self.port = UrlPortHandler(port, exclusive=exclusive)
-        self.lock = self.port.lock
-        self.packet = sdk.PacketHandler(float(protocol))
-        with self.lock:
-            if not self.port.setBaudRate(baudrate):
-                raise ValueError(f"baudrate={baudrate} is not one the Dynamixel SDK supports "
-                                 "(9600 ... 4000000, e.g. 57600 or 1000000)")
-        self.clock: Clock = transport.port_clock(self.port.ser)
-        self.reconnect = reconnect if reconnect is not None else Reconnect(self.clock)
+                 reconnect_policy: Reconnect | None = None, exclusive: bool | None = None) -> None:
+        super().__init__(port, baudrate=baudrate, protocol=protocol, latency_timer_ms=latency_timer_ms,
+                         retries=retries, reconnect_policy=reconnect_policy, exclusive=exclusive)
         #: last hardware error bits seen per ID (P2 Hardware Error Status layout)
         self.hardware_errors: dict[int, int] = {}
-
-    def name(self, dxl_id: int) -> str:
-        return f"dynamixel[{dxl_id}]@{self.port_name}"
-
-    def packet_timeout_s(self, tx_bytes: int, rx_bytes: int) -> float:
-        """How long to wait for a status: both packets' wire time, the longest Return Delay Time,
-        twice the latency timer (the adapter may hold the first and the last bytes) and 2 ms."""
-        wire_s = (tx_bytes + rx_bytes) * 10.0 / self.baudrate
-        return wire_s + _MAX_RETURN_DELAY_S + 2.0 * self.latency_timer_ms / 1000.0 + _TIMEOUT_MARGIN_S
-
-    # -- the port, its loss and its return ---------------------------------------------------------
-    def _live_port(self) -> UrlPortHandler:
-        """The open port; ``NotConnected`` once closed or while the device is away (reopening it
-        when the reconnect policy says it is time)."""
-        self.require_open()
-        if self.reconnect.away:
-            if not self.reconnect.due():
-                raise self.reconnect.not_connected(self.device, self.port_name)
-            try:
-                self.port.setupPort(self.baudrate)
-            except NotConnected as exc:
-                self.port.is_open = False
-                self.reconnect.failed(str(exc))
-                raise self.reconnect.not_connected(self.device, self.port_name) from exc
-            self.reconnect.succeeded()
-            self.stats.reconnects += 1
-            self.clock = transport.port_clock(self.port.ser)
-            self.reconnect.clock = self.clock
-            self._in_flight.clear()
-            log.info("%s: port is back, reopened", self.device)
-        elif not self.port.is_open:
-            raise NotConnected(f"port {self.port_name!r} is not open", device=self.device)
-        return self.port
-
-    def _lost(self, exc: BaseException, what: str) -> NotConnected:
-        """The port failed under us: close it, free the SDK's ``is_using``, start reconnecting."""
-        why = "unplugged (EIO)" if getattr(exc, "errno", None) == errno.EIO else (str(exc) or type(exc).__name__)
-        self.port.closePort()
-        self._in_flight.clear()
-        self.stats.disconnects += 1
-        self.reconnect.lost(why)
-        log.warning("%s: %s: port failed: %s", self.device, what, why)
-        return NotConnected(f"{what}: port {self.port_name!r} failed: {why}; the bus reconnects when it returns",
-                            device=self.device)
-
-    def _close(self) -> None:
-        with self.lock:
-            self.port.closePort()
-
-    def _guarded(self, what: str, fn: Callable[[], T]) -> T:
-        """Run ``fn`` (a wire exchange, bus lock held); a vanished port becomes ``NotConnected``."""
-        try:
-            return fn()
-        except RigError:
-            raise
-        except (serial.SerialException, OSError) as exc:
-            raise self._lost(exc, what) from exc
-        finally:
-            self.port.is_using = False
-
-    # -- one transaction ---------------------------------------------------------------------------
-    def _flush(self, port: UrlPortHandler) -> None:
-        ser = port.ser
-        n = ser.in_waiting
-        if n:
-            stale = ser.read(n)
-            self.stats.stale_bytes += len(stale)
-            log.debug("%s: flushed %d stale byte(s): %s", self.device, len(stale), stale.hex(" "))
-        ser.reset_input_buffer()
-
-    def _send(self, port: UrlPortHandler, req: wire.Request, what: str) -> int:
-        """Send ``req`` through the SDK (its framing, stuffing and CRC); return the bytes sent."""
-        n = len(req.params)
-        if self.protocol == 2 and b"\xff\xff\xfd" in bytes([req.instruction]) + req.params:
-            # SDK 4.1.0's addStuffing rebinds its argument and so sends such a packet unstuffed
-            raw = wire.encode_instruction_p2(req.dxl_id, req.instruction, req.params)
-            port.clearPort()
-            if port.writePort(raw) != len(raw):
-                raise NotConnected(f"{what}: the port took only part of the packet", device=self.name(req.dxl_id))
-            return len(raw)
-        if self.protocol == 2:
-            tx = [0] * (10 + n)
-            tx[4], tx[5], tx[6], tx[7] = req.dxl_id, (n + 3) & 0xFF, (n + 3) >> 8, req.instruction
-            tx[8:8 + n] = req.params
-        else:
-            tx = [0] * (6 + n)
-            tx[2], tx[3], tx[4] = req.dxl_id, n + 2, req.instruction
-            tx[5:5 + n] = req.params
-        port.is_using = False
-        result = self.packet.txPacket(port, tx)
-        port.is_using = False
-        if result != sdk.COMM_SUCCESS:
-            raise NotConnected(f"{what}: {self.packet.getTxRxResult(result)}", device=self.name(req.dxl_id))
-        return len(tx)
-
-    def _receive(self, port: UrlPortHandler, req: wire.Request, tx_bytes: int, what: str, *,
-                 exact: bool = False) -> wire.StatusPacket:
-        """The status answering ``req``; stale packets are discarded. ``exact``: no parameterless
-        rejection accepted (the resync read)."""
-        n = req.expected_params or 0
-        # a status longer than ours or any still in flight is corruption, not worth waiting for
-        longest = max([n, 3] + [k for lengths in self._in_flight.values() for k in lengths])
-        scanner = wire.StatusScanner(self.protocol, max_params=longest)
-        timeout_s = self.packet_timeout_s(tx_bytes, n + (11 if self.protocol == 2 else 6))
-        deadline = Deadline(self.clock, timeout_s)
-        corrupt = 0
-        ser = port.ser
-        dev = self.name(req.dxl_id)
-        try:
-            while True:
-                ser.timeout = deadline.remaining_s() or 0.0
-                chunk = ser.read(scanner.bytes_wanted())
-                for ev in scanner.feed(chunk):
-                    if isinstance(ev, wire.StatusPacket):
-                        why = wire.mismatch(req, ev)
-                        if why is None and exact and len(ev.params) != n:
-                            why = f"{len(ev.params)} parameter byte(s), expected exactly {n}"
-                        if why is None:
-                            self._in_flight.pop(req.dxl_id, None)
-                            return ev
-                        self.stats.stale_packets += 1
-                        log.debug("%s: %s: discarded a stale status (%s): %s", dev, what, why, ev.raw.hex(" "))
-                    elif isinstance(ev, wire.Corrupt):
-                        corrupt += 1
-                        self.stats.corrupt_packets += 1
-                    else:
-                        self.stats.foreign_packets += 1
-                if deadline.expired():
-                    break
-        finally:
-            ser.timeout = 0
-            self.stats.skipped_bytes += scanner.skipped
-        # Our status may still come, late: the next request to this ID resyncs first (a fast
-        # read's caller marks its servos instead: a broadcast ID cannot be resynced).
-        if req.dxl_id != wire.BROADCAST_ID:
-            self._expect_late(req.dxl_id, n)
-        if corrupt or scanner.pending:
-            partial = f" ({len(scanner.pending)} byte(s) of a cut-off packet)" if scanner.pending else ""
-            raise LinkCorrupt(f"{what}: corrupt or cut-off status packet{partial}; "
-                              f"{corrupt} CRC/checksum failure(s)", device=dev)
-        self.stats.timeouts += 1
-        raise DeviceTimeout(
-            f"{what}: no status packet within {timeout_s * 1000:.3g} ms (check the ID, the baud "
-            f"rate {self.baudrate}, the power and, for a U2D2, the latency timer: {self.latency_timer_ms:g} ms "
-            "allowed)", device=dev)
-
-    def _expect_late(self, dxl_id: int, n_params: int) -> None:
-        """A request to ``dxl_id`` failed: its status (or a parameterless rejection) may still come."""
-        now = self.clock.now_s()
-        self._in_flight.setdefault(dxl_id, {}).update({n_params: now, 0: now})
-
-    def _resync(self, port: UrlPortHandler, dxl_id: int, what: str) -> None:
-        """Read a length no in-flight status of ``dxl_id`` has; when it arrives the line is clean."""
-        busy = self._in_flight.get(dxl_id, {})
-        now = self.clock.now_s()
-        for k in [k for k, t in busy.items() if now - t > LATE_HORIZON_S]:
-            del busy[k]  # a status this late is not waited for any more
-        length = next((k for k in range(1, min(self.table.size, _RESYNC_MAX_LENGTH) + 1) if k not in busy), None)
-        if length is None:
-            # Every length is in flight (a dead line, many fast timeouts): the oldest of those
-            # statuses is the least likely to come at all; reuse its length.
-            length = min((k for k in busy if k), key=lambda k: busy[k])
-            del busy[length]
-        req = wire.Request(self.protocol, dxl_id, wire.READ, self._read_params(_RESYNC_ADDRESS, length))
-        self.stats.resyncs += 1
-        self._flush(port)
-        sent = self._send(port, req, what)
-        self._receive(port, req, sent, f"{what} (resync)", exact=True)
-        self._in_flight.pop(dxl_id, None)
-
-    def _txrx(self, req: wire.Request, what: str) -> wire.StatusPacket:
-        """One validated exchange (bus lock held; no retry)."""
-        def run() -> wire.StatusPacket:
-            port = self._live_port()
-            self._begin(port, [req.dxl_id], what)
-            sent = self._send(port, req, what)
-            return self._receive(port, req, sent, what)
-        return self._guarded(what, run)
-
-    def _retrying(self, fn: Callable[[], T]) -> T:
-        """Call an idempotent ``fn`` up to 1 + ``retries`` times on DeviceTimeout / LinkCorrupt."""
-        first: DeviceTimeout | LinkCorrupt | None = None
-        for attempt in range(self.retries + 1):
-            try:
-                return fn()
-            except (DeviceTimeout, LinkCorrupt) as exc:
-                first = first or exc
-                if attempt == self.retries:
-                    # the first failure says what went wrong; the retries only confirm it
-                    raise first from (exc if exc is not first else None)
-                self.stats.retries += 1
-        raise AssertionError("unreachable")
-
-    def _read_params(self, address: int, length: int) -> bytes:
-        if self.protocol == 2:
-            return bytes([address & 0xFF, address >> 8, length & 0xFF, length >> 8])
-        return bytes([address, length])
 
     # -- result handling -------------------------------------------------------------------------
     def _check_status(self, dxl_id: int, error: int, what: str, *, fault_ok: bool) -> None:
@@ -622,15 +281,6 @@ class DynamixelBus(Driver):
             out[i] = pkt.params
         return out
 
-    def _begin(self, port: UrlPortHandler, ids: list[int], what: str) -> None:
-        """Start a transaction: first settle any ID whose last answer never came (so a late status
-        cannot answer this request), then drop stale input."""
-        self.stats.transactions += 1
-        for i in ids:
-            if i in self._in_flight:
-                self._resync(port, i, what)
-        self._flush(port)
-
     def _group_read(self, instruction: int, params: bytes, reqs: list[tuple[int, int, int]], what: str
                     ) -> dict[int, bytes]:
         def run() -> dict[int, bytes]:
@@ -655,7 +305,7 @@ class DynamixelBus(Driver):
         if fast:
             raw = self._fast_read(wire.FAST_SYNC_READ, params, reqs, f"fast sync read {name}")
         else:
-            raw = self._group_read(0x82, params, reqs, f"sync read {name}")
+            raw = self._group_read(pk.SYNC_READ, params, reqs, f"sync read {name}")
         return {i: it.from_raw(int.from_bytes(raw[i], "little")) for i in ids}
 
     def bulk_read(self, requests: Iterable[tuple[int, str]], *, fast: bool = False) -> dict[int, int]:
@@ -673,7 +323,7 @@ class DynamixelBus(Driver):
         if fast and self.protocol == 2:
             raw = self._fast_read(wire.FAST_BULK_READ, params, group, "fast bulk read")
         else:
-            raw = self._group_read(0x92, params, group, "bulk read")
+            raw = self._group_read(pk.BULK_READ, params, group, "bulk read")
         return {i: it.from_raw(int.from_bytes(raw[i], "little")) for i, it in reqs}
 
     def _fast_read(self, instruction: int, params: bytes, reqs: list[tuple[int, int, int]], what: str
@@ -724,7 +374,7 @@ class DynamixelBus(Driver):
             port = self._live_port()
             self.stats.transactions += 1
             self._flush(port)
-            self._send(port, wire.Request(self.protocol, wire.BROADCAST_ID, 0x83, params), what)
+            self._send(port, wire.Request(self.protocol, wire.BROADCAST_ID, pk.SYNC_WRITE, params), what)
 
         with self.lock:
             self._guarded(what, run)

@@ -1,6 +1,7 @@
-"""A parallel gripper on one MX-64: ``gripper_go(position, effort)``, ``state()``, calibration.
+"""A parallel gripper on one MX-64: ``gripper_go(opening_m, effort_frac)``, ``state()``, calibration.
 
-Position is the opening between the fingertips in metres (or 0-1 with ``normalized=True``), mapped
+The opening between the fingertips is in metres (:meth:`DynamixelGripper.gripper_go`) or a fraction
+of the calibrated range, 0 closed to 1 open (:meth:`DynamixelGripper.gripper_go_frac`), mapped
 linearly onto servo ticks between the calibrated closed and open positions. Effort is the fraction
 of the servo's current limit: on Protocol 2.0 the Goal Current of current-based position mode (5),
 on Protocol 1.0 the Torque Limit. A blocking move ends as reached, stalled on an object (no
@@ -17,9 +18,10 @@ from __future__ import annotations
 import logging
 from collections import deque
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, Callable
 
 from tactile_rig.core.clock import Deadline
+from tactile_rig.core.deprecation import renamed_kwargs, warn_renamed
 from tactile_rig.core.errors import (
     CalibrationError,
     DeviceFault,
@@ -30,7 +32,8 @@ from tactile_rig.core.errors import (
 from tactile_rig.core.types import GripperOutcome, GripperState
 from tactile_rig.devices.dynamixel import control_table as ct
 from tactile_rig.drivers.base import Driver, Lifecycle
-from tactile_rig.drivers.dynamixel.bus import DEFAULT_LATENCY_TIMER_MS, DynamixelBus
+from tactile_rig.drivers.dynamixel.bus import DynamixelBus
+from tactile_rig.drivers.dynamixel.port import DEFAULT_LATENCY_TIMER_MS
 
 log = logging.getLogger("tactile_rig.dynamixel.gripper")
 
@@ -82,7 +85,8 @@ class DynamixelGripper(Driver):
     """A gripper on one MX-64 (Protocol 2.0 model 311 or Protocol 1.0 model 310).
 
     ``port`` is a device path or URL, or an open :class:`DynamixelBus` shared with other servos.
-    Connecting pings the servo and checks its model; it never enables torque.
+    Connecting pings the servo and checks its model; it never enables torque. ``normalized=True``
+    (deprecated: use :meth:`gripper_go_frac`) makes :meth:`gripper_go` read its opening as 0-1.
     """
 
     def __init__(
@@ -114,6 +118,8 @@ class DynamixelGripper(Driver):
         super().__init__(self.bus.name(dxl_id))
         self.clock = self.bus.clock
         self.calibration = calibration or GripperCalibration()
+        if normalized:
+            warn_renamed("DynamixelGripper(normalized=True)", "gripper_go_frac(opening_frac, effort_frac)")
         self.normalized = normalized
         self.position_tolerance_m = position_tolerance_m
         self.poll_period_s = poll_period_s
@@ -180,7 +186,8 @@ class DynamixelGripper(Driver):
         comes and time out)."""
         if self.lifecycle != Lifecycle.ACTIVE:
             return None
-        if not self.bus.reconnect.away and self.bus.stats.reconnects == self._reconnects_seen:
+        policy = self.bus.reconnect_policy
+        if not (policy is not None and policy.away) and self.bus.stats.reconnects == self._reconnects_seen:
             return None
         torque = self.bus.read(self.id, "Torque Enable")  # reopens the port when it is due
         self._reconnects_seen = self.bus.stats.reconnects
@@ -216,29 +223,45 @@ class DynamixelGripper(Driver):
     def _torque_limit_units(self, effort: float) -> int:
         return round(effort * self.max_torque)
 
-    def goal_ticks(self, position: float) -> int:
-        """Servo ticks of an opening (metres, or 0-1 when ``normalized``); LimitError outside the range."""
+    def goal_ticks(self, opening_m: float) -> int:
+        """Servo ticks of an opening in metres (0-1 with the deprecated ``normalized``); LimitError
+        outside the calibrated range."""
+        if self.normalized:
+            return self.goal_ticks_frac(opening_m)
         cal = self.calibration
         # A measured opening fed back as a goal may lie a hair outside the calibrated range (an
         # object squeezed past the closed stop's calibration): within the tolerance it is clamped.
-        if self.normalized:
-            tol = self.position_tolerance_m / cal.max_opening_m
-            if not -tol <= position <= 1.0 + tol:
-                raise LimitError(f"position={position!r} is outside [0, 1] (normalized opening)", device=self.device)
-            return cal.ticks_from_frac(min(1.0, max(0.0, position)))
         tol = self.position_tolerance_m
-        if not -tol <= position <= cal.max_opening_m + tol:
-            raise LimitError(f"position={position!r} m is outside the calibrated opening [0, {cal.max_opening_m}] m",
+        if not -tol <= opening_m <= cal.max_opening_m + tol:
+            raise LimitError(f"opening_m={opening_m!r} m is outside the calibrated opening [0, {cal.max_opening_m}] m",
                              device=self.device)
-        return cal.ticks_from_frac(min(1.0, max(0.0, position / cal.max_opening_m)))
+        return cal.ticks_from_frac(min(1.0, max(0.0, opening_m / cal.max_opening_m)))
+
+    def goal_ticks_frac(self, opening_frac: float) -> int:
+        """Servo ticks of an opening as a fraction of the calibrated range (0 closed, 1 open)."""
+        cal = self.calibration
+        tol = self.position_tolerance_m / cal.max_opening_m
+        if not -tol <= opening_frac <= 1.0 + tol:
+            raise LimitError(f"opening_frac={opening_frac!r} is outside [0, 1] (0 closed, 1 open)", device=self.device)
+        return cal.ticks_from_frac(min(1.0, max(0.0, opening_frac)))
 
     # -- motion -----------------------------------------------------------------------------------
-    def gripper_go(self, position: float, effort: float, *, blocking: bool = True,
+    @renamed_kwargs(position="opening_m", effort="effort_frac")
+    def gripper_go(self, opening_m: float, effort_frac: float, *, blocking: bool = True,
                    timeout_s: float | None = None) -> GripperOutcome:
-        """Move to ``position`` with at most ``effort`` × the current limit; see the module doc."""
+        """Move the fingertips to ``opening_m`` metres apart with at most ``effort_frac`` × the
+        current limit; see the module doc for how the move ends."""
+        return self._go(lambda: self.goal_ticks(opening_m), effort_frac, blocking, timeout_s)
+
+    def gripper_go_frac(self, opening_frac: float, effort_frac: float, *, blocking: bool = True,
+                        timeout_s: float | None = None) -> GripperOutcome:
+        """:meth:`gripper_go` to an opening given as a fraction of the calibrated range (0 closed, 1 open)."""
+        return self._go(lambda: self.goal_ticks_frac(opening_frac), effort_frac, blocking, timeout_s)
+
+    def _go(self, goal_of: Callable[[], int], effort: float, blocking: bool, timeout_s: float | None) -> GripperOutcome:
         self.require_open()
-        check_range("effort", effort, 0.0, 1.0)
-        goal = self.goal_ticks(position)
+        check_range("effort_frac", effort, 0.0, 1.0)
+        goal = goal_of()
         if self.lifecycle == Lifecycle.FAULT:
             raise self.bus.fault_error(self.id, "gripper_go")
         lost = self._torque_lost("gripper_go")

@@ -9,13 +9,17 @@ does not imply), or ``None`` when it is. The bus (:mod:`tactile_rig.drivers.dyna
 sends through dynamixel-sdk and receives through these functions: a packet becomes a value only
 after both checks passed.
 
-Protocol facts (ROBOTIS e-manual, Protocol 2.0 and 1.0 pages):
+Protocol facts (ROBOTIS e-manual, Protocol 2.0 and 1.0 pages; headers, IDs and instruction codes
+are :mod:`tactile_rig.devices.dynamixel.packets`, shared with the mock):
 
 * P2: ``FF FF FD 00 | ID | LEN_L LEN_H | 0x55 | ERR | params | CRC_L CRC_H``; LEN = params + 4;
   CRC-16 (polynomial 0x8005, initial value 0, not reflected) over the stuffed packet from the
   header to the last parameter; ``FF FF FD`` inside the payload is stuffed as ``FF FF FD FD``.
 * P1: ``FF FF | ID | LEN | ERR | params | CHK``; LEN = params + 2; CHK = ~(ID + LEN + ERR +
   params) & 0xFF; bit 7 of ERR is always 0.
+
+This codec and the mock firmware's (:mod:`tactile_rig.mocks.dynamixel.codec`) are kept separate on
+purpose: each is written from the e-manual, so a bug in one cannot hide in the other.
 """
 
 from __future__ import annotations
@@ -23,13 +27,31 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from tactile_rig.devices.dynamixel.error_codes import P1_COMMAND_MASK
+from tactile_rig.devices.dynamixel.packets import (
+    ACTION,
+    BROADCAST_ID,
+    CLEAR,
+    CRC16_POLY,
+    FACTORY_RESET,
+    FAST_BULK_READ,
+    FAST_SYNC_READ,
+    P1_HEADER,
+    P2_HEADER,
+    P2_RESERVED,
+    PING,
+    READ,
+    REBOOT,
+    REG_WRITE,
+    STATUS_INSTRUCTION,
+    WRITE,
+)
 
-P2_HEADER = b"\xff\xff\xfd"
-P1_HEADER = b"\xff\xff"
-STATUS_INSTRUCTION = 0x55
-BROADCAST_ID = 0xFE
-
-PING, READ, WRITE, REG_WRITE, ACTION, FACTORY_RESET, REBOOT, CLEAR = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x08, 0x10
+__all__ = [
+    "ACTION", "BROADCAST_ID", "CLEAR", "Corrupt", "FACTORY_RESET", "FAST_BULK_READ", "FAST_SYNC_READ", "Foreign",
+    "P1_HEADER", "P2_HEADER", "PING", "READ", "REBOOT", "REG_WRITE", "Request", "STATUS_INSTRUCTION",
+    "StatusPacket", "StatusScanner", "WRITE", "checksum_p1", "crc16", "encode_instruction_p2", "encode_status",
+    "fast_status_params", "mismatch", "parse_status", "split_fast_status", "stuff", "unstuff",
+]
 #: instructions whose status carries no parameters
 _NO_PARAMS = (WRITE, REG_WRITE, ACTION, FACTORY_RESET, REBOOT, CLEAR)
 
@@ -46,7 +68,7 @@ def _crc_table() -> list[int]:
     for i in range(256):
         crc = i << 8
         for _ in range(8):
-            crc = ((crc << 1) ^ 0x8005) if crc & 0x8000 else (crc << 1)
+            crc = ((crc << 1) ^ CRC16_POLY) if crc & 0x8000 else (crc << 1)
         table.append(crc & 0xFFFF)
     return table
 
@@ -261,7 +283,7 @@ class StatusScanner:
             self._drop(1)
             return True
         length = b[5] | b[6] << 8
-        if b[3] != 0x00 or b[4] > 0xFE or not 3 <= length <= self.max_length:
+        if b[3] != P2_RESERVED or b[4] > 0xFE or not 3 <= length <= self.max_length:
             self._drop(1)
             return True
         total = 7 + length
@@ -297,9 +319,6 @@ class StatusScanner:
             return Corrupt(raw, "error byte with the reserved bit 7 set")
         del b[:total]
         return StatusPacket(1, raw[2], raw[4], raw[5:-1], raw)
-
-
-FAST_SYNC_READ, FAST_BULK_READ = 0x8A, 0x9A
 
 
 def fast_status_params(sizes: list[int]) -> int:
@@ -354,7 +373,7 @@ def encode_instruction_p2(dxl_id: int, instruction: int, params: bytes) -> bytes
     """A Protocol 2.0 instruction packet, stuffed (for payloads the SDK 4.1.0 does not stuff)."""
     body = stuff(bytes([instruction]) + bytes(params))
     length = len(body) + 2
-    pkt = P2_HEADER + bytes([0, dxl_id, length & 0xFF, length >> 8]) + body
+    pkt = P2_HEADER + bytes([P2_RESERVED, dxl_id, length & 0xFF, length >> 8]) + body
     crc = crc16(pkt)
     return pkt + bytes([crc & 0xFF, crc >> 8])
 
@@ -364,7 +383,7 @@ def encode_status(protocol: int, dxl_id: int, error: int, params: bytes) -> byte
     if protocol == 2:
         body = bytes(params).replace(b"\xff\xff\xfd", b"\xff\xff\xfd\xfd")
         length = len(body) + 4
-        pkt = P2_HEADER + bytes([0, dxl_id, length & 0xFF, length >> 8, STATUS_INSTRUCTION, error]) + body
+        pkt = P2_HEADER + bytes([P2_RESERVED, dxl_id, length & 0xFF, length >> 8, STATUS_INSTRUCTION, error]) + body
         crc = crc16(pkt)
         return pkt + bytes([crc & 0xFF, crc >> 8])
     body = bytes([dxl_id, len(params) + 2, error]) + bytes(params)

@@ -8,16 +8,31 @@ Protocol 1.0: ``FF FF ID LEN INST params CHK``; LEN = params + 2; CHK = ~(ID+LEN
 :class:`StreamParser` turns an arbitrary byte stream (split anywhere, garbage between packets,
 cut-off packets) into packets and checksum failures, resynchronising one byte at a time like the
 firmware does.
+
+Headers, IDs and instruction codes are :mod:`tactile_rig.devices.dynamixel.packets`, shared with
+the driver. The codec itself is not shared: the driver's (:mod:`tactile_rig.drivers.dynamixel.wire`)
+is written separately on purpose, so a bug in one cannot hide in the other.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-P2_HEADER = b"\xff\xff\xfd"
-P1_HEADER = b"\xff\xff"
-BROADCAST_ID = 0xFE
-STATUS = 0x55
+from tactile_rig.devices.dynamixel.packets import (
+    BROADCAST_ID,
+    CRC16_POLY,
+    P1_HEADER,
+    P2_HEADER,
+    P2_RESERVED,
+    STATUS_INSTRUCTION,
+)
+
+__all__ = [
+    "BROADCAST_ID", "ChecksumFailure", "MAX_PACKET_LEN", "P1_HEADER", "P2_HEADER", "Packet", "STATUS", "StreamParser",
+    "checksum_p1", "crc16", "decode", "encode_p1", "encode_p2", "encode_p2_status", "stuff", "unstuff",
+]
+
+STATUS = STATUS_INSTRUCTION
 #: the firmware's receive buffer: longer declared lengths are noise, not packets
 MAX_PACKET_LEN = 1024
 
@@ -27,7 +42,7 @@ def _crc_table() -> list[int]:
     for i in range(256):
         crc = i << 8
         for _ in range(8):
-            crc = ((crc << 1) ^ 0x8005) if crc & 0x8000 else (crc << 1)
+            crc = ((crc << 1) ^ CRC16_POLY) if crc & 0x8000 else (crc << 1)
         table.append(crc & 0xFFFF)
     return table
 
@@ -99,7 +114,7 @@ def encode_p2(dxl_id: int, instruction: int, params: bytes = b"", *, error: int 
     body = bytes([instruction]) + (bytes([error]) if error is not None else b"") + bytes(params)
     body = stuff(body)
     length = len(body) + 2
-    pkt = P2_HEADER + bytes([0x00, dxl_id, length & 0xFF, length >> 8]) + body
+    pkt = P2_HEADER + bytes([P2_RESERVED, dxl_id, length & 0xFF, length >> 8]) + body
     crc = crc16(pkt)
     return pkt + bytes([crc & 0xFF, crc >> 8])
 
@@ -176,7 +191,7 @@ class StreamParser:
             return None
         length = buf[5] | buf[6] << 8
         min_len = 4 if self.status else 3
-        if buf[3] != 0x00 or buf[4] in (0xFD, 0xFF) or length < min_len or length > MAX_PACKET_LEN:
+        if buf[3] != P2_RESERVED or buf[4] in (0xFD, 0xFF) or length < min_len or length > MAX_PACKET_LEN:
             del buf[0]
             return True
         total = 7 + length

@@ -10,8 +10,31 @@ from __future__ import annotations
 from typing import Any
 
 from tactile_rig.devices.dynamixel import error_codes as de
-from tactile_rig.mocks.dynamixel.codec import (
+from tactile_rig.devices.dynamixel.packets import (
+    ACTION,
     BROADCAST_ID,
+    BULK_READ,
+    BULK_WRITE,
+    CLEAR,
+    CLEAR_MULTI_TURN,
+    FACTORY_RESET,
+    FAST_BULK_READ,
+    FAST_SYNC_READ,
+    P2_HEADER,
+    P2_RESERVED,
+    PING,
+    READ,
+    REBOOT,
+    REG_WRITE,
+    RESET_ALL,
+    RESET_ALL_BUT_ID,
+    RESET_ALL_BUT_ID_AND_BAUD,
+    STATUS_INSTRUCTION,
+    SYNC_READ,
+    SYNC_WRITE,
+    WRITE,
+)
+from tactile_rig.mocks.dynamixel.codec import (
     ChecksumFailure,
     Packet,
     StreamParser,
@@ -29,8 +52,6 @@ STANDARD_BAUDS = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576
                   1_000_000, 1_152_000, 2_000_000, 2_250_000, 2_500_000, 3_000_000, 3_500_000,
                   4_000_000, 4_500_000)
 
-P2_PING, READ, WRITE, REG_WRITE, ACTION, FACTORY_RESET, REBOOT, CLEAR = 1, 2, 3, 4, 5, 6, 8, 0x10
-SYNC_READ, SYNC_WRITE, FAST_SYNC_READ, BULK_READ, BULK_WRITE, FAST_BULK_READ = 0x82, 0x83, 0x8A, 0x92, 0x93, 0x9A
 
 
 def nominal_baud(bps: int) -> int:
@@ -129,7 +150,7 @@ class DynamixelBusDevice(SerialDevice):
             return
         targets = self._awake(t) if bcast else [s for s in [self._target(pkt.id, t)] if s is not None]
         for s in targets:
-            if inst == P2_PING:
+            if inst == PING:
                 model = s.item("Model Number")
                 t = self._status(s, 0, bytes([model & 0xFF, model >> 8, s.item("Firmware Version")]), t, level=0)
             elif bcast and inst not in (WRITE, REG_WRITE, ACTION, FACTORY_RESET, REBOOT, CLEAR):
@@ -172,10 +193,10 @@ class DynamixelBusDevice(SerialDevice):
             s._write_raw_item("Registered Instruction", 0)
             reply(s.write(addr, data))
         elif inst == FACTORY_RESET:
-            if len(p) != 1 or p[0] not in (0x01, 0x02, 0xFF):
+            if len(p) != 1 or p[0] not in (RESET_ALL_BUT_ID, RESET_ALL_BUT_ID_AND_BAUD, RESET_ALL):
                 reply(de.DATA_RANGE if len(p) == 1 else de.DATA_LENGTH)
                 return
-            if bcast and p[0] == 0xFF:
+            if bcast and p[0] == RESET_ALL:
                 return  # ignored by firmware >= 42: it would give every servo ID 1
             end = reply(0)
             s.factory_reset(p[0], end, self.boot_s)
@@ -184,7 +205,7 @@ class DynamixelBusDevice(SerialDevice):
             end = reply(0)
             s.reboot(end, self.boot_s)
         elif inst == CLEAR:
-            ok = p == bytes([0x01, 0x44, 0x58, 0x4C, 0x22])
+            ok = p == CLEAR_MULTI_TURN
             reply(0 if ok else de.DATA_RANGE)
         else:
             reply(de.INSTRUCTION_ERROR)
@@ -230,7 +251,7 @@ class DynamixelBusDevice(SerialDevice):
         if not answers:
             return
         length = 1 + sum(len(d) + 4 for _, _, d in answers)
-        pkt = bytearray(b"\xff\xff\xfd\x00" + bytes([BROADCAST_ID, length & 0xFF, length >> 8, 0x55]))
+        pkt = bytearray(P2_HEADER + bytes([P2_RESERVED, BROADCAST_ID, length & 0xFF, length >> 8, STATUS_INSTRUCTION]))
         for s, err, data in answers:
             pkt += bytes([s.status_error(err), s.id]) + data
             crc = crc16(pkt)
@@ -261,7 +282,7 @@ class DynamixelBusDevice(SerialDevice):
         for s in targets:
             reply = (lambda err, params=b"", level=2, s=s, old_id=s.id:
                      t if bcast else self._status(s, err, params, t, level=level, dxl_id=old_id))
-            if inst == P2_PING:
+            if inst == PING:
                 if not bcast:
                     self._status(s, 0, b"", t, level=0)
             elif inst == READ:
@@ -295,7 +316,7 @@ class DynamixelBusDevice(SerialDevice):
                     reply(de.P1_INSTRUCTION)
             elif inst == FACTORY_RESET:
                 end = reply(0)
-                s.factory_reset(0xFF, end, self.boot_s)
+                s.factory_reset(RESET_ALL, end, self.boot_s)
                 self.baud = nominal_baud(s.baud)
             elif inst == REBOOT:  # MX firmware >= 41 also accepts Reboot on Protocol 1.0
                 end = reply(0)

@@ -16,6 +16,7 @@ import struct
 
 from tactile_rig.devices.dynamixel import control_table as ct
 from tactile_rig.devices.dynamixel import error_codes as de
+from tactile_rig.devices.dynamixel import packets as pk
 from tactile_rig.sim.world.fingers import STALL_CURRENT_A, TICKS_PER_REV, Fingers
 
 #: an overload latches after this long at >= OVERLOAD_FRACTION of the stall current
@@ -360,8 +361,8 @@ class Servo:
         self._sync_plant_from_registers()
 
     def factory_reset(self, option: int, t_s: float, boot_s: float) -> None:
-        keep_id = option in (0x01, 0x02)
-        keep_baud = option == 0x02
+        keep_id = option in (pk.RESET_ALL_BUT_ID, pk.RESET_ALL_BUT_ID_AND_BAUD)
+        keep_baud = option == pk.RESET_ALL_BUT_ID_AND_BAUD
         self.latched = 0
         self.plant.reset_drive()
         self._factory_defaults(keep_id=keep_id, keep_baud=keep_baud)

@@ -23,6 +23,10 @@ machine space is negative as on every GRBL machine. ``work_origin="stage"`` (the
 homing) stores in the EEPROM's G54 the machine position of the stage's zero, as a lab sets up its
 jig once (jog there, ``G10 L20 P1 X0 Y0 Z0``): work coordinates are then the stage pose. The switch
 positions sit on whole motor steps from the stage's zero, so that zero is a reachable position.
+
+The module is over 500 lines because it is one job, the firmware's protocol loop (main.c,
+protocol.c, serial.c): the receive ring, the line buffer, the realtime flags and the alarm and reset
+states are one state machine; parsing, ``$`` commands, reports, planning and homing live beside it.
 """
 
 from __future__ import annotations

@@ -6,6 +6,8 @@ returns either GRBL's ``error:N`` code or a :class:`Block` with every value conv
 millimetres, exactly as ``gc_execute_line`` steps 1-3 do in GRBL's ``gcode.c`` (word import, modal
 groups, the error checks in the firmware's order). Executing the block (planner, syncs, EEPROM) is
 the firmware's job; :func:`commit` applies the block's modal changes to the parser state.
+The module is a little over 500 lines because it is one job: the error checks must stay in the
+firmware's order in one place to be read side by side with ``gcode.c``.
 """
 
 from __future__ import annotations

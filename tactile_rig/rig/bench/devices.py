@@ -19,7 +19,7 @@ from tactile_rig.core.files import load_json
 from tactile_rig.drivers.camera import FingertipCamera
 from tactile_rig.drivers.dynamixel.bus import DEFAULT_LATENCY_TIMER_MS
 from tactile_rig.drivers.dynamixel.gripper import DynamixelGripper, GripperCalibration
-from tactile_rig.drivers.jig import Jig
+from tactile_rig.drivers.grbl import Jig
 from tactile_rig.drivers.scale import Scale
 from tactile_rig.mocks.camera import SimulatedCamera
 from tactile_rig.rig.replay import RecordedFrameSource

@@ -14,7 +14,7 @@ import itertools
 from typing import Any, Callable
 
 from tactile_rig.drivers.dynamixel.gripper import DynamixelGripper
-from tactile_rig.drivers.jig import Jig
+from tactile_rig.drivers.grbl import Jig
 from tactile_rig.drivers.scale import Scale
 from tactile_rig.mocks.pty_server import PtyServer
 from tactile_rig.mocks.registry import (
@@ -130,7 +130,7 @@ class _ScaleGauge:
         self.scale = scale
         self.name = getattr(scale, "device", "scale")
 
-    def read_n(self, timeout_s: float | None = 1.0) -> float:
+    def read_force_n(self, timeout_s: float | None = 1.0) -> float:
         return float(self.scale.force_n(timeout_s))
 
 

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from tactile_rig.core.clock import Clock
+from tactile_rig.core.deprecation import renamed_kwargs
 from tactile_rig.core.errors import DeviceFault, check_range
 from tactile_rig.core.geometry import Pose
 from tactile_rig.sim.base import register_model
@@ -73,12 +74,13 @@ class SimArm:
         self.commands = 0
 
     # -- Motion ---------------------------------------------------------------------------------
-    def move_toward(self, target: Any, speed_mps: float) -> None:
+    @renamed_kwargs(speed_mps="path_speed_mps")
+    def move_toward(self, target: Any, path_speed_mps: float) -> None:
         self.advance_to(self.clock.now_s())
         self._check_fault()
-        if not (speed_mps > 0 and math.isfinite(speed_mps)):
-            raise ValueError(f"arm: speed_mps={speed_mps!r} must be positive and finite")
-        speed = min(float(speed_mps), self.max_speed_mps) * 1000.0
+        if not (path_speed_mps > 0 and math.isfinite(path_speed_mps)):
+            raise ValueError(f"arm: path_speed_mps={path_speed_mps!r} must be positive and finite")
+        speed = min(float(path_speed_mps), self.max_speed_mps) * 1000.0
         tgt = np.array([target.x_mm, target.y_mm, target.z_mm, target.theta_deg], dtype=float)
         self._pending.append((self._t + self.command_latency_s, tgt, speed))
         self.commands += 1

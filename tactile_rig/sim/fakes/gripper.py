@@ -19,6 +19,7 @@ from typing import Any, Callable
 import numpy as np
 
 from tactile_rig.core.clock import Clock
+from tactile_rig.core.deprecation import renamed_kwargs
 from tactile_rig.core.errors import DeviceFault, check_range
 from tactile_rig.core.types import GripperOutcome, GripperState
 from tactile_rig.devices.dynamixel.control_table import STALL_CURRENT_A
@@ -65,15 +66,16 @@ class SimGripper:
         self.commands: list[tuple[float, float, float]] = []  # (t, goal, effort) as issued
 
     # -- Gripper protocol ----------------------------------------------------------------------
-    def gripper_go(self, position: float, effort: float, *, blocking: bool = True,
+    @renamed_kwargs(position="opening_m", effort="effort_frac")
+    def gripper_go(self, opening_m: float, effort_frac: float, *, blocking: bool = True,
                    timeout_s: float | None = None) -> Any:
 
         self.advance_to(self.clock.now_s())
         self._check_fault()
-        check_range("gripper_go position", float(position), 0.0, self.max_opening_m, "m")
-        check_range("gripper_go effort", float(effort), 0.0, 1.0)
-        self._pending.append((self._t + self.command_latency_s, float(position), float(effort)))
-        self.commands.append((self._t, float(position), float(effort)))
+        check_range("gripper_go opening_m", float(opening_m), 0.0, self.max_opening_m, "m")
+        check_range("gripper_go effort_frac", float(effort_frac), 0.0, 1.0)
+        self._pending.append((self._t + self.command_latency_s, float(opening_m), float(effort_frac)))
+        self.commands.append((self._t, float(opening_m), float(effort_frac)))
         if not blocking:
             return GripperOutcome.MOVING
         t_end = math.inf if timeout_s is None else self._t + timeout_s

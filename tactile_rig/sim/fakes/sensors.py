@@ -22,6 +22,7 @@ from typing import Any, Callable
 import numpy as np
 
 from tactile_rig.core.clock import Clock
+from tactile_rig.core.deprecation import deprecated_alias
 from tactile_rig.core.errors import DeviceTimeout, check_range
 from tactile_rig.core.types import Localization, TouchReading
 
@@ -144,7 +145,7 @@ class ModelGauge:
 
     ``load(t_s)`` gives the true load in newtons; samples come at ``rate_hz`` (an HX711 runs at 10
     or 80 Hz) with ``noise_n`` of noise; ``silent_after_s`` makes it stop answering (a scale that
-    went silent): ``read_n`` then raises :class:`DeviceTimeout` after its timeout.
+    went silent): ``read_force_n`` then raises :class:`DeviceTimeout` after its timeout.
     """
 
     def __init__(self, clock: Clock, load: Callable[[float], float], *, rate_hz: float = 80.0,
@@ -156,8 +157,10 @@ class ModelGauge:
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.name = name
 
-    def read_n(self, timeout_s: float | None = 1.0) -> float:
+    def read_force_n(self, timeout_s: float | None = 1.0) -> float:
         k = self._frames._next_frame(timeout_s)
         self._frames._last_k = k
         t = self._frames._capture_s(k)
         return float(self.load(t)) + self.noise_n * float(self.rng.normal())
+
+    read_n = deprecated_alias("read_force_n")

@@ -28,6 +28,7 @@ from tactile_rig.core.errors import check_range
 from tactile_rig.sim.base import register_model
 from tactile_rig.sim.world.timeline import Timeline
 
+# The simulated world's gravity, a model choice (not devices.scale.STANDARD_GRAVITY_MPS2, the scale's grams to newtons).
 G_MPS2 = 9.81
 
 

@@ -1,0 +1,231 @@
+"""FingerVision tracking: identities, gates, reset, Kalman filter."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from tactile_rig.perception.fingervision import (
+    KalmanBank,
+    MarkerBaseline,
+    MarkerTracker,
+    TrackerParams,
+    contrast_map,
+)
+from tests._fingervision_synth import lattice, render
+
+
+def _baseline(points: np.ndarray, size: float = 8.0) -> MarkerBaseline:
+    return MarkerBaseline(points.copy(), np.full(len(points), size), np.ones(len(points), bool))
+
+
+def _contrast(points: np.ndarray | None, seed: int = 0, gain: float = 1.0) -> np.ndarray:
+    return contrast_map(render(points, seed=seed, gain=gain))[2]
+
+
+@pytest.mark.parametrize("use_kalman", [False, True])
+def test_identities_follow_moving_markers(use_kalman: bool) -> None:
+    rest = lattice()
+    tracker = MarkerTracker(_baseline(rest), TrackerParams(use_kalman=use_kalman))
+    v = np.array([0.7, -0.4])
+    for k in range(1, 16):
+        truth = rest + v * k
+        state = tracker.update(_contrast(truth, seed=k))
+        assert state.found.all() and state.valid.all()
+        err = np.hypot(*(state.positions_px - truth).T)
+        # each id stays on its own marker (markers are 45+ px apart); the thesis's Kalman settings
+        # (R 0.1, Q 0.01) lag about two frames while the velocity estimate builds up
+        assert err.max() <= (0.3 if not use_kalman else 2.0)
+    assert np.array_equal(state.ids, np.arange(len(rest)))
+
+
+def test_a_missing_marker_is_held_then_reset_then_reacquired() -> None:
+    rest = lattice()
+    p = TrackerParams(n_reset=3, use_kalman=True)
+    tracker = MarkerTracker(_baseline(rest), p)
+    shifted = rest + [1.0, 0.5]
+    for k in range(4):
+        tracker.update(_contrast(shifted, seed=k))
+    held = tracker.positions_px[5].copy()
+    gone = np.delete(shifted, 5, axis=0)
+    for k in range(p.n_reset - 1):
+        st_ = tracker.update(_contrast(gone, seed=10 + k))
+        assert not st_.found[5] and st_.valid[5]
+        assert np.array_equal(st_.positions_px[5], held), "a missed marker must not drift"
+    st_ = tracker.update(_contrast(gone, seed=20))
+    assert not st_.valid[5]
+    assert np.allclose(st_.positions_px[5], rest[5])
+    assert st_.valid[np.arange(len(rest)) != 5].all()
+    st_ = tracker.update(_contrast(shifted, seed=21))
+    assert not st_.valid[5], "re-acquisition needs a confirming second frame"
+    st_ = tracker.update(_contrast(shifted, seed=22))
+    assert st_.found[5] and st_.valid[5]
+    assert np.hypot(*(st_.positions_px[5] - shifted[5])) <= 0.3
+
+
+def test_all_markers_lost_on_a_black_frame() -> None:
+    rest = lattice()
+    p = TrackerParams(n_reset=2)
+    tracker = MarkerTracker(_baseline(rest), p)
+    black = contrast_map(np.zeros((240, 320, 3), np.uint8))[2]
+    for _ in range(p.n_reset):
+        st_ = tracker.update(black)
+    assert not st_.found.any() and not st_.valid.any()
+    assert np.all(np.isfinite(st_.positions_px))
+
+
+def test_a_jump_beyond_the_gate_is_rejected() -> None:
+    rest = lattice()
+    tracker = MarkerTracker(_baseline(rest), TrackerParams(max_jump_px=2.0, window_half_px=6, use_kalman=False))
+    st_ = tracker.update(_contrast(rest + [3.5, 0.0]))
+    assert not st_.found.any()
+    assert np.allclose(st_.positions_px, rest)
+
+
+def test_no_markers_at_all() -> None:
+    empty = MarkerBaseline(np.zeros((0, 2)), np.zeros(0), np.zeros(0, bool))
+    st_ = MarkerTracker(empty).update(_contrast(None))
+    assert st_.positions_px.shape == (0, 2) and st_.valid.shape == (0,)
+
+
+MARKER_R_PX = 4.0  # the synthetic maker's default disc radius
+
+
+def _pair_run(gap_y_px: float, speed_px: float, frames: int, params: TrackerParams):
+    """Markers a (left) and b (right, ``gap_y_px`` lower) moving towards each other along x at
+    ``speed_px`` a frame; yields (frame, truth (2, 2) px, state) for every frame."""
+    a0, b0 = np.array([130.3, 120.2]), np.array([190.6, 120.2 + gap_y_px])
+    tracker = MarkerTracker(_baseline(np.array([a0, b0])), params)
+    for k in range(1, frames + 1):
+        truth = np.array([a0 + [speed_px * k, 0.0], b0 - [speed_px * k, 0.0]])
+        yield k, truth, tracker.update(_contrast(truth, seed=k))
+
+
+@pytest.mark.parametrize("use_kalman", [False, True])
+def test_markers_passing_inside_each_others_window_keep_their_identities(use_kalman: bool) -> None:
+    """Two markers on rows 9 px apart pass each other at 1.5 px a frame. At the closest approach each
+    one's disc reaches into the other's measurement window, yet both are measured in every frame, each
+    id stays on its own marker, and the ids end in the markers' swapped left-right order."""
+    p = TrackerParams(use_kalman=use_kalman)
+    # an id within half the closest approach of its own marker is nearer to it than to the other; the
+    # Kalman filter (the thesis's noise settings) lags up to ~3 px while its velocity builds up
+    tol_px = 3.5 if use_kalman else 1.0
+    closest_px = np.inf
+    for k, truth, st_ in _pair_run(9.0, 1.5, 80, p):
+        closest_px = min(closest_px, float(np.hypot(*(truth[0] - truth[1]))))
+        assert st_.found.all() and st_.valid.all(), f"frame {k}: a visible marker was dropped: {st_.found}"
+        err = np.hypot(*(st_.positions_px - truth).T)
+        assert err.max() <= tol_px, f"frame {k}: ids off their markers by {err} px"
+    assert closest_px - MARKER_R_PX < p.window_half_px, "the markers must come within each other's window"
+    assert 2 * tol_px < closest_px
+    assert truth[0, 0] > truth[1, 0] and st_.positions_px[0, 0] > st_.positions_px[1, 0]
+
+
+_REACQUIRED_ON_A_PASSING_DOT = pytest.mark.xfail(strict=True, reason=(
+    "a lost marker is re-acquired on another marker running across its rest position at 1.5 px a frame: "
+    "the re-detection window clips the entering dot, so its centroid creeps by less than "
+    "confirm_motion_px a frame and passes the stillness check"))
+
+
+@pytest.mark.parametrize("use_kalman, speed_px", [
+    (False, 2.0),
+    pytest.param(False, 1.5, marks=_REACQUIRED_ON_A_PASSING_DOT),
+    pytest.param(True, 1.5, marks=_REACQUIRED_ON_A_PASSING_DOT),
+])
+def test_markers_that_run_through_each_other_are_dropped_not_swapped(use_kalman: bool, speed_px: float) -> None:
+    """Two markers on one row run through each other and on across the other's rest position. While
+    they approach, more than two windows apart, both are measured; where they overlap they cannot be
+    told apart and may be dropped; but no id is ever found on the other marker, at the overlap or later."""
+    p = TrackerParams(use_kalman=use_kalman)
+    apart_px = 2 * (p.window_half_px + MARKER_R_PX)
+    for k, truth, st_ in _pair_run(0.0, speed_px, int(120 / speed_px), p):
+        approaching = truth[0, 0] < truth[1, 0]
+        if approaching and np.hypot(*(truth[0] - truth[1])) >= apart_px:
+            assert st_.found.all(), f"frame {k}: a marker {apart_px} px from the other was dropped"
+        err = np.hypot(*(st_.positions_px - truth).T)
+        for i in np.flatnonzero(st_.found):
+            assert err[i] <= 3.5, f"frame {k}: id {i} found {err[i]:.1f} px off its marker (on the other?)"
+        assert np.all(np.isfinite(st_.positions_px))
+
+
+def test_kalman_reduces_jitter_under_flicker() -> None:
+    rest = lattice()
+    series = {}
+    for use_kalman in (False, True):
+        tracker = MarkerTracker(_baseline(rest), TrackerParams(use_kalman=use_kalman))
+        means = []
+        for k in range(30):
+            gain = 1.0 + 0.25 * (k % 2) - 0.1 * (k % 3)
+            st_ = tracker.update(_contrast(rest, seed=k % 7, gain=gain))
+            means.append((st_.positions_px - rest).mean(axis=0))
+        series[use_kalman] = np.array(means[5:])
+    jitter = {k: float(np.linalg.norm(v.std(axis=0))) for k, v in series.items()}
+    assert jitter[True] < jitter[False]
+
+
+def test_bad_tracker_parameters() -> None:
+    base = _baseline(lattice())
+    with pytest.raises(ValueError, match="n_reset"):
+        MarkerTracker(base, dataclasses.replace(TrackerParams(), n_reset=0))
+    with pytest.raises(ValueError, match="dt_s"):
+        MarkerTracker(base, dataclasses.replace(TrackerParams(), dt_s=0.0))
+    with pytest.raises(ValueError, match="noises"):
+        KalmanBank(np.zeros((1, 2)), np.zeros(1), measurement_noise=0.0)
+
+
+@settings(deadline=None, max_examples=30)
+@given(
+    steps=st.lists(
+        st.tuples(
+            st.floats(1e-4, 2.0),
+            st.lists(st.booleans(), min_size=4, max_size=4),
+            st.floats(-1e4, 1e4),
+        ),
+        min_size=1,
+        max_size=40,
+    ),
+    r=st.floats(1e-4, 10.0),
+    q=st.floats(1e-5, 1.0),
+)
+def test_kalman_covariance_stays_symmetric_positive_definite(steps, r: float, q: float) -> None:
+    kb = KalmanBank(np.zeros((4, 2)), np.full(4, 8.0), measurement_noise=r, process_noise=q)
+    for dt, upd, z in steps:
+        which = np.ones(4, bool)
+        kb.predict(dt, which)
+        kb.update(np.full((4, 3), z), np.array(upd))
+        for i in range(4):
+            P = kb.covariance(i)
+            assert np.allclose(P, P.T)
+            assert np.linalg.eigvalsh(P).min() > 0
+    assert np.all(np.isfinite(kb.pos)) and np.all(np.isfinite(kb.vel))
+
+
+def test_kalman_follows_constant_velocity_without_lag_eventually() -> None:
+    kb = KalmanBank(np.zeros((1, 2)), np.full(1, 8.0))
+    dt = 1 / 15
+    for k in range(1, 200):
+        kb.predict(dt, np.ones(1, bool))
+        kb.update(np.array([[3.0 * k * dt, -1.5 * k * dt, 8.0]]), np.ones(1, bool))
+    assert np.allclose(kb.vel[0], [3.0, -1.5], atol=0.05)
+    assert np.allclose(kb.pos[0], [3.0 * 199 * dt, -1.5 * 199 * dt], atol=0.05)
+
+
+def test_kalman_all_markers_equals_subset_path() -> None:
+    """Selecting every marker (fast slice path) gives the same filter as a boolean subset."""
+    rng = np.random.default_rng(3)
+    a = KalmanBank(np.zeros((3, 2)), np.full(3, 8.0))
+    b = KalmanBank(np.zeros((4, 2)), np.full(4, 8.0))
+    sub = np.array([True, True, True, False])
+    for _ in range(10):
+        z = rng.normal(0, 2, (4, 3))
+        a.predict(0.07, np.ones(3, bool))
+        b.predict(0.07, sub)
+        a.update(z[:3], np.ones(3, bool))
+        b.update(z, sub)
+    assert np.allclose(a.pos, b.pos[:3]) and np.allclose(a.vel, b.vel[:3])
+    for i in range(3):
+        assert np.allclose(a.covariance(i), b.covariance(i))
