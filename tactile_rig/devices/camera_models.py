@@ -116,17 +116,21 @@ class UvcFrame:
     height_px: int
     intervals_100ns: tuple[int, ...]
     max_frame_bytes: int = 0
+    default_100ns: int = 0
 
     def __post_init__(self) -> None:
         if not self.intervals_100ns or any(i <= 0 for i in self.intervals_100ns):
             raise ValueError(f"frame {self.width_px}x{self.height_px}: intervals must be positive")
         if self.max_frame_bytes == 0:
             object.__setattr__(self, "max_frame_bytes", self.width_px * self.height_px * 2)
+        if self.default_100ns and self.default_100ns not in self.intervals_100ns:
+            raise ValueError(f"frame {self.width_px}x{self.height_px}: default interval {self.default_100ns} "
+                             f"is not one of {self.intervals_100ns}")
 
     @property
     def default_interval_100ns(self) -> int:
-        """dwDefaultFrameInterval: the fastest rate, as these cameras' descriptors default to."""
-        return self.intervals_100ns[0]
+        """dwDefaultFrameInterval (``default_100ns``; when not given, the fastest rate)."""
+        return self.default_100ns or self.intervals_100ns[0]
 
 
 @dataclass(frozen=True)
@@ -301,14 +305,6 @@ def interval_of_fps(fps: float) -> int:
     return int(Fraction(10_000_000) / Fraction(fps).limit_denominator(1000))
 
 
-# Standard interval ladder of the Logitech UVC family (30, 25, 20, 15, 10, 7.5 and 5 fps).
-_LOGITECH_INTERVALS = (333333, 400000, 500000, 666666, 1000000, 1333333, 2000000)
-
-
-def _ladder_up_to(max_fps: float) -> tuple[int, ...]:
-    return tuple(i for i in _LOGITECH_INTERVALS if fps_of_interval(i) <= max_fps * (1 + 1e-6))
-
-
 # -- Logitech C310 ----------------------------------------------------------------------------------
 
 C310_CONTROLS: tuple[UvcControl, ...] = (
@@ -333,18 +329,21 @@ C310_CONTROLS: tuple[UvcControl, ...] = (
                label="Exposure, Dynamic Framerate", power_on=1),
 )
 
-# Frame sizes of a real C310 in descriptor order (640x480 first, the default frame).
-_C310_SIZES = ((640, 480), (160, 120), (176, 144), (320, 176), (320, 240), (352, 288), (432, 240),
-               (544, 288), (640, 360), (752, 416), (800, 448), (800, 600), (864, 480), (960, 544),
-               (960, 720), (1024, 576), (1184, 656), (1280, 720), (1280, 960))
-# YUYV rates: as the C270 (same Logitech UVC family) publishes them for the sizes it lists
-# (1280x720 and 1280x960 at 7.5 and 5 fps), otherwise the ladder up to the bandwidth of 640x480 at 30 fps.
-_C310_YUYV_MAX_FPS = {(1280, 720): 7.5, (1280, 960): 7.5}
-
-
-def _c310_yuyv(w: int, h: int) -> UvcFrame:
-    max_fps = _C310_YUYV_MAX_FPS.get((w, h), 30.0 * 640 * 480 / (w * h))
-    return UvcFrame(w, h, _ladder_up_to(min(30.0, max_fps)))
+# A real C310's frame descriptors (lsusb -v of a C310 in AristoChen/usb-proxy issue 30; the same
+# Logitech UVC 1.00 design as the C270 whose complete dump fills the fields that one omits; transcribed
+# in tactile_rig/mocks/usb/models/logitech_c310.toml): size, intervals (100 ns), dwDefaultFrameInterval.
+_C310_30_TO_5 = (333333, 400000, 500000, 666666, 1000000, 2000000)
+_C310_YUYV = (
+    ((640, 480), _C310_30_TO_5, 333333), ((160, 120), _C310_30_TO_5, 333333), ((176, 144), _C310_30_TO_5, 333333),
+    ((320, 176), _C310_30_TO_5, 333333), ((320, 240), _C310_30_TO_5, 333333), ((352, 288), _C310_30_TO_5, 333333),
+    ((432, 240), _C310_30_TO_5, 333333), ((544, 288), _C310_30_TO_5, 333333), ((640, 360), _C310_30_TO_5, 333333),
+    ((752, 416), _C310_30_TO_5[1:], 400000), ((800, 448), _C310_30_TO_5[1:], 400000),
+    ((800, 600), _C310_30_TO_5[2:], 500000), ((864, 480), _C310_30_TO_5[2:], 500000),
+    ((960, 544), _C310_30_TO_5[3:], 666666), ((960, 720), _C310_30_TO_5[4:], 1000000),
+    ((1024, 576), _C310_30_TO_5[4:], 1000000), ((1184, 656), _C310_30_TO_5[4:], 1000000),
+    ((1280, 720), _C310_30_TO_5[4:], 1000000), ((1280, 960), (1333333, 2000000), 2000000),
+)
+_C310_SIZES = tuple(size for size, _, _ in _C310_YUYV)
 
 
 C310 = CameraModel(
@@ -356,8 +355,9 @@ C310 = CameraModel(
     product=None,
     serial="A1C3F310",
     formats=(
-        UvcFormat("YUYV", tuple(_c310_yuyv(w, h) for w, h in _C310_SIZES)),
-        UvcFormat("MJPG", tuple(UvcFrame(w, h, _LOGITECH_INTERVALS) for w, h in _C310_SIZES), compressed=True),
+        UvcFormat("YUYV", tuple(UvcFrame(w, h, iv, default_100ns=d) for (w, h), iv, d in _C310_YUYV)),
+        UvcFormat("MJPG", tuple(UvcFrame(w, h, _C310_30_TO_5, default_100ns=333333) for w, h in _C310_SIZES),
+                  compressed=True),
     ),
     controls=C310_CONTROLS,
     bcd_device=0x0010,
@@ -365,13 +365,14 @@ C310 = CameraModel(
     sources=(
         "USB ids 046d:081b and card 'UVC Camera (046d:081b)' (no product string: dmesg 'Found UVC 1.00 device "
         "<unnamed> (046d:081b)'): public dmesg and v4l2-ctl --list-devices captures of C310s",
-        "frame sizes: a public ffmpeg -list_formats capture of a C310 (yuyv422 and mjpeg, 640x480 .. 1280x960)",
+        "frame sizes, intervals and default intervals: the frame descriptors of a real C310 (lsusb -v in "
+        "AristoChen/usb-proxy issue 30), as the USB testbed (tactile_rig/mocks/usb/models/logitech_c310.toml) "
+        "transcribes them: MJPG 30, 25, 20, 15, 10, 5 fps at every size; YUYV from 30 fps at 640x480 down to "
+        "7.5 and 5 at 1280x960",
         "control table (ids, ranges, steps, defaults, inactive flags, exposure_dynamic_framerate powering up at 1 "
         "with GET_DEF 0): public v4l2-ctl --all / --list-ctrls captures of C310s",
     ),
     notes=(
-        "frame intervals are modelled: no public capture of the C310's interval lists was found; YUYV follows the "
-        "C270's published rates (same Logitech UVC family), MJPG offers 30..5 fps at every size",
         "no control is known to reset on a format change: uvcvideo keeps the values (it writes them back only "
         "after a USB reset or resume, uvc_ctrl_restore_values) and no public C310 capture shows the firmware "
         "resetting any; format_change_resets is empty",

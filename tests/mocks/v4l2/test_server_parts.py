@@ -36,10 +36,11 @@ def test_try_format_always_gives_a_mode_of_the_camera(model, fourcc: str, w: int
     assert (s.fourcc, s.width_px, s.height_px) in model.modes()
 
 
-@pytest.mark.parametrize(("num", "den", "fps"), [(1, 30, 30.0), (1, 7, 7.5), (1, 100, 30.0), (0, 0, 5.0),
-                                                 (1, 1, 5.0), (2, 15, 7.5)])
+@pytest.mark.parametrize(("num", "den", "fps"), [(1, 30, 30.0), (1, 7, 10.0), (1, 100, 30.0), (0, 0, 5.0),
+                                                 (1, 1, 5.0), (2, 15, 10.0), (1, 6, 5.0)])
 def test_set_interval_snaps_to_the_closest_offered_rate(num: int, den: int, fps: float) -> None:
-    """v4l2_fraction_to_interval saturates 0/0 (a zero denominator) to the longest interval."""
+    """uvc_try_frame_interval walks the C310's 30, 25, 20, 15, 10, 5 fps while the distance shrinks
+    (1/7 s is nearer 10 fps than 5); v4l2_fraction_to_interval saturates 0/0 to the longest interval."""
     cur = formats.try_format(C310, abi.fourcc("MJPG"), 640, 480)
     assert formats.set_interval(C310, cur, num, den).fps == fps
 
