@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import errno
+import struct
 from fractions import Fraction
 
 import pytest
@@ -12,6 +13,8 @@ from hypothesis import strategies as st
 from tactile_rig.devices.camera_models import (C310, CAMERA_MODELS, DIGIT, GELSIGHT_MINI, UvcControl, camera_model,
                                                fps_of_interval, udev_sanitize, uvc_simplify_fraction)
 from tactile_rig.mocks.camera import C310_CONTROLS, C310_MODES
+from tactile_rig.mocks.usb.descriptors import Configuration
+from tactile_rig.mocks.usb.models import load_model
 
 
 def test_card_names_follow_uvc_probe() -> None:
@@ -87,3 +90,39 @@ def test_sdk_crops() -> None:
     gsr = {v.name: v for v in GELSIGHT_MINI.sdk_views}["gsrobotics"]
     # crop_and_resize: int(2464 * 0.15) = 369 rows and int(3280 * 0.15) = 492 columns off each side.
     assert gsr.crop_box(3280, 2464) == (492, 369, 2788, 2095)
+
+
+def _uvc_streaming_formats(config: Configuration) -> list[tuple[str, list[tuple[int, int, tuple[int, ...], int, int]]]]:
+    """(format, [(width, height, intervals, default interval, max frame bytes)]) from the class-specific
+    VideoStreaming descriptors (UVC 1.1 3.9.2): formats 0x04 (uncompressed) and 0x06 (MJPEG), frames
+    0x05 and 0x07."""
+    out: list[tuple[str, list[tuple[int, int, tuple[int, ...], int, int]]]] = []
+    streaming = [alts[0] for alts in config.interfaces if alts[0].bInterfaceClass == 0x0E
+                 and alts[0].bInterfaceSubClass == 0x02]
+    assert len(streaming) == 1
+    extra, descriptors = streaming[0].extra, []
+    while extra:
+        descriptors.append(extra[:extra[0]])
+        extra = extra[extra[0]:]
+    for d in descriptors:
+        if len(d) < 3 or d[1] != 0x24:
+            continue
+        if d[2] in (0x04, 0x06):
+            out.append(("YUYV" if d[2] == 0x04 else "MJPG", []))
+        elif d[2] in (0x05, 0x07) and out:
+            w, h = struct.unpack_from("<HH", d, 5)
+            max_bytes, default = struct.unpack_from("<II", d, 17)
+            n = d[25]
+            intervals = struct.unpack_from(f"<{n}I", d, 26)
+            out[-1][1].append((w, h, intervals, default, max_bytes))
+    return out
+
+
+def test_the_c310_model_is_the_c310s_usb_descriptors() -> None:
+    """Two transcriptions of one real C310 (its frame descriptors, as the USB testbed holds them)
+    agree with the model: sizes in order, intervals, default intervals, frame buffer sizes."""
+    config = load_model("logitech_c310").parsed_configuration()
+    usb = _uvc_streaming_formats(config)
+    model = [(f.fourcc, [(fr.width_px, fr.height_px, fr.intervals_100ns, fr.default_interval_100ns, fr.max_frame_bytes)
+                         for fr in f.frames]) for f in C310.formats]
+    assert usb == model
