@@ -416,12 +416,13 @@ GELSIGHT_MINI_CONTROLS: tuple[UvcControl, ...] = (
 GELSIGHT_MINI = CameraModel(
     key="gelsight-mini",
     title="GelSight Mini",
-    vendor_id=None,
-    product_id=None,
+    vendor_id=0x0C45,
+    product_id=0x636D,
     manufacturer="Arducam Technology Co., Ltd.",
     product="GelSight Mini R0B 28F5-K4RR",
     function="GelSight Mini R0B 28F5-K4RR",
     serial="28F5K4RR",
+    bcd_device=0x0100,
     formats=(UvcFormat("MJPG", (UvcFrame(3280, 2464, (400000,)),), compressed=True),),
     controls=GELSIGHT_MINI_CONTROLS,
     background="gsmini",
@@ -436,13 +437,15 @@ GELSIGHT_MINI = CameraModel(
         "USB strings: /dev/v4l/by-id/usb-Arducam_Technology_Co.__Ltd._GelSight_Mini_R0B_28F5-K4RR_28F5K4RR-video-index0 "
         "(public lab code) -> manufacturer 'Arducam Technology Co., Ltd.', product 'GelSight Mini R0B <ID>', serial "
         "'<ID without dash>'; uvcvideo names it 'GelSight Mini R0B <ID>: Ge' (31 characters, seen in public code)",
+        "USB ids 0c45:636d (the Sonix/Microdia id of Arducam's UVC module), bcdDevice 1.00, 480 Mb/s, 500 mA: "
+        "lsusb and macOS system_profiler listings of a Mini in xiaoxiaoxh/reactive_diffusion_policy issue #13",
         "two nodes per Mini, capture and metadata: gelsightinc/gsrobotics issue #5",
         "MJPG 3280x2464 at 25 fps: joehjhuang/gs_sdk examples/configs/gsmini.yaml (raw_imgw/raw_imgh/framerate) "
         "and a public V4L2 mode capture (MJPEG 3280x2464, 25 fps advertised, ~18.8 Hz delivered)",
         "control names: gelsightinc/gsrobotics config/mini_set_cam_params.sh",
     ),
     notes=(
-        "USB vendor and product ids are not in any public source read; discovery matches the product string",
+        "0c45:636d is a generic Arducam/Sonix id other cameras share: discovery matches the product string too",
         "only the documented 3280x2464 MJPG mode is modelled (both SDKs ask OpenCV for 320x240 and crop and "
         "resize the raw frame themselves)",
         "control ranges are modelled (see GELSIGHT_MINI_CONTROLS)",
