@@ -329,7 +329,7 @@ C310_CONTROLS: tuple[UvcControl, ...] = (
                label="Exposure, Dynamic Framerate", power_on=1),
 )
 
-# A real C310's frame descriptors (lsusb -v of a C310 in AristoChen/usb-proxy issue 30; the same
+# A real C310's frame descriptors (lsusb -v of a C310 in AristoChen/usb-proxy/issues/30; the same
 # Logitech UVC 1.00 design as the C270 whose complete dump fills the fields that one omits; transcribed
 # in tactile_rig/mocks/usb/models/logitech_c310.toml): size, intervals (100 ns), dwDefaultFrameInterval.
 _C310_30_TO_5 = (333333, 400000, 500000, 666666, 1000000, 2000000)
@@ -366,7 +366,7 @@ C310 = CameraModel(
         "USB ids 046d:081b and card 'UVC Camera (046d:081b)' (no product string: dmesg 'Found UVC 1.00 device "
         "<unnamed> (046d:081b)'): public dmesg and v4l2-ctl --list-devices captures of C310s",
         "frame sizes, intervals and default intervals: the frame descriptors of a real C310 (lsusb -v in "
-        "AristoChen/usb-proxy issue 30), as the USB testbed (tactile_rig/mocks/usb/models/logitech_c310.toml) "
+        "AristoChen/usb-proxy/issues/30), as the USB testbed (tactile_rig/mocks/usb/models/logitech_c310.toml) "
         "transcribes them: MJPG 30, 25, 20, 15, 10, 5 fps at every size; YUYV from 30 fps at 640x480 down to "
         "7.5 and 5 at 1280x960",
         "control table (ids, ranges, steps, defaults, inactive flags, exposure_dynamic_framerate powering up at 1 "
@@ -438,8 +438,8 @@ GELSIGHT_MINI = CameraModel(
         "(public lab code) -> manufacturer 'Arducam Technology Co., Ltd.', product 'GelSight Mini R0B <ID>', serial "
         "'<ID without dash>'; uvcvideo names it 'GelSight Mini R0B <ID>: Ge' (31 characters, seen in public code)",
         "USB ids 0c45:636d (the Sonix/Microdia id of Arducam's UVC module), bcdDevice 1.00, 480 Mb/s, 500 mA: "
-        "lsusb and macOS system_profiler listings of a Mini in xiaoxiaoxh/reactive_diffusion_policy issue #13",
-        "two nodes per Mini, capture and metadata: gelsightinc/gsrobotics issue #5",
+        "lsusb and macOS system_profiler listings of a Mini in xiaoxiaoxh/reactive_diffusion_policy/issues/13",
+        "two nodes per Mini, capture and metadata: gelsightinc/gsrobotics/issues/5",
         "MJPG 3280x2464 at 25 fps: joehjhuang/gs_sdk examples/configs/gsmini.yaml (raw_imgw/raw_imgh/framerate) "
         "and a public V4L2 mode capture (MJPEG 3280x2464, 25 fps advertised, ~18.8 Hz delivered)",
         "control names: gelsightinc/gsrobotics config/mini_set_cam_params.sh",

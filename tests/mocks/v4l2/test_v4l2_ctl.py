@@ -14,7 +14,7 @@ import pytest
 
 from tests._v4l2 import KERNEL_6_1, KERNEL_CURRENT, emulated, run, v4l2_ctl
 
-# A real C310's frame descriptors (lsusb -v, AristoChen/usb-proxy issue 30).
+# A real C310's frame descriptors (lsusb -v, AristoChen/usb-proxy/issues/30).
 C310_SIZES = ["640x480", "160x120", "176x144", "320x176", "320x240", "352x288", "432x240", "544x288",
               "640x360", "752x416", "800x448", "800x600", "864x480", "960x544", "960x720", "1024x576",
               "1184x656", "1280x720", "1280x960"]
