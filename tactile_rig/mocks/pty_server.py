@@ -32,11 +32,11 @@ import random
 import select
 import struct
 import termios
-import threading
 import time
 import tty
 
 from tactile_rig.core.clock import Clock, RealClock
+from tactile_rig.mocks.loop_thread import LoopThread
 from tactile_rig.mocks.serial_device import SerialDevice
 
 log = logging.getLogger("tactile_rig.mocks.pty")
@@ -106,10 +106,10 @@ class _OpenCloseWatch:
             self.fd = None
 
 
-class PtyServer:
+class PtyServer(LoopThread):
     """Serve ``device`` on a new pty pair; ``port`` is the slave path clients open.
 
-    Use as a context manager or call :meth:`start` / :meth:`stop`.
+    Use as a context manager or call :meth:`start` / :meth:`stop`; ``error`` holds what stopped its thread.
     """
 
     def __init__(self, device: SerialDevice, *, clock: Clock | None = None, name: str | None = None) -> None:
@@ -118,6 +118,7 @@ class PtyServer:
         if self.clock.is_virtual:
             raise ValueError("a pty server runs in real time: pass a RealClock (or no clock)")
         self.name = name or device.kind
+        super().__init__(f"pty-{self.name}", log)
         self._master, slave = pty.openpty()
         tty.setraw(self._master)
         self.port = os.ttyname(slave)
@@ -127,37 +128,18 @@ class PtyServer:
         os.set_blocking(self._master, False)
         self._watch = _OpenCloseWatch(self.port)
         self._handles = 0  # client handles open on the slave, as inotify counts them
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
         self.client_open = False
         self.opens = 0
-        self.error: BaseException | None = None
         self._opened_at = 0.0
         self._rng = random.Random(0x5EED)
 
-    # -- lifecycle ---------------------------------------------------------------------------
-    def start(self) -> "PtyServer":
-        if self._thread is None:
-            self._thread = threading.Thread(target=self._run, name=f"pty-{self.name}", daemon=True)
-            self._thread.start()
-        return self
-
-    def stop(self, timeout_s: float = 2.0) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout_s)
-            self._thread = None
+    # -- lifecycle (start, stop, the context manager: LoopThread) ------------------------------
+    def _after_stop(self) -> None:
         try:
             os.close(self._master)
         except OSError:
             pass
         self._watch.close()
-
-    def __enter__(self) -> "PtyServer":
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     # -- the loop -------------------------------------------------------------------------------
     def _client_baud(self) -> int | None:
@@ -167,33 +149,24 @@ class PtyServer:
             return None
         return _BAUD_BY_CONSTANT.get(attrs[5])  # ospeed: what the client configured
 
-    @staticmethod
-    def _tighten_timer_slack() -> None:
+    def _on_thread_start(self) -> None:
         """Linux: this thread's timer slack 50 µs → 1 µs, so timed waits end on time."""
         try:
-            import ctypes
-
             ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_TIMERSLACK, 1000, 0, 0, 0)
         except (OSError, AttributeError):  # not Linux: keep the default slack
             pass
 
-    def _run(self) -> None:
-        self._tighten_timer_slack()
-        try:
-            while not self._stop.is_set():
-                if self._watch.fd is not None:
-                    self._follow_handles()
-                    if self.client_open:
-                        self._serve_once()
-                    else:
-                        time.sleep(_CLOSED_POLL_S)
-                elif not self.client_open:
-                    self._wait_for_open()
-                else:
-                    self._serve_once()
-        except BaseException as exc:  # surfaced to tests through .error; the thread must not die silently
-            self.error = exc
-            log.exception("pty server for %s stopped", self.name)
+    def _once(self) -> None:
+        if self._watch.fd is not None:
+            self._follow_handles()
+            if self.client_open:
+                self._serve_once()
+            else:
+                time.sleep(_CLOSED_POLL_S)
+        elif not self.client_open:
+            self._wait_for_open()
+        else:
+            self._serve_once()
 
     def _follow_handles(self) -> None:
         """With inotify: the device opens when the first client handle opens and closes when the
