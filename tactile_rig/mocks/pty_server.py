@@ -62,6 +62,19 @@ _IN_NONBLOCK, _IN_CLOEXEC = 0o4000, 0o2000000
 _EVENT_HEADER = struct.Struct("iIII")
 
 
+def read_master(fd: int) -> bytes | None:
+    """What a pty master ``fd`` (non-blocking) has to read now (``b""``: nothing yet), or None while
+    no client holds the slave open (the master reads EIO then)."""
+    try:
+        return os.read(fd, 4096)
+    except BlockingIOError:
+        return b""
+    except OSError as exc:
+        if exc.errno == errno.EIO:
+            return None
+        raise
+
+
 class _OpenCloseWatch:
     """Counts the opens and closes of a path (Linux inotify); inert where inotify is unavailable."""
 
@@ -182,15 +195,10 @@ class PtyServer(LoopThread):
 
     def _wait_for_open(self) -> None:
         """Without inotify: the master reads EIO while no client holds the slave."""
-        try:
-            data = os.read(self._master, 4096)
-        except BlockingIOError:
-            data = b""
-        except OSError as exc:
-            if exc.errno == errno.EIO:
-                time.sleep(_CLOSED_POLL_S)
-                return
-            raise
+        data = read_master(self._master)
+        if data is None:
+            time.sleep(_CLOSED_POLL_S)
+            return
         self._open_device()
         if data:
             self._feed(data, self.clock.now_s())
@@ -216,13 +224,8 @@ class PtyServer(LoopThread):
         timeout = wait - _SPIN_S if wait > _SPIN_S else 0.0
         readable, _, _ = select.select([self._master], [], [], timeout)
         if readable:
-            try:
-                data = os.read(self._master, 4096)
-            except BlockingIOError:
-                data = b""
-            except OSError as exc:
-                if exc.errno != errno.EIO:
-                    raise
+            data = read_master(self._master)
+            if data is None:
                 if self._watch.fd is None:
                     self._close_device()
                 else:

@@ -20,7 +20,6 @@ Start it with :meth:`PtyRelay.start` or as a context manager; ``error`` holds wh
 
 from __future__ import annotations
 
-import errno
 import logging
 import os
 import pty
@@ -36,6 +35,7 @@ import serial
 
 from tactile_rig.mocks.faults import FaultInjector
 from tactile_rig.mocks.loop_thread import LoopThread
+from tactile_rig.mocks.pty_server import read_master
 
 log = logging.getLogger("tactile_rig.mocks.relay")
 
@@ -135,14 +135,7 @@ class PtyRelay(LoopThread):
             wait = max(0.0, min(wait, self._held[0][0] - now))
         readable, _, _ = select.select([self._master, self._upstream.fileno()], [], [], wait)
         if self._master in readable:
-            try:
-                data = os.read(self._master, 4096)
-            except BlockingIOError:
-                data = b""
-            except OSError as exc:
-                if exc.errno != errno.EIO:
-                    raise
-                data = b""
+            data = read_master(self._master)  # None: the driver has the port closed for now
             if data:
                 self._upstream.write(data)
         if self._upstream.fileno() in readable:
