@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from tactile_rig.devices import scale as sp
-from tactile_rig.mocks.scale_sketch import BOOTLOADER_S
+from tactile_rig.mocks.scale.sketch import BOOTLOADER_S
 
 __all__ = ["BOOTLOADER_S", "BoardConfig", "CPU_HZ"]
 
