@@ -122,3 +122,40 @@ def driver_on_a_model(port: str, model_key: str, view_name: str | None, frames: 
         got = [cam.read(timeout_s=10.0) for _ in range(frames)]
         return {"format": cam.format, "readback": cam.readback,
                 "frames": [(f.t_device_s, f.image) for f in got]}
+
+
+def source_without_linuxpy(port: str, fifo: str) -> dict[str, Any]:
+    """OpenCVSource where linuxpy is not installed: the controls OpenCV has no property for are refused
+    naming the extra, and a stall is still told from an unplug (by how soon the reads fail)."""
+    import tactile_rig.drivers.camera_opencv as camera_opencv
+
+    camera_opencv.linuxpy_problem = lambda: "linuxpy is not installed: pip install 'tactile-rig[v4l2]' (linuxpy)"
+    os.environ.pop("OPENCV_VIDEOIO_V4L_SELECT_TIMEOUT", None)
+    inject = fifo_injector(fifo)
+    src = camera_opencv.OpenCVSource(port)
+    src.open()
+    src.set_format("YUYV", 320, 240, 30.0)
+    out: dict[str, Any] = {"plf": (src.set_control("power_line_frequency", 1), src.refusal("power_line_frequency"),
+                                   src.get_control("power_line_frequency")),
+                           "gain": (src.set_control("gain", 100), src.get_control("gain"))}
+    src.read()
+    inject("stall", 1.6)
+    kinds = []
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 4.0:
+        kinds.append("frame" if src.read() is not None else "none")
+        if "none" in kinds and kinds[-1] == "frame":
+            break
+    out["stall"] = kinds
+    inject("unplug", 5.0)
+    t0 = time.monotonic()
+    results = []
+    while time.monotonic() - t0 < 3.0:
+        try:
+            results.append("frame" if src.read() is not None else "none")
+        except NotConnected:
+            results.append("NotConnected")
+            break
+    out["unplug"] = (results, time.monotonic() - t0)
+    src.close()
+    return out

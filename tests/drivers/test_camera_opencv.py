@@ -16,7 +16,7 @@ from tactile_rig.drivers.camera import CameraConfig, FingertipCamera, FrameSourc
 from tactile_rig.drivers.camera_frames import sdk_view_image
 from tactile_rig.core.errors import NotConnected
 from tactile_rig.mocks.v4l2.child import run_in_child
-from tests._camera_driver_bodies import driver_on_a_model, driver_through_faults
+from tests._camera_driver_bodies import driver_on_a_model, driver_through_faults, source_without_linuxpy
 from tests._v4l2 import emulated
 
 
@@ -109,6 +109,17 @@ def test_a_digit_configured_from_its_model_locks_its_leds_and_turns_portrait() -
     assert img.shape == (640, 480, 3)  # digit-interface's portrait view
     assert raw is not None
     assert cv2.PSNR(img, np.ascontiguousarray(cv2.flip(cv2.transpose(raw.image), 0))) > 30.0
+
+
+def test_without_linuxpy_the_unmapped_controls_are_refused_by_name_and_an_unplug_still_shows() -> None:
+    with emulated("c310", control_fifo=True) as cam:
+        got = run_in_child(source_without_linuxpy, cam.port, cam.describe()["control"], env=cam.env)
+    ok, why, value = got["plf"]
+    assert not ok and "pip install 'tactile-rig[v4l2]'" in why and value is None
+    assert got["gain"] == (True, 100.0)  # OpenCV's own properties need no extra
+    assert "none" in got["stall"] and got["stall"][-1] == "frame"  # a 1.6 s stall: select timeouts, then frames
+    results, took_s = got["unplug"]
+    assert results[-1] == "NotConnected" and results.count("none") == 2 and took_s < 1.0  # three quick failures
 
 
 def test_a_camera_config_for_the_hardware_path_is_checked_before_opening() -> None:
