@@ -85,8 +85,11 @@ def _check(args: argparse.Namespace) -> int:
         if "format" in d:
             print(f"  {'format':<28} {d['format'][0]} {d['format'][1]}x{d['format'][2]} @ {d['format'][3]:g} fps")
         for k, v in d.get("controls", {}).items():
-            print(f"  {k:<28} {v:g}" + ("" if v == d["locked"][k] else f"  (locked at {d['locked'][k]:g})")
-                  if v is not None else f"  {k:<28} not readable (locked at {d['locked'][k]:g})")
+            want = d["locked"][k]
+            if v is None:
+                print(f"  {k:<28} not readable (locked at {want:g})")
+            else:
+                print(f"  {k:<28} {v:g}" + ("" if abs(v - want) <= 0.5 else f"  (locked at {want:g})"))
         if d.get("mains_hz") is None and "controls" in d:
             print(f"  {'power_line_frequency':<28} not locked: give mains_hz = 50 or 60 in the bench's camera table")
         if "frame_shape" in d:

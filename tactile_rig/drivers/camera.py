@@ -158,7 +158,9 @@ class FingertipCamera(PortDriver):
         self.clock: Clock = clock or RealClock()
         self.threaded = (not self.clock.is_virtual) if threaded is None else bool(threaded)
         self.name = name or f"camera@{getattr(source, 'name', source)}"
-        super().__init__(self.name, reconnect_port=str(getattr(source, "name", source)), stats=CameraStats())
+        # the path or URL reopened after an unplug, as the messages name it
+        port = getattr(source, "path", None) or getattr(source, "url", None) or getattr(source, "name", source)
+        super().__init__(self.name, reconnect_port=str(port), stats=CameraStats())
         self.lifecycle = Lifecycle.CLOSED  # until open()
         self.format: tuple[str, int, int, float] | None = None
         self.readback: dict[str, float] = {}
