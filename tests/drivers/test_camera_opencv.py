@@ -24,7 +24,8 @@ def test_opencv_source_is_a_frame_source() -> None:
     assert isinstance(OpenCVSource(0), FrameSource)
 
 
-def test_an_absent_path_is_not_connected() -> None:
+def test_an_absent_path_is_not_connected(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("OPENCV_VIDEOIO_V4L_SELECT_TIMEOUT", "10")  # open() sets it when absent: keep this process's
     src = OpenCVSource("/dev/v4l/by-id/usb-nothing-video-index0")  # OpenCV's backend finds no device there
     with pytest.raises(NotConnected, match="cannot open video device"):
         src.open()
