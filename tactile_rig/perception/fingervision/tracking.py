@@ -25,8 +25,8 @@ model (a contact, a release or a slip starts or stops): that marker's filter res
 measurement, with the velocity of the displacement since its last measurement (two-point
 initialisation). So the filter smooths rest and steady motion and never lags a measurement by more
 than its gate. It is vectorised over markers, its covariance is updated in Joseph form so it stays
-symmetric positive definite, and a marker that is missed is held still (velocity zeroed, no
-prediction) so it never drifts while it is lost.
+symmetric positive definite, and a marker that is missed is held where it was (velocity zeroed, its
+covariance growing) so it never drifts on a stale velocity.
 """
 
 from __future__ import annotations
@@ -167,17 +167,17 @@ class KalmanBank:
         self.anchor[which] = positions_px[which]
         self.age_s[which] = 0.0
 
-    def snapshot(self) -> tuple[np.ndarray, ...]:
-        return (self.pos.copy(), self.vel.copy(), self.size.copy())
-
-    def predict(self, dt_s: float, which: np.ndarray) -> None:
-        """Advance the selected markers by ``dt_s`` seconds (constant velocity)."""
+    def predict(self, dt_s: float, which: np.ndarray, move: bool = True) -> None:
+        """Advance the selected markers by ``dt_s`` seconds (constant velocity). With ``move=False``
+        they stay where they are with zero velocity while their covariance grows as in a prediction:
+        a missed marker is held, it never drifts on a stale velocity."""
         if not np.any(which):
             return
         sel = _sel(which)
         dt = float(dt_s)
         q00, q01, q11 = self.qa * dt**4 / 4.0, self.qa * dt**3 / 2.0, self.qa * dt * dt
-        self.pos[sel] += self.vel[sel] * dt
+        if move:
+            self.pos[sel] += self.vel[sel] * dt
         # all new values are computed before any is stored: with a slice the inputs are views
         p00, p01, p11 = self.p00[sel], self.p01[sel], self.p11[sel]
         n00 = p00 + 2.0 * dt * p01 + dt * dt * p11 + q00
@@ -186,11 +186,8 @@ class KalmanBank:
         self.p00[sel], self.p01[sel], self.p11[sel] = n00, n01, n11
         self.ps[sel] += self.qs * dt
         self.age_s[sel] += dt
-
-    def nis(self, z: np.ndarray) -> np.ndarray:
-        """Normalised innovation squared of positions ``z`` (N, >= 2) against the current prediction."""
-        innov = np.asarray(z, dtype=np.float64)[:, :2] - self.pos
-        return np.asarray((innov[:, 0] ** 2 + innov[:, 1] ** 2) / (self.p00 + self.r))
+        if not move:
+            self.vel[sel] = 0.0
 
     def update(self, z: np.ndarray, which: np.ndarray, gate_nis: float = math.inf) -> np.ndarray:
         """Fuse measurements ``z`` (N, 3) = (x, y, size) for the selected markers (Joseph form).
@@ -243,13 +240,6 @@ class KalmanBank:
         self.p00[which] = r
         self.p01[which] = np.where(timed, r / safe, 0.0)
         self.p11[which] = np.where(timed, 2.0 * r / safe**2, self.p11[which])
-
-    def hold(self, which: np.ndarray, previous: tuple[np.ndarray, ...]) -> None:
-        """A missed marker stays where it was before the prediction, with zero velocity (no drift)."""
-        pos, _vel, size = previous
-        self.pos[which] = pos[which]
-        self.vel[which] = 0.0
-        self.size[which] = size[which]
 
     def append(self, positions_px: np.ndarray, sizes_px: np.ndarray) -> None:
         """Add markers at rest (zero velocity, initial covariance) after the existing ones."""
@@ -403,10 +393,6 @@ class MarkerTracker:
         # windows and gates follow the measurements, as in the reference; the filter only smooths
         # what is reported, so it can neither lose a marker nor steer a window off it
         centres = np.where(self.lost[:, None], self.baseline.positions_px, self._meas_px)
-        if self.kalman is not None:
-            previous = self.kalman.snapshot()
-            self.kalman.predict(dt_s, active)
-
         meas = np.zeros((n, 2))
         size = np.zeros(n)
         peak = np.zeros(n)
@@ -446,13 +432,15 @@ class MarkerTracker:
         ok &= ~self.lost | (self._confirm >= p.n_confirm)
 
         if self.kalman is not None:
-            z = np.column_stack([meas, size])
             revived = ok & self.lost
-            self.kalman.reset(revived, meas, size)
-            self.kalman.update(z, ok & ~revived, self._gate_nis)
-            self.kalman.hold(~ok, previous)
-            self.positions_px[ok] = self.kalman.positions_px[ok]
-            self.sizes_px[ok] = self.kalman.sizes_px[ok]
+            fused = ok & ~revived
+            self.kalman.predict(dt_s, fused)
+            self.kalman.predict(dt_s, active & ~ok, move=False)
+            if revived.any():
+                self.kalman.reset(revived, meas, size)
+            self.kalman.update(np.column_stack([meas, size]), fused, self._gate_nis)
+            self.positions_px[ok] = self.kalman.pos[ok]
+            self.sizes_px[ok] = self.kalman.size[ok]
         else:
             self.positions_px[ok] = meas[ok]
             self.sizes_px[ok] = size[ok]
@@ -483,7 +471,7 @@ class MarkerTracker:
         keep = np.ones(len(ok), bool)
         cand = np.flatnonzero(ok & self.lost)
         rest = self.baseline.positions_px[cand]
-        radius = self.baseline.sizes_px[cand] / 2 + (p.disc_margin_px or 1.0)
+        radius = self.baseline.sizes_px[cand] / 2 + (1.0 if p.disc_margin_px is None else p.disc_margin_px)
         keep[cand] = _whole_in_window(contrast, rest, meas[cand], peak[cand], radius, p.lost_window_half_px,
                                       p.rel_threshold)
         live = centres[~self.lost]
