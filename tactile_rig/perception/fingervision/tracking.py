@@ -1,8 +1,8 @@
 """Marker identities across frames: gated windowed re-detection plus an optional per-marker Kalman filter.
 
 Each marker of the baseline keeps its id for ever. Every frame, each marker is re-measured inside a
-small window around its last measured position by thresholded moments of the contrast map (cheap,
-and sub-pixel), then accepted only if it passes the reference's gates: peak contrast, position jump
+small window around its last measured position (its rest position while the skin is known to be
+still, ``at_rest``) by thresholded moments of the contrast map (cheap, and sub-pixel), then accepted only if it passes the reference's gates: peak contrast, position jump
 (``max_jump_px``, VPMax), size jump (``max_size_jump_px``, VSMax), and no other marker measured at
 the same place. Two tracked markers measured on one dot (a crossing) can no longer be told apart:
 both are lost at once. A marker that fails ``n_reset`` frames in a row is lost too. A lost marker is
@@ -370,8 +370,12 @@ class MarkerTracker:
             self.kalman.append(pos, size)
         return self.ids[n0:].copy()
 
-    def update(self, contrast: np.ndarray, t_s: float | None = None) -> TrackState:
+    def update(self, contrast: np.ndarray, t_s: float | None = None, at_rest: bool = False) -> TrackState:
         """Measure every marker in ``contrast`` (see :func:`markers.contrast_map`); returns the new state.
+
+        ``at_rest``: the skin is known to be still (no contact, e.g. the frames that refine the rest
+        positions): every tracked marker is measured around its rest position rather than its last
+        measured one, so print beside a marker cannot drag its window a little further every frame.
 
         Valid input: a contrast map (H x W, values 0..1; NaN reads as no contrast) and a finite ``t_s``
         (s) or None; a time step is at most ``max_dt_s``. Positions stay finite and inside the frame.
@@ -392,7 +396,8 @@ class MarkerTracker:
         active = ~self.lost
         # windows and gates follow the measurements, as in the reference; the filter only smooths
         # what is reported, so it can neither lose a marker nor steer a window off it
-        centres = np.where(self.lost[:, None], self.baseline.positions_px, self._meas_px)
+        centres = self.baseline.positions_px.astype(np.float64).reshape(n, 2) if at_rest else np.where(
+            self.lost[:, None], self.baseline.positions_px, self._meas_px)
         meas = np.zeros((n, 2))
         size = np.zeros(n)
         peak = np.zeros(n)

@@ -205,6 +205,20 @@ def test_a_live_marker_crossing_a_lost_markers_rest_position_stays_live(use_kalm
         assert np.hypot(*(st_.positions_px[1] - b)) <= PLAIN_TOL_PX + (_gate_radius_px(p) if use_kalman else 0.0)
 
 
+def test_at_rest_a_marker_beside_larger_print_is_measured_around_its_rest_position() -> None:
+    """While the skin is known to be still (``at_rest``, the refinement frames), a dark dot larger than
+    a marker 9 px beside it biases its measurement by one frame's pull at most: the window stays on
+    the rest position instead of following the pull further every frame."""
+    rest = np.array([[160.3, 120.2]])
+    print_dot = rest[0] + [9.0, 0.7]
+    frame_pts = np.vstack([rest, print_dot])
+    tracker = MarkerTracker(_baseline(rest), TrackerParams(use_kalman=False))
+    for k in range(30):
+        contrast = contrast_map(render(frame_pts, marker_r_px=np.array([4.0, 5.0]), seed=k))[2]
+        st_ = tracker.update(contrast, at_rest=True)
+        assert st_.found[0] and np.hypot(*(st_.positions_px[0] - rest[0])) <= 1.0, f"frame {k}: {st_.positions_px[0]}"
+
+
 def _steady_run(speed_px: float, angle_deg: float, seed: int, params: TrackerParams, frames: int = 16):
     """A 3 x 3 patch of markers (50 x 40 px pitch) starting from rest at ``speed_px`` a frame in one
     direction; yields (frame, truth, state) for every frame."""
