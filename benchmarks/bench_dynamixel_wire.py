@@ -7,7 +7,7 @@ Two parts, each beside its baseline in the same run:
   failure), untyped exceptions, hangs (an operation over 1 s of virtual time) and silently wrong
   values (a read that differs from the mock's register, a write that returned but did not land).
   Protocol 1.0 reads use ``verify=True`` here; the baseline rows are the bare dynamixel-sdk
-  (``PacketHandler.readTxRx`` / ``ping``) on the same faults, as issue #11 found it.
+  (``PacketHandler.readTxRx`` / ``ping``) on the same faults.
 * **P1 residual**: the rate of wrong values among Protocol 1.0 reads of Goal Position with 1-8
   random bytes inserted at a random place inside 30 % of the statuses (line noise): the bare SDK,
   the bus's raw bytes, the bus's range-checked item, and the item with read-verify.

@@ -4,7 +4,7 @@
 
 Side by side in the same run: the reference setting (fv_2_r.yaml thresholds through plain
 SimpleBlobDetector), our per-frame detector, tracking with ids from the first frame (the default,
-``init="lattice"``) and the older scheme whose first ``n_calib_frames`` frames only build a baseline
+``init="lattice"``) and the reference's scheme whose first ``n_calib_frames`` frames only build a baseline
 (``init="frames"``). Prints tables; writes ``benchmarks/results/fingervision.json`` only with
 ``--save``. Real frames are read in place from ../shared/data/real/fingervision_demo_gpl3 (GPL;
 skipped if absent) and scored against ``tests/data/fingervision_labels``. Speed is measured on one
@@ -254,8 +254,8 @@ def bench_speed(quick: bool) -> dict:
     other processes on the machine penalise all methods alike.
 
     Rendered 320x240 frames (30 markers, an object): the full processor with and without Kalman, and
-    the per-frame detectors (reference = the old baseline). The real 320x240 frames (when present):
-    tracking with ids from the first frame (default), the older frames-baseline scheme after its
+    the per-frame detectors (reference = plain SimpleBlobDetector). The real 320x240 frames (when present):
+    tracking with ids from the first frame (default), the frames-baseline scheme after its
     baseline, the first frame's one-off cost (our detector + the lattice fit) and the reference
     detector, all in the same rounds.
     """

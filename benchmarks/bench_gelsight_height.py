@@ -184,15 +184,15 @@ def main() -> int:
         sides = {"ours": ours, "ours_reduced": ours_reduced, "baseline": baseline}
         best = {k: float("inf") for k in sides}
         cpu = {k: float("inf") for k in sides}
-        keep = {"ours0", "ours--lookup_reduced1", "base2"}  # the first round's maps, checked below
+        keep = {"ours0", "ours--lookup_reduced1", "base2"}  # the maps written first, checked below
         os.sync()  # earlier runs' dirty pages are not this run's to write back
         for _ in range(max(1, args.rounds)):
             for name, fn in sides.items():
                 wall, c = fn()
                 best[name] = min(best[name], wall)
                 cpu[name] = min(cpu[name], c)
-                # Each round's 60 MB of maps deleted once timed: a user writes one folder, not the
-                # gigabyte of rounds that had built up as dirty pages and slowed later writes 2-7x.
+                # Each round's 60 MB of maps deleted once timed: a user writes one folder, not a
+                # gigabyte of kept rounds, which builds up as dirty pages and slows later writes 2-7x.
                 for old in t.iterdir():
                     if old.name.startswith(("ours", "base")) and old.name not in keep:
                         shutil.rmtree(old)

@@ -41,12 +41,14 @@ MM_PER_PX = "0.0634"
 
 @dataclass(frozen=True)
 class BadCase:
-    """One malformed input: the kind, a short name of the malformation, the file and the argv."""
+    """One input of a file-reading command: the kind, a short name of the malformation, the file, the
+    argv, and the exit code the command must give (2 for a malformed input; a valid one's own)."""
 
     kind: str
     name: str
     path: str
     argv: tuple[str, ...]
+    exit_code: int = 2
 
 
 # -- valid companions -------------------------------------------------------------------------
@@ -552,31 +554,31 @@ def good_case(kind: str, out_dir: str | Path, *, seed: int = 0) -> BadCase | Non
     png = out / "f.png"
     png.write_bytes(_png(good_image(np.random.default_rng(seed + 2))))
     if kind == "npy":
-        return BadCase(kind, "valid", str(h), ("gelsight", "register", str(h), str(h), "--mm-per-px", MM_PER_PX))
+        return BadCase(kind, "valid", str(h), ("gelsight", "register", str(h), str(h), "--mm-per-px", MM_PER_PX), exit_code=0)
     if kind == "tactile-map":
         # a map made of the touch it is asked to localize: the command finds it (exit 0)
         tmap = TactileMap(float(MM_PER_PX))
         if not tmap.add_touch(np.load(h)).accepted:
             raise RuntimeError("the valid tactile map's root touch was refused")
         m = tmap.save(out / "map.npz")
-        return BadCase(kind, "valid", str(m), ("gelsight", "localize", str(m), str(h)))
+        return BadCase(kind, "valid", str(m), ("gelsight", "localize", str(m), str(h)), exit_code=0)
     fv = out / "fv.png"
     fv.write_bytes(_png(FingerVisionRenderer(seed=seed).render()[0]))  # a rest frame with its markers
     if kind == "image":
-        return BadCase(kind, "valid", str(fv), ("fingervision", "track", str(fv)))
+        return BadCase(kind, "valid", str(fv), ("fingervision", "track", str(fv)), exit_code=0)
     if kind == "fv-config":
         c = out / "fv.json"
         c.write_text(json.dumps({"n_calib_frames": 1}))
-        return BadCase(kind, "valid", str(c), ("fingervision", "track", str(fv), "--config", str(c)))
+        return BadCase(kind, "valid", str(c), ("fingervision", "track", str(fv), "--config", str(c)), exit_code=0)
     if kind == "mcap":
         m = out / "good.mcap"
         m.write_bytes(_good_mcap(nrng))
-        return BadCase(kind, "valid", str(m), ("replay", str(m)))
+        return BadCase(kind, "valid", str(m), ("replay", str(m)), exit_code=0)
     if kind == "gripper-calibration":
         c = out / "gripper.json"
         c.write_text(json.dumps({"closed_ticks": 1024, "open_ticks": 3072, "max_opening_m": 0.1}))
         return BadCase(kind, "valid", str(c), ("gripper", "state", "--port", "rigsim://dynamixel?ids=1",
-                                               "--calibration", str(c)))
+                                               "--calibration", str(c)), exit_code=0)
     if kind == "calibration":
         base = out / "cal"
         base.with_suffix(".json").write_text(json.dumps({
@@ -586,10 +588,10 @@ def good_case(kind: str, out_dir: str | Path, *, seed: int = 0) -> BadCase | Non
         base.with_suffix(".npz").write_bytes(_write_npz({f"{k}.npy": _npy_bytes(v) for k, v in {
             "background": bg, "model_hyper": np.array([8.0, 128.0]), "model_table": np.zeros((8, 8, 8, 2), np.float32),
             "model_filled": np.ones((8, 8, 8), bool)}.items()}))
-        return BadCase(kind, "valid", str(base), ("gelsight", "height", str(base), str(png), "-o", str(out / "h_out.npy")))
+        return BadCase(kind, "valid", str(base), ("gelsight", "height", str(base), str(png), "-o", str(out / "h_out.npy")), exit_code=0)
     if kind == "arguments":
         return BadCase(kind, "valid", str(h), ("gelsight", "register", str(h), str(h), "--mm-per-px", MM_PER_PX,
-                                               "--ransac-iters", "256"))
+                                               "--ransac-iters", "256"), exit_code=0)
     return None
 
 

@@ -1,10 +1,10 @@
 """The ``tactile-rig`` command line: one console script with subcommands.
 
 Each command group lives in its own module under :mod:`tactile_rig.cli` and exposes
-``register(subparsers)``. A handler returns the process exit code. Errors from the rig
-(:class:`~tactile_rig.core.errors.RigError`) and bad arguments (``ValueError``) become one line on
-stderr and exit code 2; a device fault exits 3 so scripts can tell it from a failed verdict (1); an
-unexpected exception (a bug) exits 70 with one line (:func:`tactile_rig.cli.common.run_handler`).
+``register(subparsers)``. A handler returns the process exit code: 0 done, 1 a failed verdict.
+Errors from the rig (:class:`~tactile_rig.core.errors.RigError`) and bad arguments (``ValueError``)
+become one line on stderr and exit 2; a device fault exits 3; an unexpected exception (a bug) exits
+70 with one line (:func:`tactile_rig.cli.common.run_handler`; the table: :data:`~tactile_rig.cli.common.EXIT_CODES`).
 """
 
 from __future__ import annotations
@@ -16,7 +16,18 @@ import sys
 from typing import Sequence
 
 from tactile_rig import __version__
-from tactile_rig.cli.common import EXIT_ERROR, EXIT_FAILED, EXIT_FAULT, EXIT_INTERNAL, EXIT_OK, OneLineParser, run_handler
+from tactile_rig.cli.common import (
+    EXIT_CODES,
+    EXIT_ERROR,
+    EXIT_FAILED,
+    EXIT_FAULT,
+    EXIT_INTERNAL,
+    EXIT_OK,
+    OneLineParser,
+    exit_codes_text,
+    missing_action,
+    run_handler,
+)
 
 # Command groups, in the order they appear in --help.
 COMMAND_MODULES: tuple[str, ...] = (
@@ -35,11 +46,12 @@ COMMAND_MODULES: tuple[str, ...] = (
     "calibrate",
     "substance",
     "replay",
+    "export",
     "sweep",
     "trade",
 )
 
-__all__ = ["EXIT_OK", "EXIT_FAILED", "EXIT_ERROR", "EXIT_FAULT", "EXIT_INTERNAL", "build_parser", "main"]
+__all__ = ["EXIT_CODES", "EXIT_OK", "EXIT_FAILED", "EXIT_ERROR", "EXIT_FAULT", "EXIT_INTERNAL", "build_parser", "main"]
 
 
 def _command_of(argv: Sequence[str]) -> str | None:
@@ -63,6 +75,8 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     parser = OneLineParser(
         prog="tactile-rig",
         description="Drivers, faithful mocks, perception and controllers for tactile grippers.",
+        epilog=exit_codes_text(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"tactile-rig {__version__}")
     parser.add_argument(
@@ -74,6 +88,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in (only,) if only is not None else COMMAND_MODULES:
         importlib.import_module(f"tactile_rig.cli.{name}").register(sub)
+    parser.set_defaults(func=lambda args: missing_action(parser, sub, "COMMAND"))
     return parser
 
 
@@ -85,11 +100,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(
         level=getattr(logging, args.log_level), format="%(asctime)s %(name)s %(levelname)s %(message)s"
     )
-    func = getattr(args, "func", None)
-    if func is None:
-        parser.print_help()
-        return EXIT_ERROR
-    return run_handler(func, args)
+    return run_handler(args.func, args)
 
 
 if __name__ == "__main__":  # pragma: no cover

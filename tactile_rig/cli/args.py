@@ -2,6 +2,9 @@
 
 A value out of range is a usage error (one line, exit 2) naming the option, the value and the
 allowed range: ``--ransac-iters 1e9``, ``--mm-per-px 1e300``, ``--fps nan`` never reach the code.
+This is the one place a single argument is checked; a handler checks only what needs several
+arguments together (``jig move`` needs one of ``--x``/``--y``/``--theta``; a jig target against
+the bench's limits) and raises ``ValueError`` naming them.
 
 Output paths (``-o``/``--out``): the *parent* folder must exist; only the leaf (the file, or the
 output folder itself) is created. A typo in a path (``runs/r1`` for ``run/r1``) is then an error
@@ -15,7 +18,10 @@ import math
 from pathlib import Path
 from typing import Callable
 
-__all__ = ["int_in", "float_in", "output_file", "output_dir", "input_path"]
+__all__ = [
+    "BAUD", "COUNT", "DURATION_S", "EFFORT", "SEED", "TIMEOUT_S", "any_int", "finite_float", "float_in", "input_path",
+    "int_in", "output_dir", "output_dir_or", "output_file", "output_file_or",
+]
 
 
 def _number(text: str) -> float:
@@ -129,6 +135,12 @@ any_int.__name__ = "integer"
 
 SEED = int_in(0, 2**32 - 1)  # NumPy seeds are non-negative
 SEED.__name__ = "seed"
+
+BAUD = int_in(300, 4_500_000, "baud")  # what the bench file accepts; a driver narrows it to its device's rates
+COUNT = int_in(1, 1_000_000_000)  # readings, frames, episodes, trials: at least one
+TIMEOUT_S = float_in(0.0, 86_400.0, "s", low_open=True)  # a wait: more than zero, at most a day
+DURATION_S = float_in(0.0, 30 * 86_400.0, "s", low_open=True)  # a session: more than zero, at most a month
+EFFORT = float_in(0.0, 1.0, low_open=True)  # a fraction of the servo's current limit
 
 
 def output_dir_or(default: str) -> Callable[[str], str]:

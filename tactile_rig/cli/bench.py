@@ -12,17 +12,16 @@ import sys
 import threading
 from typing import Any
 
-from tactile_rig.cli.args import SEED, any_int, finite_float, output_dir
+from tactile_rig.cli.args import DURATION_S, SEED, float_in, int_in, output_dir
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
-from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.cli.common import EXIT_FAILED, EXIT_FAULT, add_command_group, add_json_flag, print_json
 from tactile_rig.rig.bench_check import check_bench, format_check_table
 from tactile_rig.rig.rehearsal import RehearsalBench, RehearsalOptions
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser("bench", help="rehearse a bench without hardware; check a bench's devices",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    bsub = p.add_subparsers(dest="bench_command", metavar="ACTION")
+    _, bsub = add_command_group(sub, "bench", help="rehearse a bench without hardware; check a bench's devices",
+                                description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
 
     r = bsub.add_parser("rehearse", help="serve every device from its mock in its own process and write "
                         "bench.toml naming them; runs until Ctrl-C",
@@ -38,8 +37,8 @@ def register(sub: Any) -> None:
     r.add_argument("--seed", type=SEED, default=0, help="seed of the mocks' noise (default 0)")
     r.add_argument("--homing", action="store_true",
                    help="GRBL homing enabled: the jig boots locked and $H takes ~20 s, as on a real jig")
-    r.add_argument("--gelsight-fps", type=finite_float, default=25.0, help="frame rate of the GelSight camera (default 25)")
-    r.add_argument("--gelsight-jpeg-quality", type=any_int, default=95, metavar="Q",
+    r.add_argument("--gelsight-fps", type=float_in(0.0, 1000.0, "frames/s", low_open=True), default=25.0, help="frame rate of the GelSight camera (default 25)")
+    r.add_argument("--gelsight-jpeg-quality", type=int_in(1, 100), default=95, metavar="Q",
                    help="JPEG quality of the GelSight stream, 1..100 (default 95, as a camera's MJPG)")
     r.add_argument("--stage-scene", default="jig_accuracy", metavar="SCENE",
                    help="what lies on the jig's stage under the GelSight camera: jig_accuracy (the object of "
@@ -49,7 +48,7 @@ def register(sub: Any) -> None:
                         "scale and that camera share one process and world (for calibrate force-map)")
     r.add_argument("--no-calibration", action="store_true",
                    help="do not make the GelSight calibration on the mocks (the bench then names none)")
-    r.add_argument("--duration", type=finite_float, metavar="S", help="stop after S seconds instead of at Ctrl-C")
+    r.add_argument("--duration", type=DURATION_S, metavar="S", help="stop after S seconds instead of at Ctrl-C")
     add_json_flag(r)
     r.set_defaults(func=_rehearse)
 
@@ -60,7 +59,6 @@ def register(sub: Any) -> None:
     add_bench_arguments(c)
     add_json_flag(c)
     c.set_defaults(func=_check)
-    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
 def parse_camera_option(text: str) -> tuple[str, str, str]:
@@ -76,8 +74,6 @@ def parse_camera_option(text: str) -> tuple[str, str, str]:
 
 def _rehearse(args: argparse.Namespace) -> int:
     cams = [parse_camera_option(c) for c in args.camera]
-    if args.duration is not None and not args.duration > 0:
-        raise ValueError(f"--duration {args.duration} must be > 0 s")
     opts = RehearsalOptions(cameras={n: s for n, s, _ in cams}, camera_sensors={n: k for n, _, k in cams},
                             seed=args.seed, homing=args.homing, gelsight_fps=args.gelsight_fps,
                             gelsight_jpeg_quality=args.gelsight_jpeg_quality, stage_scene=args.stage_scene,
@@ -109,7 +105,7 @@ def _rehearse(args: argparse.Namespace) -> int:
             broken = rb.problems()
             if broken:
                 print("tactile-rig: rehearsal device process stopped: " + "; ".join(broken), file=sys.stderr)
-                return 3
+                return EXIT_FAULT
             if args.duration is not None and waited >= args.duration:
                 break
     return 0
@@ -126,5 +122,5 @@ def _check(args: argparse.Namespace) -> int:
     failed = [r.device for r in rows if not r.ok]
     if failed:
         print(f"tactile-rig: bench check failed: {', '.join(failed)}", file=sys.stderr)
-        return 1
+        return EXIT_FAILED
     return 0

@@ -1,8 +1,11 @@
 """Live perception from a bench camera for ``fingervision track --bench`` and ``gelsight height --bench``,
 and the ``--live`` arguments every live-capable command shares.
 
-    tactile-rig fingervision track --bench bench.toml [--camera NAME] [--duration S] [--live]
+    tactile-rig fingervision track --bench bench.toml [--camera NAME] [--duration S] [--live] [--record OUT.mcap]
     tactile-rig gelsight height --bench bench.toml [CALIB] [--camera NAME] [--duration S] [--live] [-o OUT.npy]
+
+``--live`` serves and ``--record`` records the same typed messages (the frame, the step's result and
+its views: markers, arrows and wrench; the height map as a point cloud; the localized pose).
 
 Each frame prints one line (or one JSON object with --json) with the measured frame rate and the
 processing time; a summary follows.
@@ -18,14 +21,14 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from tactile_rig.cli.args import any_int, finite_float
+from tactile_rig.cli.args import COUNT, DURATION_S, float_in, int_in, output_file
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.common import print_json
 from tactile_rig.perception.gelsight import IntegrationParams
 from tactile_rig.rig.bench_camera import camera_name
 from tactile_rig.rig.camera_calibrations import camera_calibrations, describe_files
-from tactile_rig.rig.live import DEFAULT_LIVE_PORT, LiveServer
-from tactile_rig.rig.recording import camera_topic
+from tactile_rig.rig.live import DEFAULT_LIVE_PORT, LiveServer, Tee
+from tactile_rig.rig.recording import Recorder, camera_topic
 from tactile_rig.rig.live_perception import (
     FingerVisionStep,
     GelSightHeightStep,
@@ -43,16 +46,31 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--live", action="store_true",
                         help=f"serve the session live over the Foxglove WebSocket protocol on 127.0.0.1 "
                              f"(ws://127.0.0.1:{DEFAULT_LIVE_PORT} in Foxglove; needs tactile-rig[live])")
-    parser.add_argument("--live-port", type=any_int, default=DEFAULT_LIVE_PORT, metavar="PORT",
+    parser.add_argument("--live-port", type=int_in(0, 65535), default=DEFAULT_LIVE_PORT, metavar="PORT",
                         help=f"port of the live view (default {DEFAULT_LIVE_PORT}; 0: any free port, printed)")
-    parser.add_argument("--live-wait", type=finite_float, default=0.0, metavar="S",
+    parser.add_argument("--live-wait", type=float_in(0.0, 3600.0, "s"), default=0.0, metavar="S",
                         help="with --live: wait up to S s for a viewer to subscribe before starting (default 0)")
 
 
-# What a jig accuracy run publishes (the camera's topic depends on its name).
+# What a jig accuracy run publishes (the camera's topics depend on its name).
 JIG_ACCURACY_TOPICS = {"/perception/jig_accuracy_point": "tactile_rig.Perception",
                        "/perception/tactile_map_touch": "tactile_rig.Perception",
-                       "/jig/pose": "tactile_rig.JigPose", "/command/jig": "tactile_rig.Command"}
+                       "/jig/pose": "tactile_rig.JigPose", "/tf": "foxglove.FrameTransforms",
+                       "/command/jig": "tactile_rig.Command", "/log": "foxglove.Log"}
+
+
+def step_topics(camera: str, step: str) -> dict[str, str]:
+    """The topics (-> schema) a live perception step publishes for ``camera``."""
+    topics = {camera_topic(camera, compressed=True): "foxglove.CompressedImage",
+              f"/perception/{camera}/{step}": "tactile_rig.Perception"}
+    if step == "fingervision":
+        topics.update({f"/{camera}/markers": "foxglove.ImageAnnotations",
+                       f"/{camera}/marker_arrows": "foxglove.SceneUpdate", f"/{camera}/wrench": "tactile_rig.Wrench"})
+    elif step == "height":
+        topics[f"/{camera}/height/points"] = "foxglove.PointCloud"
+    elif step == "localize":
+        topics[f"/{camera}/localize/pose"] = "foxglove.PoseInFrame"
+    return topics
 
 SESSION_TOPIC = "/session"  # advertised at once so a viewer can subscribe before the session's own topics exist
 
@@ -66,8 +84,6 @@ def live_from_args(args: argparse.Namespace, clock: Any = None,
     waits up to S s for a viewer subscribed to all of them (or, without ``topics``, to anything)."""
     if not getattr(args, "live", False):
         return None
-    if args.live_wait < 0:
-        raise ValueError(f"--live-wait {args.live_wait} must be >= 0 s")
     live = LiveServer(port=args.live_port, clock=clock)
     print(f"live view: {live.url} (Foxglove: Open connection -> Foxglove WebSocket)", file=sys.stderr, flush=True)
     if isinstance(topics, tuple):
@@ -84,8 +100,10 @@ def add_bench_camera_arguments(parser: argparse.ArgumentParser) -> None:
     """What a perception command needs to run live from a bench camera."""
     add_bench_arguments(parser)
     parser.add_argument("--camera", metavar="NAME", help="which camera of the bench (default: the first of the sensor)")
-    parser.add_argument("--duration", type=finite_float, metavar="S", help="stop after S seconds (default: at Ctrl-C)")
-    parser.add_argument("--frames-max", dest="frames_max", type=any_int, metavar="N", help="stop after N frames")
+    parser.add_argument("--duration", type=DURATION_S, metavar="S", help="stop after S seconds (default: at Ctrl-C)")
+    parser.add_argument("--frames-max", dest="frames_max", type=COUNT, metavar="N", help="stop after N frames")
+    parser.add_argument("--record", metavar="OUT.mcap", type=output_file(".mcap"),
+                        help="also record what the live view shows (frames, results, markers, point clouds) to an MCAP")
     add_live_arguments(parser)
 
 
@@ -100,8 +118,18 @@ def wants_bench(args: argparse.Namespace, *files: str) -> bool:
 def _run(args: argparse.Namespace, step: Any, sensor: str, line: Any) -> int:
     bench = bench_from_args(args)
     cam = camera_name(bench, args.camera, sensor)
-    live = live_from_args(args, topics={camera_topic(cam, compressed=True): "foxglove.CompressedImage",
-                                        f"/perception/{cam}/{step.name}": "tactile_rig.Perception"})
+    live = live_from_args(args, topics=step_topics(cam, step.name))
+    out = getattr(args, "record", None)
+    recorder = None
+    if out:
+        try:
+            recorder = Recorder(out)
+            recorder.add_bench(bench)
+        except BaseException:
+            if live is not None:
+                live.close()
+            raise
+    sink = Tee(recorder, live) if recorder is not None else live
     as_json = bool(getattr(args, "json", False))
 
     def on_frame(row: dict[str, Any]) -> None:
@@ -113,15 +141,19 @@ def _run(args: argparse.Namespace, step: Any, sensor: str, line: Any) -> int:
 
     try:
         s = run_live(bench, cam, step, sensor=sensor, duration_s=args.duration, max_frames=args.frames_max,
-                     live=live, on_frame=on_frame,
+                     live=sink, on_frame=on_frame,
                      publish_image=(lambda img: None if step.last is None else height_image(step.last))
                      if isinstance(step, GelSightHeightStep)
                      else None)
     finally:
+        if recorder is not None:
+            recorder.close()
         if live is not None:
             live.close()
+    if recorder is not None and not as_json:
+        print(f"recorded to {recorder.path}", file=sys.stderr)
     if as_json:
-        print_json({"summary": True, **vars(s)})
+        print_json({"summary": True, **vars(s), **({"recording": str(recorder.path)} if recorder is not None else {})})
     else:
         print(f"{s.camera}: {s.frames} frames in {s.duration_s:.2f} s, {s.fps:.2f} fps, {s.step} {s.work_ms:.1f} ms/frame")
     return 0 if s.frames else 1

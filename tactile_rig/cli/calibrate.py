@@ -11,28 +11,25 @@ import argparse
 from pathlib import Path
 from typing import Any, Callable
 
-from tactile_rig.cli.args import SEED, any_int, finite_float, output_dir_or
+from tactile_rig.cli.args import EFFORT, SEED, float_in, int_in, output_dir_or
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.calibrate_sessions import connect_session_rig, register_sessions, session_guide
-from tactile_rig.cli.common import add_json_flag, print_json
-from tactile_rig.cli.replay import extras_as_errors
+from tactile_rig.cli.common import add_command_group, add_json_flag, extras_as_errors, print_json
 from tactile_rig.rig.camera_calibrations import camera_calibrations
 from tactile_rig.rig.jig_accuracy import sim_camera_connector
 from tactile_rig.rig.learning import DEFAULT_GAMMA, force_map_session, substance_session
 from tactile_rig.rig.live_collection import PressPlan, collect_force_map, collect_stirring
+from tactile_rig.sim.scenes import FORCE_MAP_PRESS_SCENE
 from tactile_rig.sim.world.stick_press import increasing_peaks
-
-MOCK_PRESS_SCENE = "force_map_press"  # the simulated fingertip pressing on the scale
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("calibrate", help="calibration and learning sessions (force map, substance classifier, ...)")
-    csub = p.add_subparsers(dest="calibrate_command", metavar="SESSION")
+    _, csub = add_command_group(sub, "calibrate", metavar="SESSION",
+                                help="calibration and learning sessions (force map, substance classifier, ...)")
     for reg in (_register_force_map, _register_substance):
         reg(csub)
 
     register_sessions(csub)
-    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
 def _source_arguments(p: argparse.ArgumentParser) -> None:
@@ -85,28 +82,24 @@ def _register_force_map(csub: argparse._SubParsersAction) -> None:
                         "fit RBF kernel ridge regression on robust-scaled marker forces, report the MSE on a "
                         "held-out trial, save force_map.npz + force_map.json (no pickle).")
     _source_arguments(p)
-    p.add_argument("--trials", type=any_int, default=10, help="number of presses (default 10)")
-    p.add_argument("--max-force", type=finite_float, default=20.0, help="peak force of the last press in N (default 20)")
-    p.add_argument("--holdout", type=any_int, help="trial held out for the MSE (default: the middle one)")
-    p.add_argument("--alpha", type=finite_float, default=0.02, help="ridge penalty λ (default 0.02, as the thesis)")
-    p.add_argument("--gamma", type=finite_float, default=None, help="RBF gamma on robust-scaled features (default 0.05)")
+    p.add_argument("--trials", type=int_in(2, 10_000), default=10, help="number of presses, one held out (default 10)")
+    p.add_argument("--max-force", type=float_in(0.0, 10_000.0, "N", low_open=True), default=20.0, help="peak force of the last press in N (default 20)")
+    p.add_argument("--holdout", type=int_in(0, 10_000), help="trial held out for the MSE (default: the middle one)")
+    p.add_argument("--alpha", type=float_in(0.0, 1e6, low_open=True), default=0.02, help="ridge penalty λ (default 0.02, as the thesis)")
+    p.add_argument("--gamma", type=float_in(0.0, 1e6, low_open=True), default=None, help="RBF gamma on robust-scaled features (default 0.05)")
     p.add_argument("--out", default="calib/force_map", type=output_dir_or("calib/force_map"), help="output folder (default calib/force_map)")
-    p.add_argument("--max-effort", type=finite_float, default=0.5,
+    p.add_argument("--max-effort", type=EFFORT, default=0.5,
                    help="live: effort cap, fraction of the current limit (default 0.5)")
-    p.add_argument("--release-opening-m", type=finite_float, default=0.06,
+    p.add_argument("--release-opening-m", type=float_in(0.0, 1.0, "m"), default=0.06,
                    help="live: opening between presses in m, clear of the platform (default 0.06)")
-    p.add_argument("--ramp", type=finite_float, default=1.0, help="live: seconds to reach each press's peak (default 1)")
-    p.add_argument("--hold", type=finite_float, default=0.5, help="live: seconds at the peak (default 0.5)")
+    p.add_argument("--ramp", type=float_in(0.0, 3600.0, "s", low_open=True), default=1.0, help="live: seconds to reach each press's peak (default 1)")
+    p.add_argument("--hold", type=float_in(0.0, 3600.0, "s"), default=0.5, help="live: seconds at the peak (default 0.5)")
     p.set_defaults(func=_force_map)
 
 
 @extras_as_errors
 def _force_map(args: argparse.Namespace) -> int:
     bench, live = _check_source(args, "force-map")
-    if args.trials < 2:
-        raise ValueError(f"--trials {args.trials} must be >= 2 (one trial is held out)")
-    if not args.max_force > 0:
-        raise ValueError(f"--max-force {args.max_force} must be > 0 N")
     collect: Callable[[Path], Path] | None = None
     camera = args.camera
     if live:
@@ -140,21 +133,19 @@ def _register_substance(csub: argparse._SubParsersAction) -> None:
                         description="Stirring trials → windows of marker-force statistics → MLPClassifier "
                         "(10, 10, 10), logistic, lbfgs; accuracy on held-out trials; saves substance.npz + .json.")
     _source_arguments(p)
-    p.add_argument("--per-substance", type=any_int, default=12, help="mock trials per substance (default 12)")
-    p.add_argument("--window", type=finite_float, default=2.0, help="feature window in s (default 2)")
-    p.add_argument("--test-fraction", type=finite_float, default=0.25, help="trials held out per substance (default 0.25)")
+    p.add_argument("--per-substance", type=int_in(2, 10_000), default=12, help="mock trials per substance (default 12)")
+    p.add_argument("--window", type=float_in(0.0, 3600.0, "s", low_open=True), default=2.0, help="feature window in s (default 2)")
+    p.add_argument("--test-fraction", type=float_in(0.0, 1.0, low_open=True), default=0.25, help="trials held out per substance (default 0.25)")
     p.add_argument("--out", default="calib/substance", type=output_dir_or("calib/substance"), help="output folder (default calib/substance)")
     p.add_argument("--substances", help="live: comma-separated substances to stir, e.g. water,oil,honey")
-    p.add_argument("--trial-s", type=finite_float, default=10.0, help="live: seconds of stirring per trial (default 10)")
-    p.add_argument("--grip-effort", type=finite_float, default=0.3, help="live: effort holding the stick (default 0.3)")
+    p.add_argument("--trial-s", type=float_in(0.0, 3600.0, "s", low_open=True), default=10.0, help="live: seconds of stirring per trial (default 10)")
+    p.add_argument("--grip-effort", type=EFFORT, default=0.3, help="live: effort holding the stick (default 0.3)")
     p.set_defaults(func=_substance)
 
 
 @extras_as_errors
 def _substance(args: argparse.Namespace) -> int:
     bench, live = _check_source(args, "substance")
-    if args.per_substance < 2:
-        raise ValueError(f"--per-substance {args.per_substance} must be >= 2 (train and test trials)")
     collect: Callable[[Path], Path] | None = None
     camera = args.camera
     if live:
@@ -185,7 +176,7 @@ def _press_collector(args: argparse.Namespace, bench: Any, camera: str, plan: Pr
     """``collect(path)`` for the force-map session: connect the devices, press, record, close."""
 
     def collect(path: Path) -> Path:
-        rig = connect_session_rig(args, ["gripper", "scale", camera], scene=MOCK_PRESS_SCENE,
+        rig = connect_session_rig(args, ["gripper", "scale", camera], scene=FORCE_MAP_PRESS_SCENE,
                                   connectors={"camera": sim_camera_connector("fingervision")})
         try:
             cal = camera_calibrations(rig.bench, camera, load=("calibration",), defaults=not bench.is_mock)

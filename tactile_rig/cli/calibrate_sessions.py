@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 from typing import Any, Callable
 
-from tactile_rig.cli.args import SEED, any_int, finite_float, output_file_or
+from tactile_rig.cli.args import EFFORT, SEED, TIMEOUT_S, any_int, finite_float, float_in, int_in, output_file_or
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.core.clock import VirtualClock
@@ -33,12 +33,8 @@ from tactile_rig.rig.calibration_sessions import (
     gripper_session,
     scale_session,
 )
-from tactile_rig.rig.jig_accuracy import (
-    MOCK_PRESS_SCENE,
-    DeviceJigRig,
-    prepare_jig,
-    sim_camera_connector,
-)
+from tactile_rig.rig.jig_accuracy import DeviceJigRig, prepare_jig, sim_camera_connector
+from tactile_rig.sim.scenes import GELSIGHT_BALL_PRESS_SCENE
 
 
 def register_sessions(csub: Any) -> None:
@@ -59,8 +55,8 @@ def register_sessions(csub: Any) -> None:
                                     "gradient model, write <out>.npz + <out>.json and a held-out error report.")
     common(g, "calib/gelsight")
     g.add_argument("--device", help="GelSight camera table of the bench (default: the first)")
-    g.add_argument("--ball-radius-mm", type=finite_float, default=2.0, help="radius of the ball (default 2.0 mm)")
-    g.add_argument("--press-depth-mm", type=finite_float, default=0.6, help="press depth past first contact (default 0.6)")
+    g.add_argument("--ball-radius-mm", type=float_in(0.0, 100.0, "mm", low_open=True), default=2.0, help="radius of the ball (default 2.0 mm)")
+    g.add_argument("--press-depth-mm", type=float_in(0.0, 10.0, "mm", low_open=True), default=0.6, help="press depth past first contact (default 0.6)")
     g.add_argument("--grid-x", type=finite_float, nargs=3, default=(-7.5, 7.5, 5), metavar=("START", "STOP", "COUNT"),
                    help="jig x positions in mm (default -7.5 7.5 5)")
     g.add_argument("--grid-y", type=finite_float, nargs=3, default=(-5.0, 5.0, 4), metavar=("START", "STOP", "COUNT"),
@@ -75,9 +71,9 @@ def register_sessions(csub: Any) -> None:
                                     "the factor and the report. Off a terminal the session waits for a steady "
                                     "load instead of prompting.")
     common(s, "calib/scale.json")
-    s.add_argument("--known-mass-g", type=finite_float, required=True, help="the known mass in grams")
-    s.add_argument("--samples", type=any_int, default=20, help="readings averaged per step (default 20)")
-    s.add_argument("--wait-timeout", type=finite_float, default=60.0,
+    s.add_argument("--known-mass-g", type=float_in(0.0, 1e6, "g", low_open=True), required=True, help="the known mass in grams")
+    s.add_argument("--samples", type=int_in(1, 100_000), default=20, help="readings averaged per step (default 20)")
+    s.add_argument("--wait-timeout", type=TIMEOUT_S, default=60.0,
                    help="seconds to wait for the mass when not on a terminal (default 60)")
     s.set_defaults(func=_scale)
 
@@ -85,8 +81,8 @@ def register_sessions(csub: Any) -> None:
                         description="Drive the fingers into the closed and the open stop at a low effort; write "
                                     "closed_ticks, open_ticks and max_opening_m.")
     common(r, "calib/gripper.json")
-    r.add_argument("--effort", type=finite_float, default=0.2, help="fraction of the current limit (default 0.2)")
-    r.add_argument("--max-opening-m", type=finite_float, help="measured opening at the open stop in metres")
+    r.add_argument("--effort", type=EFFORT, default=0.2, help="fraction of the current limit (default 0.2)")
+    r.add_argument("--max-opening-m", type=float_in(0.0, 1.0, "m", low_open=True), help="measured opening at the open stop in metres")
     r.add_argument("--closing-sign", type=any_int, choices=[-1, 1], default=-1, help="tick direction that closes")
     r.set_defaults(func=_gripper)
 
@@ -95,7 +91,7 @@ def register_sessions(csub: Any) -> None:
                                     "histogram; write <out>.npz + <out>.json.")
     common(f, "calib/fingervision")
     f.add_argument("--device", help="FingerVision camera table of the bench (default: the first)")
-    f.add_argument("--frames", type=any_int, default=10, help="no-contact frames to average (default 10)")
+    f.add_argument("--frames", type=int_in(1, 100_000), default=10, help="no-contact frames to average (default 10)")
     f.set_defaults(func=_fingervision)
 
 
@@ -153,7 +149,7 @@ def _gelsight(args: argparse.Namespace) -> int:
                          grid_y_mm=(args.grid_y[0], args.grid_y[1], int(args.grid_y[2])),
                          background_mm=tuple(args.background_mm), method=args.method)
     cam = _camera_name(args, "gelsight")
-    rig = connect_session_rig(args, ["jig", cam], scene=MOCK_PRESS_SCENE,
+    rig = connect_session_rig(args, ["jig", cam], scene=GELSIGHT_BALL_PRESS_SCENE,
                               connectors={"camera": sim_camera_connector("gelsight")})
 
     def session(rig: Any) -> Any:

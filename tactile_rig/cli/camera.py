@@ -13,17 +13,16 @@ import os
 import sys
 from typing import Any
 
-from tactile_rig.cli.args import any_int, finite_float, output_dir
+from tactile_rig.cli.args import float_in, int_in, output_dir
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
-from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.cli.common import EXIT_FAILED, add_command_group, add_json_flag, print_json
 from tactile_rig.rig.bench_camera import camera_name, grab_frames, measure_fps, open_camera, video_devices
 from tactile_rig.rig.bench_check import check_device, format_check_table
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser("camera", help="list, check, grab from and time the bench's cameras",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    csub = p.add_subparsers(dest="camera_command", metavar="ACTION")
+    _, csub = add_command_group(sub, "camera", help="list, check, grab from and time the bench's cameras",
+                                description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
 
     ls = csub.add_parser("list", help="the bench's cameras and this machine's V4L2 devices")
     add_bench_arguments(ls)
@@ -37,13 +36,12 @@ def register(sub: Any) -> None:
         add_bench_arguments(c)
         c.add_argument("--camera", metavar="NAME", help="which camera of the bench (default: the first)")
         if name == "grab":
-            c.add_argument("--count", type=any_int, default=1, help="frames to save (default 1)")
+            c.add_argument("--count", type=int_in(1, 100_000), default=1, help="frames to save (default 1)")
             c.add_argument("--out", default=".", metavar="DIR", type=output_dir, help="folder for the PNG files (default .)")
         if name == "fps":
-            c.add_argument("--duration", type=finite_float, default=3.0, metavar="S", help="measuring window (default 3 s)")
+            c.add_argument("--duration", type=float_in(0.0, 3600.0, "s", low_open=True), default=3.0, metavar="S", help="measuring window (default 3 s)")
         add_json_flag(c)
         c.set_defaults(func=func)
-    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
 def _list(args: argparse.Namespace) -> int:
@@ -80,7 +78,7 @@ def _check(args: argparse.Namespace) -> int:
         print(format_check_table([row]))
         for k, v in row.details.get("controls", {}).items():
             print(f"  {k:<28} {v}")
-    return 0 if row.ok else 1
+    return 0 if row.ok else EXIT_FAILED
 
 
 def _grab(args: argparse.Namespace) -> int:
@@ -110,5 +108,5 @@ def _fps(args: argparse.Namespace) -> int:
               f"longest gap {m.max_gap_s * 1000:.0f} ms")
     if m.dropped or m.host_fps < 0.8 * m.configured_fps:
         print(f"tactile-rig: {name} delivers {m.host_fps:g} fps, configured {m.configured_fps:g}", file=sys.stderr)
-        return 1
+        return EXIT_FAILED
     return 0

@@ -1,12 +1,17 @@
-"""Helpers shared by the command modules: JSON output, common arguments, and the exit codes (one
-line on stderr per error; a traceback only with ``--log-level DEBUG``)."""
+"""Helpers shared by the command modules: JSON output, command groups, and the exit codes (one line
+on stderr per error; a traceback only with ``--log-level DEBUG``).
+
+The exit codes are :data:`EXIT_CODES`; README.md and docs/files_and_recordings.md quote that table and
+``tests/cli/test_exit_codes.py`` holds them to it.
+"""
 
 from __future__ import annotations
 
 import argparse
+import functools
 import json
-import logging
 import sys
+import textwrap
 import traceback
 from typing import Any, Callable, NoReturn
 
@@ -31,9 +36,28 @@ EXIT_FAILED = 1
 EXIT_ERROR = 2
 EXIT_FAULT = 3
 EXIT_INTERNAL = 70  # sysexits' EX_SOFTWARE: a bug of ours, not the user's input
-EXIT_INTERRUPTED = 130
+EXIT_INTERRUPTED = 130  # the shell's code for SIGINT (128 + 2)
 
-_log = logging.getLogger("tactile_rig.cli")
+EXIT_CODES: dict[int, tuple[str, str]] = {
+    EXIT_OK: ("done", "the command did what it was asked"),
+    EXIT_FAILED: ("a failed verdict", "the command ran and its answer is no: a touch the registration refused, "
+                  "a device check that failed, an accuracy beyond --max-*, an episode that missed its property"),
+    EXIT_ERROR: ("bad input or usage", "one line on stderr naming the file or argument, the problem and what "
+                 "was expected: a malformed file, an argument out of range, a target outside the limits, a "
+                 "command the device refused, a device that does not answer on that port"),
+    EXIT_FAULT: ("a device fault", "the device latched an error of its own (an overload, a GRBL alarm, an unasked "
+                 "reset) and motion stopped"),
+    EXIT_INTERNAL: ("a bug in tactile-rig", "one line; rerun with --log-level DEBUG for the traceback"),
+    EXIT_INTERRUPTED: ("interrupted", "Ctrl-C"),
+}
+"""Every exit code of the ``tactile-rig`` command: (what it means in a few words, the detail)."""
+
+
+def exit_codes_text() -> str:
+    """:data:`EXIT_CODES` as the lines ``--help`` ends with."""
+    rows = (textwrap.fill(f"{label}: {detail}", 94, initial_indent=f"  {code:<4} ", subsequent_indent=" " * 7)
+            for code, (label, detail) in EXIT_CODES.items())
+    return "exit codes:\n" + "\n".join(rows)
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -42,6 +66,37 @@ class OneLineParser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         self.exit(EXIT_ERROR, f"{self.prog}: error: {one_line(message)} (see {self.prog} --help)\n")
+
+
+def add_command_group(sub: Any, name: str, *, metavar: str = "ACTION", **parser_kw: Any) -> tuple[Any, Any]:
+    """Add the command group ``name`` (``tactile-rig NAME ACTION ...``) to ``sub``; return its parser
+    and the subparsers its actions join. ``tactile-rig NAME`` without an action is a usage error
+    (exit 2, one line) naming the actions."""
+    parser = sub.add_parser(name, **parser_kw)
+    actions = parser.add_subparsers(dest=f"{name.replace('-', '_')}_command", metavar=metavar)
+    parser.set_defaults(func=functools.partial(missing_action, parser, actions, metavar))
+    return parser, actions
+
+
+def missing_action(parser: argparse.ArgumentParser, actions: Any, metavar: str,
+                   args: argparse.Namespace | None = None) -> NoReturn:
+    """The usage error of a command group called without one of its ``actions``."""
+    parser.error(f"expected {metavar}: one of {', '.join(actions.choices)}")
+
+
+def extras_as_errors(handler: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
+    """Decorate a handler so that a missing optional extra (mcap, scikit-learn, matplotlib) is one
+    line naming the pip extra (exit 2) rather than an internal error."""
+
+    @functools.wraps(handler)
+    def run(args: argparse.Namespace) -> int:
+        try:
+            return handler(args)
+        except ModuleNotFoundError as exc:
+            raise ValueError(str(exc) if "pip install" in str(exc) else
+                             f"{exc}: pip install 'tactile-rig[all]' for the optional extras") from None
+
+    return run
 
 
 def one_line(text: object) -> str:

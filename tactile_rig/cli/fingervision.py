@@ -22,9 +22,9 @@ import numpy as np
 
 from tactile_rig.cli import bench_live
 from tactile_rig.cli.args import float_in, int_in
-from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.cli.common import add_command_group, add_json_flag, print_json
 from tactile_rig.core.errors import MarkersNotFound
-from tactile_rig.core.files import check_file, check_image_dims, quiet_opencv
+from tactile_rig.rig.files import check_file, check_image_dims, quiet_opencv
 from tactile_rig.perception.fingervision import FingerVision, FingerVisionParams
 from tactile_rig.rig.loaders import load_fingervision_params, read_frame
 from tactile_rig.rig.bench import load_bench
@@ -34,8 +34,7 @@ _IMAGE_EXT = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("fingervision", help="FingerVision perception over recorded frames")
-    fsub = p.add_subparsers(dest="fv_command", metavar="ACTION")
+    _, fsub = add_command_group(sub, "fingervision", help="FingerVision perception over recorded frames")
     t = fsub.add_parser("track", help="track markers, force/torque, object and slip, frame by frame")
     t.add_argument("frames", nargs="?", help="folder of images, glob pattern (quote it) or video file "
                    "(or --bench: live from the bench's camera)")
@@ -44,7 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="no-contact frames refining the markers' rest positions (ids exist from the first frame); "
                         "with --init frames, the baseline frames (overrides the config; default 10)")
     t.add_argument("--init", choices=("lattice", "frames"),
-                   help="lattice (default): marker ids from the first frame; frames: the older scheme, ids only "
+                   help="lattice (default): marker ids from the first frame; frames: the reference's scheme, ids only "
                         "after --calib-frames baseline frames (overrides the config)")
     t.add_argument("--fps", type=float_in(0.0, 100_000.0, "frames/s", low_open=True), help="frame rate, for timestamps t_s = index / fps (Kalman time step)")
     t.add_argument("--object-rect", type=int_in(0, 65535, "px"), nargs=4, metavar=("X", "Y", "W", "H"),
@@ -59,7 +58,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_json_flag(t)
     bench_live.add_bench_camera_arguments(t)
     t.set_defaults(func=_track)
-    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
 def load_params(path: str | None, calib_frames: int | None = None, init: str | None = None) -> FingerVisionParams:
@@ -142,10 +140,6 @@ def _track(args: argparse.Namespace) -> int:
         return bench_live.track(args, load_params(args.config, args.calib_frames, args.init))
     bench_live.need_files(args, "frames")
 
-    if args.fps is not None and not (0 < args.fps < float("inf")):
-        raise ValueError(f"--fps: expected a finite rate > 0 frames/s, got {args.fps}")
-    if args.limit is not None and args.limit < 1:
-        raise ValueError(f"--limit: expected >= 1 frames, got {args.limit}")
     if args.object_rect is not None and (args.object_rect[2] < 1 or args.object_rect[3] < 1):
         raise ValueError(f"--object-rect: expected a width and height >= 1 px, got {args.object_rect[2:]}")
     fv = FingerVision(load_params(args.config, args.calib_frames, args.init))

@@ -1,7 +1,7 @@
 """``tactile-rig gelsight``: calibrate from ball presses, height maps, registration, tactile maps.
 
-Exit codes: 0 done; 1 a refusal (``register``/``localize`` refused the touch, ``map`` rejected at
-least one touch; the JSON says why); 2 bad input (a missing file, a frame the calibration cannot read:
+Exit codes: 0 done; 1 a failed verdict (``register``/``localize`` refused the touch, ``map`` rejected
+at least one touch; the JSON says why); 2 bad input (a missing file, a frame the calibration cannot read:
 saturated, colours beyond its range, heights no gel shows, one line naming the reason).
 """
 
@@ -16,7 +16,7 @@ import numpy as np
 
 from tactile_rig.cli import bench_live
 from tactile_rig.cli.args import float_in, int_in, output_dir, output_file
-from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.cli.common import EXIT_FAILED, add_command_group, add_json_flag, print_json
 from tactile_rig.core.memory import keep_freed_memory
 from tactile_rig.rig.loaders import (
     load_gelsight_calibration,
@@ -162,7 +162,7 @@ def _print_result(res, as_json: bool) -> int:
               f"confidence: {res.confidence:.4f}\ninliers: {res.inliers}\nmethod: {res.method}")
     else:
         print(f"refused: {res.reason} (confidence {res.confidence:.3f}, inliers {res.inliers})")
-    return 0 if res.ok else 1
+    return 0 if res.ok else EXIT_FAILED
 
 
 # Every registration threshold and its flag; defaults and meanings come from RegistrationParams.
@@ -224,7 +224,7 @@ def _cmd_map(args: argparse.Namespace) -> int:
         for r in rows:
             print(f"{r['touch']}: {'accepted' if r['accepted'] else 'rejected (' + str(r['reason']) + ')'}")
         print(f"map: {saved}" + (f" ({rejected} of {len(rows)} touches rejected)" if rejected else ""))
-    return 1 if rejected else 0
+    return EXIT_FAILED if rejected else 0
 
 
 def _cmd_localize(args: argparse.Namespace) -> int:
@@ -254,10 +254,11 @@ MM_PER_PX = float_in(1e-4, 10.0, "mm/px")  # 0.1 µm .. 10 mm a pixel: beyond ei
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``gelsight`` command group."""
-    g = subparsers.add_parser("gelsight", help="GelSight calibration, height maps, registration, tactile maps",
-                              description="Exit codes: 0 done, 1 refused (register/localize) or a touch rejected "
-                              "(map), 2 bad input (file, frame or map the pipeline cannot read; one line).")
-    sub = g.add_subparsers(dest="gelsight_command", metavar="SUBCOMMAND", required=True)
+    _, sub = add_command_group(subparsers, "gelsight", metavar="SUBCOMMAND",
+                               help="GelSight calibration, height maps, registration, tactile maps",
+                               description="Exit codes: 0 done, 1 a failed verdict: the touch refused (register/localize) or "
+                               "a touch rejected (map), 2 bad input (file, frame or map the pipeline cannot read; "
+                               "one line).")
 
     p = sub.add_parser("calibrate", help="fit a colour->gradient calibration from ball presses")
     p.add_argument("press_dir", help="folder with background.png, press images and labels.csv")

@@ -1,4 +1,5 @@
-"""``tactile-rig mock``: list the mock devices and serve one on a pty pair."""
+"""``tactile-rig mock``: list the mock devices and serve one on a pty pair, or a UVC camera emulated at
+the system-call boundary (``mock serve camera --v4l2``)."""
 
 from __future__ import annotations
 
@@ -9,9 +10,12 @@ import sys
 import threading
 from typing import Any
 
-from tactile_rig.cli.args import SEED, any_int
-from tactile_rig.cli.common import print_json
+from tactile_rig.cli.args import BAUD, SEED, int_in
+from tactile_rig.cli.common import EXIT_FAULT, add_command_group, print_json
 from tactile_rig.core.clock import RealClock
+from tactile_rig.devices.camera_models import CAMERA_MODELS
+from tactile_rig.mocks.v4l2 import CameraFaults, V4L2Camera
+from tactile_rig.mocks.v4l2.frames import RENDERERS
 from tactile_rig.mocks.pty_server import PtyServer
 from tactile_rig.mocks.registry import Params, create_device, kinds
 from tactile_rig.mocks.scale_firmware import BoardConfig, SimulatedScaleBoard, build
@@ -19,8 +23,7 @@ from tactile_rig.sim.scenes import load_scene
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("mock", help="serve faithful device mocks on pseudo-terminals")
-    msub = p.add_subparsers(dest="mock_command", metavar="ACTION")
+    _, msub = add_command_group(sub, "mock", help="serve faithful device mocks on pseudo-terminals")
 
     ls = msub.add_parser("list", help="list the mock devices")
     ls.add_argument("--json", action="store_true", help="print JSON")
@@ -30,13 +33,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "serve",
         help="serve a mock on a pty; prints one JSON line with the port and runs until SIGINT/SIGTERM",
     )
-    serve.add_argument("device", help="device kind: dynamixel, scale or jig")
+    serve.add_argument("device", help="device kind: dynamixel, scale, jig, or camera (with --v4l2)")
     serve.add_argument("--protocol", choices=["1", "2"], help="Dynamixel protocol version (default 2)")
-    serve.add_argument("--id", dest="ids", type=any_int, action="append", help="servo ID (repeat for several)")
-    serve.add_argument("--baud", type=any_int, help="the device's baud rate (default: the device's own)")
+    serve.add_argument("--id", dest="ids", type=int_in(0, 252), action="append", help="servo ID (repeat for several)")
+    serve.add_argument("--baud", type=BAUD, help="the device's baud rate (default: the device's own)")
     serve.add_argument("--scene", help="scene file or built-in scene name for the world the device sees")
     serve.add_argument("--seed", type=SEED, help="seed of the scene's noise")
-    serve.add_argument("--rate", help="scale samples per second (10 or 80)")
+    serve.add_argument("--rate", choices=["10", "80"], help="scale samples per second (the HX711 RATE pin)")
     serve.add_argument("--no-timing", action="store_true", help="answer instantly instead of at wire speed")
     serve.add_argument(
         "--firmware",
@@ -49,8 +52,27 @@ def register(sub: argparse._SubParsersAction) -> None:
     serve.add_argument(
         "--param", action="append", default=[], metavar="KEY=VALUE", help="any other device parameter"
     )
+    cam = serve.add_argument_group(
+        "camera (--v4l2)",
+        "an emulated UVC camera: a /dev/videoN that v4l2-ctl, OpenCV's V4L2 backend and the camera driver "
+        "open in any process started with the printed 'env' (LD_PRELOAD and the registry); the JSON line "
+        "names the control FIFO that takes 'stall S', 'freeze S', 'unplug [S]' and 'replug' lines "
+        "(needs: apt-get install gcc libc6-dev)")
+    cam.add_argument("--v4l2", action="store_true", help="serve the camera at the V4L2 system-call boundary")
+    cam.add_argument("--camera", choices=sorted(CAMERA_MODELS), default="c310", help="camera model (default c310)")
+    cam.add_argument("--model", choices=RENDERERS, help="what the sensor sees: gelsight (default) or fingervision")
+    cam.add_argument("--video", metavar="FILE", help="a recorded video as the frame source (looped)")
+    cam.add_argument("--fault", metavar="QUERY",
+                     help="faults, e.g. 'stall_after=100&stall_s=2' or 'unplug=0.001&away_s=3' "
+                     "(keys: stall, freeze, unplug, replug, *_s, *_after, seed)")
+    cam.add_argument("--node", type=int, metavar="N", help="the node number (default: the first free from 42)")
+    cam.add_argument("--registry", metavar="DIR",
+                     help="the registry directory clients read (default $TACTILE_RIG_V4L2_DIR or a per-user "
+                     "directory in the temporary directory)")
+    cam.add_argument("--kernel", metavar="MAJOR.MINOR",
+                     help="answer as uvcvideo of that Linux version (default: the running kernel's)")
+    cam.add_argument("--jpeg-quality", type=int, default=90, help="MJPG quality 1..100 (default 90)")
     serve.set_defaults(func=_serve)
-    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
 def _list(args: argparse.Namespace) -> int:
@@ -89,6 +111,8 @@ def serve_params(args: argparse.Namespace) -> dict[str, str]:
 
 
 def _serve(args: argparse.Namespace) -> int:
+    if args.device == "camera" or args.v4l2:
+        return _serve_camera(args)
     if args.firmware:
         return _serve_firmware(args)
     clock = RealClock()
@@ -113,7 +137,7 @@ def _serve(args: argparse.Namespace) -> int:
         while not stop.wait(0.2):
             if server.error is not None:
                 print(f"tactile-rig: mock {args.device} failed: {server.error}", file=sys.stderr)
-                return 1
+                return EXIT_FAULT
     return 0
 
 
@@ -142,10 +166,7 @@ def firmware_config(args: argparse.Namespace) -> tuple[Any, str | None]:
     kw: dict[str, Any] = {}
     eeprom = None
     if args.rate:
-        try:
-            kw["rate_sps"] = int(args.rate)
-        except ValueError:
-            raise ValueError(f"--rate {args.rate!r}: expected 10 or 80 samples per second") from None
+        kw["rate_sps"] = int(args.rate)
     if args.seed is not None:
         kw["seed"] = args.seed
     for item in args.param:
@@ -184,5 +205,53 @@ def _serve_firmware(args: argparse.Namespace) -> int:
         while not stop.wait(0.2):
             if board.proc is None or board.proc.poll() is not None:
                 print(f"tactile-rig: the simulated scale board stopped: {board.exit_reason()}", file=sys.stderr)
-                return 3
+                return EXIT_FAULT
+    return 0
+
+
+def _kernel(text: str | None) -> tuple[int, int] | None:
+    if text is None:
+        return None
+    major, sep, minor = text.partition(".")
+    if not (sep and major.isdigit() and minor.isdigit()):
+        raise ValueError(f"--kernel {text!r}: expected MAJOR.MINOR, e.g. 6.1")
+    return int(major), int(minor)
+
+
+def camera_from_args(args: argparse.Namespace) -> V4L2Camera:
+    """The emulated camera the ``mock serve camera --v4l2`` options describe (not started)."""
+    if args.device != "camera":
+        raise ValueError(f"--v4l2 serves a camera; {args.device!r} is served on a pty (drop --v4l2)")
+    if not args.v4l2:
+        raise ValueError("the camera is served as an emulated V4L2 device: add --v4l2")
+    for flag, name in ((args.protocol, "--protocol"), (args.ids, "--id"), (args.baud, "--baud"),
+                       (args.rate, "--rate"), (args.no_timing, "--no-timing"), (args.firmware, "--firmware"),
+                       (args.param, "--param")):
+        if flag:
+            raise ValueError(f"--v4l2: {name} does not apply to a camera")
+    if args.video and (args.model or args.scene):
+        raise ValueError("--video is the frame source: it takes no --model or --scene")
+    faults = CameraFaults.from_query(args.fault) if args.fault else None
+    return V4L2Camera(args.camera, renderer=args.model or "gelsight", video=args.video, scene=args.scene,
+                      seed=args.seed or 0, node=args.node, registry=args.registry, faults=faults,
+                      control_fifo=True, kernel=_kernel(args.kernel), jpeg_quality=args.jpeg_quality)
+
+
+def _serve_camera(args: argparse.Namespace) -> int:
+    cam = camera_from_args(args)
+    stop = threading.Event()
+
+    def _on_signal(signum: int, frame: object) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, _on_signal)
+    signal.signal(signal.SIGTERM, _on_signal)
+    with cam:
+        info = {"device": "camera", "port": cam.port, "env": cam.env, **cam.describe()}
+        sys.stdout.write(json.dumps(info) + "\n")
+        sys.stdout.flush()
+        while not stop.wait(0.2):
+            if cam.error is not None:
+                print(f"tactile-rig: the emulated camera failed: {cam.error}", file=sys.stderr)
+                return 1
     return 0

@@ -3,26 +3,9 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
 
-from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.cli.common import add_json_flag, extras_as_errors, print_json
 from tactile_rig.rig import replay as recordings
-
-
-def extras_as_errors(handler: Any) -> Any:
-    """A missing optional extra (mcap, scikit-learn, matplotlib) is one line naming the pip extra
-    (shared by the command modules that need extras)."""
-    import functools
-
-    @functools.wraps(handler)
-    def run(args: argparse.Namespace) -> int:
-        try:
-            return handler(args)
-        except ModuleNotFoundError as exc:
-            raise ValueError(str(exc) if "pip install" in str(exc) else
-                             f"{exc}: pip install 'tactile-rig[all]' for the optional extras") from None
-
-    return run
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -15,10 +15,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from tactile_rig.cli.args import SEED, finite_float, output_dir
+from tactile_rig.cli.args import SEED, finite_float, float_in, output_dir
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
 from tactile_rig.cli.bench_live import JIG_ACCURACY_TOPICS, add_live_arguments, live_from_args
-from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.cli.common import EXIT_FAILED, add_command_group, add_json_flag, print_json
 from tactile_rig.rig.jig_accuracy import (
     JigAccuracyConfig,
     execute_jig_accuracy,
@@ -31,9 +31,8 @@ DEFAULT_OUT_ROOT = "runs/jig-accuracy"
 
 
 def register(subparsers: Any) -> None:
-    run = subparsers.add_parser("run", help="long rig runs (jig accuracy)", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = run.add_subparsers(dest="run_command", metavar="RUN")
+    _, sub = add_command_group(subparsers, "run", metavar="RUN", help="long rig runs (jig accuracy)",
+                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p = sub.add_parser("jig-accuracy", help="Li 2014 Fig. 7: localization accuracy over jig rotations and shifts",
                        description="Build a tactile map of the object, step the jig through rotations and "
                                    "shifts, localize each touch and print estimated vs true with MAE and std.")
@@ -59,14 +58,13 @@ def register(subparsers: Any) -> None:
     p.add_argument("--camera", metavar="NAME", help="which GelSight camera of the bench (default: the first)")
     p.add_argument("--no-record", action="store_true", help="do not write run.mcap")
     p.add_argument("--no-report", action="store_true", help="do not write figures and report.md")
-    p.add_argument("--max-rotation-mae-deg", type=finite_float, metavar="DEG",
+    p.add_argument("--max-rotation-mae-deg", type=float_in(0.0, 360.0, "deg"), metavar="DEG",
                    help="exit 1 when the rotation MAE exceeds this")
-    p.add_argument("--max-translation-mae-mm", type=finite_float, metavar="MM",
+    p.add_argument("--max-translation-mae-mm", type=float_in(0.0, 1000.0, "mm"), metavar="MM",
                    help="exit 1 when the translation MAE exceeds this")
     add_live_arguments(p)
     add_json_flag(p)
     p.set_defaults(func=_jig_accuracy)
-    run.set_defaults(func=lambda args: (run.print_help(), 2)[1])
 
 
 def _jig_accuracy(args: argparse.Namespace) -> int:
@@ -121,7 +119,7 @@ def _jig_accuracy(args: argparse.Namespace) -> int:
         failed.append(f"translation MAE {s.get('translation_mae_mm')} mm > {args.max_translation_mae_mm}")
     if failed:
         print("tactile-rig: accuracy check failed: " + "; ".join(failed), file=sys.stderr)
-        return 1
+        return EXIT_FAILED
     return 0
 
 

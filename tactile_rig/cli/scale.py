@@ -1,29 +1,32 @@
-"""``tactile-rig scale read|tare|calibrate``: the Arduino HX711 scale from the shell."""
+"""``tactile-rig scale read|tare|calibrate``: the Arduino HX711 scale from the shell.
+
+The scale is the bench's ``[scale]`` (``--bench FILE``, ``--mock`` or ``$TACTILE_RIG_BENCH``) or a bare
+``--port`` (:mod:`tactile_rig.cli.device_args`).
+"""
 
 from __future__ import annotations
 
 import argparse
 
-from tactile_rig.cli.args import any_int, finite_float
-from tactile_rig.cli.common import print_json
+from tactile_rig.cli.args import COUNT, float_in
+from tactile_rig.cli.common import add_command_group, print_json
+from tactile_rig.cli.device_args import add_device_arguments, device_target, open_device
 from tactile_rig.drivers.scale import Scale
+from tactile_rig.rig.bench import ScaleConfig
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("scale", help="the Arduino HX711 load-cell scale: read, tare, calibrate")
-    ssub = p.add_subparsers(dest="scale_command", metavar="ACTION")
+    _, ssub = add_command_group(sub, "scale", help="the Arduino HX711 load-cell scale: read, tare, calibrate")
 
     def common(sp: argparse.ArgumentParser) -> None:
-        sp.add_argument("--port", required=True,
-                        help="device path or URL (/dev/serial/by-id/..., /dev/ttyACM0, rigsim://scale?boot_s=0.1)")
-        sp.add_argument("--baud", type=any_int, default=57600, help="baud rate (default 57600)")
-        sp.add_argument("--boot-timeout", type=finite_float, default=5.0,
+        add_device_arguments(sp, "scale", port_example="/dev/serial/by-id/..., /dev/ttyACM0, rigsim://scale?boot_s=0.1",
+                             baud_default="57600, the sketch's")
+        sp.add_argument("--boot-timeout", type=float_in(0.0, 600.0, "s", low_open=True), default=5.0,
                         help="seconds to wait for the banner after the reset on open (default 5)")
-        sp.add_argument("--json", action="store_true", help="print JSON (one object per line)")
 
     rd = ssub.add_parser("read", help="print readings (grams, newtons, raw counts, sequence number)")
     common(rd)
-    rd.add_argument("--count", type=any_int, default=10, help="number of readings (default 10)")
+    rd.add_argument("--count", type=COUNT, default=10, help="number of readings (default 10)")
     rd.set_defaults(func=_read)
 
     ta = ssub.add_parser("tare", help="zero the scale with what is on it now")
@@ -32,15 +35,19 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     ca = ssub.add_parser("calibrate", help="calibrate with a known mass on the tared scale (stored in EEPROM)")
     common(ca)
-    ca.add_argument("known_mass_g", type=finite_float, help="the known mass on the scale, grams")
+    ca.add_argument("known_mass_g", type=float_in(0.0, 1e6, "g", low_open=True),
+                    help="the known mass on the scale, grams")
     ca.set_defaults(func=_calibrate)
-    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
 def _open(args: argparse.Namespace):
-    if args.boot_timeout <= 0:
-        raise ValueError(f"--boot-timeout={args.boot_timeout!r} must be > 0 seconds")
-    return Scale(args.port, baudrate=args.baud, boot_timeout_s=args.boot_timeout)
+    target = device_target(args, ScaleConfig)
+
+    def build(cfg: ScaleConfig) -> Scale:  # named by its bench table, or by its port
+        return Scale(cfg.port, baudrate=cfg.baud, boot_timeout_s=args.boot_timeout,
+                     device=cfg.name if target.bench else None)
+
+    return open_device(target, build)
 
 
 def _summary(scale) -> dict:
@@ -48,8 +55,6 @@ def _summary(scale) -> dict:
 
 
 def _read(args: argparse.Namespace) -> int:
-    if args.count < 1:
-        raise ValueError(f"--count={args.count!r} must be at least 1")
     with _open(args) as scale:
         for _ in range(args.count):
             r = scale.read()

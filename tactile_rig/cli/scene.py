@@ -10,15 +10,14 @@ from __future__ import annotations
 
 import argparse
 
-from tactile_rig.cli.args import SEED, any_int, finite_float
+from tactile_rig.cli.args import COUNT, SEED, float_in
 from tactile_rig.cli import bench_live
-from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.cli.common import EXIT_FAILED, add_command_group, add_json_flag, print_json
 from tactile_rig.rig.scene_runner import list_scenes, run_episodes
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("scene", help="run the closed-loop controllers in simulated scenes")
-    ssub = p.add_subparsers(dest="scene_command", metavar="ACTION")
+    _, ssub = add_command_group(sub, "scene", help="run the closed-loop controllers in simulated scenes")
 
     ls = ssub.add_parser("list", help="list the built-in controller scenes")
     add_json_flag(ls)
@@ -27,13 +26,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     run = ssub.add_parser("run", help="run randomised episodes of a scene in virtual time")
     run.add_argument("name", help="built-in scene name or path to a scene .toml")
     run.add_argument("--seed", type=SEED, default=0, help="seed of the first episode (episode i: seed+i)")
-    run.add_argument("--episodes", type=any_int, default=1, help="number of episodes (default 1)")
-    run.add_argument("--speed-mps", type=finite_float, default=None,
+    run.add_argument("--episodes", type=COUNT, default=1, help="number of episodes (default 1)")
+    run.add_argument("--speed-mps", type=float_in(0.0, 100.0, "m/s", low_open=True), default=None,
                      help="approach speed in m/s (collision scenes; above the cap is refused)")
     add_json_flag(run)
     bench_live.add_live_arguments(run)
     run.set_defaults(func=_run)
-    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
 def _list(args: argparse.Namespace) -> int:
@@ -48,9 +46,6 @@ def _list(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    if args.episodes < 1:
-        raise ValueError(f"--episodes={args.episodes} must be ≥ 1")
-
     def show(r) -> None:  # noqa: ANN001
         if args.json:
             print_json(r.to_json())
@@ -68,4 +63,4 @@ def _run(args: argparse.Namespace) -> int:
         print(f"{summary['ok']}/{summary['episodes']} episodes ok; outcomes {summary['outcomes']}; "
               f"{summary['sim_s']} s simulated in {summary['wall_s']} s wall "
               f"({summary['sim_per_wall']}x real time)")
-    return 0 if summary["ok"] == summary["episodes"] else 1
+    return 0 if summary["ok"] == summary["episodes"] else EXIT_FAILED

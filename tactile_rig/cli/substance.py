@@ -17,10 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from tactile_rig.cli.args import finite_float
-from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.cli.args import float_in
+from tactile_rig.cli.common import add_command_group, add_json_flag, extras_as_errors, print_json
 from tactile_rig.cli.fingervision import iter_frames
-from tactile_rig.cli.replay import extras_as_errors
 from tactile_rig.perception.fingervision import FingerVision
 from tactile_rig.rig.bench import load_bench
 from tactile_rig.rig.camera_calibrations import camera_calibrations
@@ -28,8 +27,7 @@ from tactile_rig.rig.learning import predict_substance, stirring_series_from_rec
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("substance", help="predict the stirred substance with the learned classifier")
-    ssub = p.add_subparsers(dest="substance_command", metavar="ACTION")
+    _, ssub = add_command_group(sub, "substance", help="predict the stirred substance with the learned classifier")
     pr = ssub.add_parser("predict", help="classify a stirring recording or frames, window by window")
     pr.add_argument("frames", nargs="?", help="folder of images, glob pattern or video (else --from-recording)")
     pr.add_argument("--from-recording", metavar="FILE.mcap", help="marker forces recorded on /perception/<camera>")
@@ -37,11 +35,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     pr.add_argument("--bench", help="bench.toml naming the camera's substance_model (default: $TACTILE_RIG_BENCH)")
     pr.add_argument("--model", help="substance model (.json, .npz or folder); default: the bench's, else "
                                     "calib/substance")
-    pr.add_argument("--fps", type=finite_float, help="frame rate of FRAMES in frames/s (required with FRAMES)")
-    pr.add_argument("--window", type=finite_float, help="feature window in s (default: the model's)")
+    pr.add_argument("--fps", type=float_in(0.0, 100_000.0, "frames/s", low_open=True), help="frame rate of FRAMES in frames/s (required with FRAMES)")
+    pr.add_argument("--window", type=float_in(0.0, 3600.0, "s", low_open=True), help="feature window in s (default: the model's)")
     add_json_flag(pr)
     pr.set_defaults(func=_predict)
-    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
 @extras_as_errors
@@ -58,8 +55,8 @@ def _predict(args: argparse.Namespace) -> int:
     if args.from_recording:
         series = stirring_series_from_recording(args.from_recording, camera=args.camera)
     else:
-        if args.fps is None or not args.fps > 0:
-            raise ValueError(f"--fps: FRAMES need their frame rate > 0 frames/s, got {args.fps}")
+        if args.fps is None:
+            raise ValueError("--fps is required with FRAMES (their frame rate in frames/s)")
         series = [{"trial": None, "label": None, "series": _series_from_frames(args, cal), "rate_hz": args.fps}]
     results = []
     for item in series:

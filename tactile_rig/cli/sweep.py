@@ -7,8 +7,8 @@ import argparse
 import importlib.util
 from pathlib import Path
 
-from tactile_rig.cli.args import any_int, output_dir
-from tactile_rig.cli.common import add_json_flag, print_json
+from tactile_rig.cli.args import COUNT, int_in, output_dir, output_file
+from tactile_rig.cli.common import EXIT_FAILED, add_json_flag, print_json
 from tactile_rig.rig.progress import Progress
 from tactile_rig.rig.sweep import _scalar, grid, make_executor, parse_axis, run_sweep
 from tactile_rig.rig.sweep_report import format_table, plot_table, sweep_table, table_json
@@ -26,18 +26,18 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="a swept axis: name=1,2,3 or name=start:stop:step (stop inclusive); repeat")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="a parameter fixed for every point; repeat")
-    p.add_argument("--episodes", type=any_int, default=1, metavar="N",
+    p.add_argument("--episodes", type=COUNT, default=1, metavar="N",
                    help="episodes per point, each with its own seed (default 1); the table gives the "
                    "success rate and the median and worst of each figure per point")
     p.add_argument("--figure", action="append", default=[], metavar="NAME",
                    help="show only these result figures in the table and plot (repeat; default all)")
     p.add_argument("--higher-is-better", action="append", default=[], metavar="NAME",
                    help="a figure whose worst value is its smallest (e.g. cap_mps); others' worst is the largest")
-    p.add_argument("--plot", metavar="PNG", help="also draw the table against the first swept parameter "
+    p.add_argument("--plot", metavar="PNG", type=output_file(".png"), help="also draw the table against the first swept parameter "
                    "(needs the report extra)")
     p.add_argument("--out", default="sweep-out", type=output_dir, help="output folder (default ./sweep-out)")
     p.add_argument("--executor", choices=["process", "thread", "dask"], default="process")
-    p.add_argument("--workers", type=any_int, help="number of workers (default: the CPU count)")
+    p.add_argument("--workers", type=int_in(1, 4096), help="number of workers (default: the CPU count)")
     p.add_argument("--address", help="Dask scheduler address (tcp://host:8786) for --executor dask")
     p.add_argument("--progress", choices=["auto", "bar", "json", "off"], default="auto",
                    help="progress on stderr: a bar on a terminal, JSON lines otherwise (auto)")
@@ -46,10 +46,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    if args.workers is not None and args.workers < 1:
-        raise ValueError(f"--workers {args.workers} must be >= 1")
-    if args.episodes < 1:
-        raise ValueError(f"--episodes {args.episodes} must be >= 1")
     if args.plot and importlib.util.find_spec("matplotlib") is None:
         raise ValueError("--plot needs matplotlib: pip install 'tactile-rig[report]'")
     axes = dict(parse_axis(s) for s in args.param)
@@ -85,4 +81,4 @@ def _sweep(args: argparse.Namespace) -> int:
                 print(f"  FAILED {p.key} {p.params} episode {p.episode}: {p.error}")
         if plot:
             print(f"plot: {plot}")
-    return 1 if counts["failed"] else 0
+    return EXIT_FAILED if counts["failed"] else 0

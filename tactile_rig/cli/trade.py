@@ -6,7 +6,7 @@ import argparse
 import importlib.util
 from pathlib import Path
 
-from tactile_rig.cli.args import SEED
+from tactile_rig.cli.args import SEED, output_dir
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.rig import trade
 
@@ -25,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quick", action="store_true",
                    help="fewer frames or episodes per setting (never fewer settings): minutes on 2 cores")
     p.add_argument("--seed", type=SEED, default=0, help="seed for rendered data and episodes (default 0)")
-    p.add_argument("--plot", metavar="DIR",
+    p.add_argument("--plot", metavar="DIR", type=output_dir,
                    help="also draw DIR/trade_<topic>.png, error against speed (needs the report extra)")
     add_json_flag(p)
     p.set_defaults(func=_trade)
@@ -45,8 +45,6 @@ def _trade(args: argparse.Namespace) -> int:
     trade.topic_module(args.topic)  # an unknown or absent topic fails before anything runs
     if args.plot and importlib.util.find_spec("matplotlib") is None:
         raise ValueError("--plot needs matplotlib: pip install 'tactile-rig[report]'")
-    if args.plot and Path(args.plot).exists() and not Path(args.plot).is_dir():
-        raise ValueError(f"--plot {args.plot!r} is a file; expected a folder for trade_{args.topic}.png")
     table = trade.measure(args.topic, quick=args.quick, seed=args.seed)
     plot_path = table.plot(Path(args.plot) / f"trade_{table.topic}.png") if args.plot else None
     if args.json:

@@ -28,7 +28,7 @@ import threading
 import zlib
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -198,6 +198,7 @@ class FingertipCamera(Driver):
         self._t_hist: deque[float] = deque(maxlen=30)
         self._error: BaseException | None = None
         self._thread: threading.Thread | None = None
+        self._listeners: list[Callable[[Frame], None]] = []
         self._running = False
         self._discard = 0
 
@@ -300,7 +301,22 @@ class FingertipCamera(Driver):
                 self.stats.measured_fps = (len(self._t_hist) - 1) / (self._t_hist[-1] - self._t_hist[0])
             self._latest = frame
             self._cond.notify_all()
+            listeners = list(self._listeners)
+        for fn in listeners:
+            fn(frame)
         return frame
+
+    def add_listener(self, fn: Callable[[Frame], None]) -> None:
+        """Call ``fn(frame)`` with every frame captured from now on, in the capturing thread (keep it
+        short, e.g. put the frame on a queue): a recorder that must not miss a frame while it is
+        busy, where :meth:`read` gives only the newest."""
+        with self._cond:
+            self._listeners.append(fn)
+
+    def remove_listener(self, fn: Callable[[Frame], None]) -> None:
+        with self._cond:
+            if fn in self._listeners:
+                self._listeners.remove(fn)
 
     def _pump(self, timeout_s: float | None) -> bool:
         """Capture one frame (reopening a vanished device); False if none came in time."""

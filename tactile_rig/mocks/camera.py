@@ -16,7 +16,7 @@ return False/-1, ``read()`` has no timeout, and after an unplug ``isOpened()`` s
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import os
 from typing import Any, Callable
 
 import cv2
@@ -26,53 +26,17 @@ from tactile_rig.core.clock import Clock, RealClock
 from tactile_rig.core.errors import NotConnected
 from tactile_rig.core.types import RawFrame
 from tactile_rig.devices.camera import canonical_control, fourcc_text
+from tactile_rig.devices.camera_models import C310_CONTROLS, C310_MODES, UvcControl, uvc_size_distance
 from tactile_rig.sim.render.gelsight import SensorNoise
 
 __all__ = ["UvcControl", "C310_CONTROLS", "C310_MODES", "UvcControlTable", "SimulatedCamera", "FakeVideoCapture"]
-
-
-@dataclass(frozen=True)
-class UvcControl:
-    """One V4L2 control: ``kind`` is int, bool or menu; ``active_when`` = (switch, value) for manual controls."""
-
-    name: str
-    cid: int
-    kind: str
-    minimum: int
-    maximum: int
-    default: int
-    step: int = 1
-    menu: tuple[int, ...] = ()
-    active_when: tuple[str, int] | None = None
-
-
-C310_CONTROLS: tuple[UvcControl, ...] = (
-    UvcControl("brightness", 0x00980900, "int", 0, 255, 128),
-    UvcControl("contrast", 0x00980901, "int", 0, 255, 32),
-    UvcControl("saturation", 0x00980902, "int", 0, 255, 32),
-    UvcControl("white_balance_automatic", 0x0098090C, "bool", 0, 1, 1),
-    UvcControl("gain", 0x00980913, "int", 0, 255, 64),
-    UvcControl("power_line_frequency", 0x00980918, "menu", 0, 2, 2, menu=(0, 1, 2)),
-    UvcControl("white_balance_temperature", 0x0098091A, "int", 0, 10000, 4000, step=10,
-               active_when=("white_balance_automatic", 0)),
-    UvcControl("sharpness", 0x0098091B, "int", 0, 255, 24),
-    UvcControl("backlight_compensation", 0x0098091C, "int", 0, 1, 0),
-    UvcControl("auto_exposure", 0x009A0901, "menu", 1, 3, 3, menu=(1, 3)),
-    UvcControl("exposure_time_absolute", 0x009A0902, "int", 1, 10000, 166, active_when=("auto_exposure", 1)),
-    UvcControl("exposure_dynamic_framerate", 0x009A0903, "bool", 0, 1, 0),
-)
-
-# (fourcc, width, height) -> max fps (C310: YUYV large modes only at low fps).
-C310_MODES: dict[tuple[str, int, int], float] = {
-    ("MJPG", 160, 120): 30, ("MJPG", 320, 240): 30, ("MJPG", 640, 480): 30, ("MJPG", 1280, 720): 30,
-    ("MJPG", 1280, 960): 30, ("YUYV", 160, 120): 30, ("YUYV", 320, 240): 30, ("YUYV", 640, 480): 30,
-    ("YUYV", 1280, 720): 7.5, ("YUYV", 1280, 960): 5,
-}
+# UvcControl, C310_CONTROLS and C310_MODES live in tactile_rig.devices.camera_models; re-exported here.
 
 
 class UvcControlTable:
-    """Values of a control table with the kernel's rules: clamp ints to range and step, reject bad
-    menu values and writes to inactive controls."""
+    """Values of a control table with uvcvideo's rules (:meth:`UvcControl.clamp`): ints rounded to the
+    nearest step and clamped, menu indices the camera does not offer and writes to inactive controls
+    refused. A new table, and :meth:`reset`, hold the camera's power-on values."""
 
     def __init__(self, controls: tuple[UvcControl, ...] = C310_CONTROLS) -> None:
         self.controls = {c.name: c for c in controls}
@@ -80,7 +44,12 @@ class UvcControlTable:
         self.reset()
 
     def reset(self) -> None:
-        self.values = {c.name: c.default for c in self.controls.values()}
+        """The values the camera powers up with."""
+        self.values = {c.name: c.initial for c in self.controls.values()}
+
+    def by_id(self, cid: int) -> UvcControl | None:
+        """The control with V4L2 id ``cid``, or None."""
+        return next((c for c in self.controls.values() if c.cid == cid), None)
 
     def is_active(self, name: str) -> bool:
         c = self.controls[name]
@@ -92,12 +61,13 @@ class UvcControlTable:
         if c is None or not math.isfinite(value) or not self.is_active(name):
             return False
         v = int(round(value))
+        if not -2**31 <= v < 2**31:  # a V4L2 control value is an s32
+            return False
         if c.kind == "menu":
-            if v not in c.menu:
+            if c.menu_errno(v):
                 return False
         else:
-            v = min(max(v, c.minimum), c.maximum)
-            v = c.minimum + (v - c.minimum) // c.step * c.step
+            v = c.clamp(v)
         self.values[name] = v
         return True
 
@@ -155,10 +125,13 @@ class SimulatedCamera:
                  name: str = "simcam", fourcc: str = "MJPG", width: int = 320, height: int = 240, fps: float = 30.0,
                  modes: dict[tuple[str, int, int], float] | None = None,
                  controls: tuple[UvcControl, ...] = C310_CONTROLS, auto_drift: bool = True,
-                 reset_controls_on_format: bool = True, ignore_controls: tuple[str, ...] = (),
-                 channel_order: str = "BGR", noise_sigma: float = 0.5, seed: int = 0, world: Any = None) -> None:
+                 reset_controls_on_format: bool = False, ignore_controls: tuple[str, ...] = (),
+                 channel_order: str = "BGR", noise_sigma: float = 0.5, seed: int = 0, world: Any = None,
+                 optics: Callable[[np.ndarray, int, int], np.ndarray] | None = None) -> None:
         """``render``: a function ``t_s -> BGR``, a renderer model (``render_now()``), None (a test
-        pattern), or a ``rigsim://camera?model=NAME`` URL naming the renderer model in ``world``."""
+        pattern), or a ``rigsim://camera?model=NAME`` URL naming the renderer model in ``world``.
+        ``optics(image, width, height)``: how the lens places the rendered (and exposed) scene on the
+        sensor at a mode's size (default: a resize before exposure)."""
         if isinstance(render, str):
             render = _renderer_from_url(render, world)
         self.name = name
@@ -171,6 +144,7 @@ class SimulatedCamera:
         self.ignore_controls = {canonical_control(n) for n in ignore_controls}
         self.channel_order = channel_order
         self._render_fn = render
+        self.optics = optics
         self._seed = int(seed)
         self._rng = np.random.default_rng(seed)
         self.noise_sigma = float(noise_sigma)  # read noise: no two live frames are byte-identical
@@ -241,9 +215,9 @@ class SimulatedCamera:
     def set_format(self, fourcc: str, width: int, height: int, fps: float) -> tuple[str, int, int, float]:
         self._check()
         key = (fourcc, int(width), int(height))
-        if key not in self.modes:  # uvcvideo snaps to the closest mode of that fourcc (or any)
-            cands = [m for m in self.modes if m[0] == fourcc] or list(self.modes)
-            key = min(cands, key=lambda m: abs(m[1] * m[2] - int(width) * int(height)))
+        if key not in self.modes:  # uvcvideo: the closest size of that fourcc (else of the first format)
+            cands = [m for m in self.modes if m[0] == fourcc] or [m for m in self.modes if m[0] == next(iter(self.modes))[0]]
+            key = min(cands, key=lambda m: uvc_size_distance(m[1], m[2], int(width), int(height)))
         self.fourcc, self.width, self.height = key
         self.fps = min(float(fps), self.modes[key]) if fps > 0 else self.modes[key]
         if self.reset_controls_on_format:
@@ -285,41 +259,70 @@ class SimulatedCamera:
         if self._in(self.freezes, t_frame) and self._last_image is not None:
             img = self._last_image
         else:
-            img = self._expose(self._render(t_frame), t_frame)
+            img = self.render_frame(t_frame)
         self._k_last, self._last_image, self._last_t_dev = k, img, t_frame - self._t0
         out = img[..., ::-1].copy() if self.channel_order == "RGB" else img
         return RawFrame(out, t_frame - self._t0, k)
 
     # -- image formation ------------------------------------------------------------------------
-    def _render(self, t_s: float) -> np.ndarray:
+    def render_frame(self, t_s: float, width: int | None = None, height: int | None = None) -> np.ndarray:
+        """The image the sensor forms at ``t_s`` (BGR, ``height`` x ``width`` px, default the current
+        format's): the scene rendered, exposed with the current controls, placed on the sensor."""
+        w = self.width if width is None else int(width)
+        h = self.height if height is None else int(height)
+        if self.optics is None:
+            return self._expose(self._render(t_s, (h, w)), t_s)
+        return self.optics(self._expose(self._render(t_s, None), t_s), w, h)
+
+    def _render(self, t_s: float, shape_px: tuple[int, int] | None) -> np.ndarray:
         fn = self._render_fn
         if fn is None:
-            self._render_fn = fn = moving_bar_pattern((self.height, self.width))
+            self._render_fn = fn = moving_bar_pattern(shape_px or (self.height, self.width))
         img = fn.render_now() if hasattr(fn, "render_now") else fn(t_s)
-        if img.shape[:2] != (self.height, self.width):
-            img = cv2.resize(img, (self.width, self.height), interpolation=cv2.INTER_AREA)
+        if shape_px is not None and img.shape[:2] != shape_px:
+            img = cv2.resize(img, (shape_px[1], shape_px[0]), interpolation=cv2.INTER_AREA)
         return img
 
+    def _relative(self, name: str) -> float | None:
+        """A control's value relative to its default (1.0 at the default), None if the camera lacks it.
+        A control whose default is 0 counts from a quarter of its range."""
+        c = self.table.controls.get(name)
+        if c is None:
+            return None
+        ref = c.default if c.default > 0 else (c.maximum - c.minimum) / 4.0
+        return (self.table.values[name] + (ref - c.default)) / ref
+
     def effective_exposure(self, t_s: float) -> float:
-        """Exposure (100 µs units) in use: the manual value, or auto exposure's drifting choice."""
+        """Exposure relative to the camera's default: the manual value, or auto exposure's drifting choice
+        (1.0 for a camera without exposure controls)."""
         if self.table.get("auto_exposure") == 1:
-            return float(self.table.value("exposure_time_absolute"))
+            return self._relative("exposure_time_absolute") or 1.0
+        if "auto_exposure" not in self.table.controls:
+            return 1.0
         drift = 0.25 * math.sin(2 * math.pi * t_s / 7.0) if self.auto_drift else 0.0
-        return 166.0 * (1.0 + drift)
+        return 1.0 + drift
 
     def channel_gains(self, t_s: float) -> np.ndarray:
-        """BGR gains from white balance: manual temperature, or auto WB's drifting choice."""
-        if self.table.get("white_balance_automatic") == 0:
-            shift = (self.table.value("white_balance_temperature") - 4000.0) / 20000.0
-        else:
-            shift = 0.08 * math.sin(2 * math.pi * t_s / 5.0) if self.auto_drift else 0.0
-        return np.array([1.0 + shift, 1.0, 1.0 - shift], dtype=np.float32)
+        """BGR gains from white balance (manual temperature, or auto WB's drifting choice) and, on a
+        camera whose LEDs are a control (the DIGIT's ``zoom_absolute``: 4 bits each of R, G, B), the LEDs."""
+        shift = 0.0
+        wb = self.table.controls.get("white_balance_temperature")
+        if self.table.get("white_balance_automatic") == 0 and wb is not None:
+            shift = (self.table.values[wb.name] - wb.default) / 20000.0
+        elif "white_balance_automatic" in self.table.controls and self.auto_drift:
+            shift = 0.08 * math.sin(2 * math.pi * t_s / 5.0)
+        gains = np.array([1.0 + shift, 1.0, 1.0 - shift], dtype=np.float32)
+        led = self.table.get("zoom_absolute")
+        if led is not None:
+            gains *= np.array([(led & 15) / 15.0, ((led >> 4) & 15) / 15.0, ((led >> 8) & 15) / 15.0], np.float32)
+        return gains
 
     def _expose(self, img: np.ndarray, t_s: float) -> np.ndarray:
         """Exposure x gain x white balance, brightness offset, read noise; saturating 8-bit arithmetic."""
-        gain = (self.effective_exposure(t_s) / 166.0) * (self.table.value("gain") / 64.0) ** 0.5
+        gain = self.effective_exposure(t_s) * max(0.0, self._relative("gain") or 1.0) ** 0.5
         wb = self.channel_gains(t_s) * gain
-        bright = (self.table.value("brightness") - 128) * 0.5
+        b = self.table.controls.get("brightness")
+        bright = (self.table.values[b.name] - b.default) * 0.5 * 255.0 / (b.maximum - b.minimum) if b else 0.0
         out = img
         if not np.allclose(wb, 1.0):
             out = cv2.multiply(out, (float(wb[0]), float(wb[1]), float(wb[2]), 0.0))
@@ -333,6 +336,14 @@ class SimulatedCamera:
                 self._noise.reseed(self._rng)
             out = cv2.add(out, self._noise.sample(), dtype=cv2.CV_8U)
         return out
+
+
+def _select_timeout_s() -> float:
+    """cap_v4l's select() timeout: ``OPENCV_VIDEOIO_V4L_SELECT_TIMEOUT`` seconds, default 10."""
+    try:
+        return max(0.0, float(os.environ.get("OPENCV_VIDEOIO_V4L_SELECT_TIMEOUT", "10")))
+    except ValueError:
+        return 10.0
 
 
 class FakeVideoCapture:
@@ -356,6 +367,7 @@ class FakeVideoCapture:
         self._released = sim is None
         self._t_ms = 0.0
         self.buffersize = 4
+        self.select_timeout_s = _select_timeout_s()
         if sim is not None:
             try:
                 sim.open()
@@ -384,8 +396,8 @@ class FakeVideoCapture:
             return False
         s = self.sim
         if prop == cv2.CAP_PROP_FOURCC:
-            s.set_format(fourcc_text(value), s.width, s.height, s.fps)  # re-inits the stream: controls reset
-            return True
+            s.set_format(fourcc_text(value), s.width, s.height, s.fps)  # re-inits the stream; the camera
+            return True                                                   # decides what its controls do
         if prop == cv2.CAP_PROP_FRAME_WIDTH:
             self._pending_width = int(value)  # applied together with the height
             return True
@@ -425,11 +437,12 @@ class FakeVideoCapture:
         return -1.0 if v is None else float(v)
 
     def read(self) -> tuple[bool, np.ndarray | None]:
-        """Blocks until a frame comes (no timeout, as in cap_v4l); (False, None) when gone."""
+        """Blocks until a frame comes, at most ``select_timeout_s`` (cap_v4l's select() timeout,
+        ``OPENCV_VIDEOIO_V4L_SELECT_TIMEOUT``, default 10 s); (False, None) on that timeout or when gone."""
         if self._released or self.sim is None:
             return False, None
         try:
-            raw = self.sim.read(None)
+            raw = self.sim.read(self.select_timeout_s)
         except NotConnected:
             return False, None
         if raw is None:

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from tactile_rig.core.errors import CalibrationError, DeviceTimeout
-from tactile_rig.core.files import load_npz
+from tactile_rig.rig.files import load_npz
 from tactile_rig.core.types import TouchReading
 from tactile_rig.perception.fingervision import FingerVision, FingerVisionParams, MarkerBaseline
 from tactile_rig.perception.gelsight.calibration import GelSightCalibration

@@ -1,10 +1,14 @@
 """Live view: a running session's messages over the Foxglove WebSocket protocol on 127.0.0.1.
 
-:class:`LiveServer` publishes the same topics, schemas and JSON bodies as a session recording
-(:mod:`tactile_rig.rig.recording`: ``/<name>/image/compressed`` as ``foxglove.CompressedImage``,
-``/perception/<name>``, ``/state/<device>``, ``/command/<device>``, ``/jig/pose``, ``/scale/force``),
-so the Foxglove app shows a live session with the layout it uses for the recordings. It has the
-recorder's ``write_*`` methods; :class:`Tee` sends every message to a recorder and a live server.
+:class:`LiveServer` is a :class:`~tactile_rig.rig.messages.TopicWriter`: it publishes the topics,
+types and bytes a recording writes (:mod:`tactile_rig.rig.recording`), so the Foxglove app shows a
+live session with the layout it uses for the recordings; :class:`Tee` hands every message, encoded
+once, to a recorder and a live server.
+
+A session may offer services (Foxglove's Call Service panel, JSON requests and responses): each is
+queued to the session's own loop, which runs it between two polls (:meth:`LiveServer.run_pending`),
+so a service never talks to a device from another thread; a service that the bench is not in a
+state to do is refused with a failure naming why. Read-only parameters describe the session.
 
 The server is the ``foxglove-sdk`` package (the optional extra ``live``), imported when a server
 starts. Channels are created on first use and advertised to connected clients then; a client sees
@@ -14,23 +18,35 @@ messages from the moment it subscribes (nothing is replayed). Each server has it
 
 from __future__ import annotations
 
-import base64
 import json
+import queue
 import threading
 import time
-from typing import Any, Mapping
+from concurrent.futures import Future
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
 from tactile_rig.core.clock import Clock, RealClock
-from tactile_rig.core.jsonable import to_jsonable
-from tactile_rig.rig.recording import SCHEMAS, TopicWriter, camera_topic
+from tactile_rig.core.errors import RigError
+from tactile_rig.rig.messages import Encoded, SchemaDef, Tee, TopicWriter, schema_for
 
-__all__ = ["DEFAULT_LIVE_PORT", "LiveServer", "Tee", "require_foxglove"]
+__all__ = ["DEFAULT_LIVE_PORT", "LiveServer", "Tee", "require_foxglove", "ServiceRefused", "SERVICE_TIMEOUT_S"]
 
 DEFAULT_LIVE_PORT = 8765  # the Foxglove app's default for "Foxglove WebSocket"
 LINGER_S = 0.5  # close(): time for queued messages to reach a subscribed viewer
 BACKLOG_MESSAGES = 16384  # per client; a simulated episode's trace arrives as one burst
+SERVICE_TIMEOUT_S = 5.0  # a service call the session has not run by then fails (the loop is busy)
+
+_REQUEST_SCHEMA = {"title": "tactile_rig.ServiceRequest", "type": "object",
+                   "description": "arguments of the service, if any (none of the rig's services takes any)"}
+_RESPONSE_SCHEMA = {"title": "tactile_rig.ServiceResponse", "type": "object",
+                    "properties": {"ok": {"type": "boolean"}, "message": {"type": "string"}}}
+
+
+class ServiceRefused(RigError):
+    """A live service the bench is not in a state to do (the message says why)."""
 
 
 def require_foxglove() -> Any:
@@ -43,26 +59,19 @@ def require_foxglove() -> Any:
     return foxglove
 
 
-def _default(obj: Any) -> Any:
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    raise TypeError(type(obj).__name__)
-
-
-def _encode(body: Mapping[str, Any]) -> bytes:
-    try:
-        return json.dumps(body, separators=(",", ":"), allow_nan=False, default=_default).encode()
-    except (TypeError, ValueError):
-        return json.dumps(to_jsonable(dict(body)), separators=(",", ":"), allow_nan=False).encode()
+@dataclass
+class _Call:
+    name: str
+    args: dict[str, Any]
+    future: Future
 
 
 class LiveServer(TopicWriter):
     """A Foxglove WebSocket server on ``host:port`` (``port=0``: any free port; see :attr:`port`).
 
     ``clock`` gives each message's ``t_s`` (default: monotonic wall time); log times are Unix ns.
-    ``jpeg_quality`` applies to frames (the live view always sends JPEG: it is a view, not a record).
+    Frames written to the server alone go as JPEG (``jpeg_quality``) unless ``compress='png'``: a
+    view, not a record; through a :class:`Tee` the server sends what the recording keeps.
     """
 
     def __init__(self, *, port: int = DEFAULT_LIVE_PORT, host: str = "127.0.0.1", name: str = "tactile-rig",
@@ -71,15 +80,24 @@ class LiveServer(TopicWriter):
             raise ValueError(f"live view host {host!r}: the live view serves on loopback only (127.0.0.1)")
         if not 0 <= int(port) <= 65535:
             raise ValueError(f"live view port {port!r} must be in 0..65535")
+        if not 1 <= int(jpeg_quality) <= 100:
+            raise ValueError(f"jpeg_quality={jpeg_quality!r} must be in 1..100")
         fg = require_foxglove()
-        self.clock: Clock = clock if clock is not None else RealClock()
+        from foxglove.websocket import Capability
+
+        self.clock = clock if clock is not None else RealClock()
         self.jpeg_quality = int(jpeg_quality)
         self._fg = fg
         self._ctx = fg.Context()
         self._sub_cond = threading.Condition()
         self.subscribed_topics: set[str] = set()
+        self._params: dict[str, Any] = {}
+        self._calls: queue.Queue[_Call] = queue.Queue()
+        self._services: dict[str, Callable[[dict[str, Any]], str]] = {}
         self._server = fg.start_server(name=name, host=host, port=int(port), context=self._ctx,
-                                       server_listener=_Listener(self), message_backlog_size=BACKLOG_MESSAGES)
+                                       server_listener=_Listener(self), message_backlog_size=BACKLOG_MESSAGES,
+                                       capabilities=[Capability.Services, Capability.Parameters],
+                                       supported_encodings=["json"])
         self._channels: dict[str, Any] = {}
         self._lock = threading.Lock()
         self._epoch_ns = time.time_ns() - int(self.clock.now_s() * 1e9)
@@ -87,7 +105,7 @@ class LiveServer(TopicWriter):
 
     def advertise(self, topic: str, schema: str = "tactile_rig.Json") -> None:
         """Create ``topic``'s channel now (clients see it and may subscribe before its first message)."""
-        self._channel(topic, schema)
+        self._channel(topic, schema_for(schema))
 
     def wait_for_subscriber(self, timeout_s: float, topics: set[str] | None = None) -> bool:
         """Block until a client has subscribed to every topic of ``topics`` (None: to any channel), or
@@ -113,70 +131,103 @@ class LiveServer(TopicWriter):
     def url(self) -> str:
         return f"ws://127.0.0.1:{self.port}"
 
-    def _channel(self, topic: str, schema: str) -> Any:
+    def _channel(self, topic: str, schema: SchemaDef) -> Any:
         ch = self._channels.get(topic)
         if ch is None:
             with self._lock:
                 ch = self._channels.get(topic)
                 if ch is None:
-                    body = json.dumps(SCHEMAS.get(schema, SCHEMAS["tactile_rig.Json"])).encode()
-                    ch = self._fg.Channel(topic, schema=self._fg.Schema(name=schema, encoding="jsonschema", data=body),
-                                          message_encoding="json", context=self._ctx)
+                    ch = self._fg.Channel(topic, schema=self._fg.Schema(name=schema.name, encoding=schema.encoding,
+                                                                        data=schema.data),
+                                          message_encoding=schema.message_encoding, context=self._ctx)
                     self._channels[topic] = ch
         return ch
 
     def log_time_ns(self, t_s: float) -> int:
         return self._epoch_ns + int(round(t_s * 1e9))
 
-    # -- the recorder's interface ---------------------------------------------------------------
-    def write(self, topic: str, payload: Mapping[str, Any], *, t_s: float | None = None,
-              schema: str = "tactile_rig.Json") -> None:
-        """Publish one JSON message on ``topic`` (``t_s`` defaults to the clock's now)."""
-        t = self.clock.now_s() if t_s is None else float(t_s)
-        body = dict(payload)
-        body.setdefault("t_s", t)
-        self._channel(topic, schema).log(_encode(body), log_time=self.log_time_ns(t))
+    def publish(self, msg: Encoded) -> None:
+        """Send one encoded message to the subscribed clients."""
+        if self._server is None:
+            raise ValueError("the live view is closed")
+        self._channel(msg.topic, msg.schema).log(msg.data, log_time=msg.log_time_ns)
         self.published += 1
 
     def write_frame(self, camera: str, image: np.ndarray, *, t_s: float | None = None,
                     compress: str | None = None) -> None:
         """A camera frame as ``/<camera>/image/compressed`` (JPEG, or PNG when ``compress='png'``)."""
-        import cv2
+        super().write_frame(camera, image, t_s=t_s, compress="png" if compress == "png" else "jpeg")
 
-        t = self.clock.now_s() if t_s is None else float(t_s)
-        ext = ".png" if compress == "png" else ".jpg"
-        params = [] if ext == ".png" else [int(cv2.IMWRITE_JPEG_QUALITY), self.jpeg_quality]
-        ok, buf = cv2.imencode(ext, np.ascontiguousarray(image), params)
-        if not ok:
-            raise ValueError(f"camera {camera!r}: OpenCV could not encode the frame")
-        ns = self.log_time_ns(t)
-        msg = {"timestamp": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}, "frame_id": camera,
-               "format": "png" if ext == ".png" else "jpeg", "data": base64.b64encode(buf.tobytes()).decode("ascii")}
-        self.write(camera_topic(camera, compressed=True), msg, t_s=t, schema="foxglove.CompressedImage")
+    # -- services and parameters ----------------------------------------------------------------
+    def add_service(self, name: str, handler: Callable[[dict[str, Any]], str]) -> None:
+        """Offer service ``name``: a call is queued and ``handler(args)`` runs in the session's loop
+        (:meth:`run_pending`); its return is the response's message, a :class:`ServiceRefused` (or
+        any RigError/ValueError) a failure with its text."""
+        if name in self._services:
+            raise ValueError(f"live service {name!r} is already offered")
+        fg = self._fg
 
-    def write_trace(self, name: str, trace: Any, *, t0_s: float = 0.0) -> int:
-        """A controller's :class:`~tactile_rig.core.types.Trace`, one message per sample on
-        ``/perception/<name>`` at ``t0_s`` + its time; returns the number of samples."""
-        for i, t in enumerate(trace.t_s):
-            self.write_perception(name, {k: v[i] for k, v in trace.channels.items()}, t_s=t0_s + t)
-        return len(trace.t_s)
+        def schema(body: dict[str, Any]) -> Any:
+            return fg.MessageSchema(encoding="json", schema=fg.Schema(name=str(body["title"]), encoding="jsonschema",
+                                                                      data=json.dumps(body).encode()))
 
-    # Metadata and attachments belong to the recording; the live view has no place for them.
-    def add_metadata(self, name: str, values: Mapping[str, Any]) -> None:
-        pass
+        svc = fg.Service(name, schema=fg.ServiceSchema(f"tactile_rig.{name}", request=schema(_REQUEST_SCHEMA),
+                                                       response=schema(_RESPONSE_SCHEMA)),
+                         handler=lambda req: self._call(name, req))
+        self._services[name] = handler
+        self._server.add_services([svc])
 
-    def add_attachment(self, name: str, data: bytes, *, media_type: str = "") -> None:
-        pass
+    def _call(self, name: str, request: Any) -> bytes:
+        """The SDK's handler (its thread): queue the call, wait for the loop to run it."""
+        try:
+            args = json.loads(bytes(request.payload) or b"{}") if request.payload else {}
+        except ValueError:
+            raise ValueError(f"{name}: the request is not JSON") from None
+        if not isinstance(args, dict):
+            raise ValueError(f"{name}: the request must be a JSON object, got {type(args).__name__}")
+        call = _Call(name, args, Future())
+        self._calls.put(call)
+        try:
+            message = call.future.result(timeout=SERVICE_TIMEOUT_S)
+        except TimeoutError:
+            call.future.cancel()
+            raise ServiceRefused(f"{name}: the session did not take the request within {SERVICE_TIMEOUT_S:g} s") from None
+        return json.dumps({"ok": True, "message": message}).encode()
 
-    def add_bench(self, bench: Any) -> None:
-        pass
+    def run_pending(self, log: TopicWriter | None = None) -> int:
+        """Run the service calls queued since the last time (in the caller's thread: the session's
+        loop); returns how many ran. Each outcome goes to ``/log`` of ``log`` (the session's
+        :class:`Tee`, so the recording keeps it too; default: this server)."""
+        sink = log if log is not None else self
+        n = 0
+        while True:
+            try:
+                call = self._calls.get_nowait()
+            except queue.Empty:
+                return n
+            if not call.future.set_running_or_notify_cancel():
+                continue
+            n += 1
+            try:
+                message = self._services[call.name](call.args)
+            except (RigError, ValueError) as exc:
+                sink.write_log("live", f"{call.name} refused: {exc}", level="warning")
+                call.future.set_exception(ServiceRefused(f"{call.name} refused: {exc}"))
+            else:
+                sink.write_log("live", f"{call.name}: {message}")
+                call.future.set_result(message)
 
-    def add_calibration(self, name: str, **kw: Any) -> None:
-        pass
+    def set_parameters(self, values: Mapping[str, Any]) -> None:
+        """Read-only parameters a client may get (strings, numbers, booleans); set requests are refused."""
+        self._params.update({str(k): v for k, v in values.items()})
+        if self._server is not None:
+            self._server.publish_parameter_values(self._parameters(list(values)))
 
-    def flush(self) -> None:
-        pass
+    def _parameters(self, names: list[str] | None = None) -> list[Any]:
+        keys = sorted(self._params) if not names else [n for n in names if n in self._params]
+        return [self._fg.Parameter(k, value=self._params[k]) for k in keys]
 
+    # -- closing --------------------------------------------------------------------------------
     def close(self) -> None:
         """Stop the server (idempotent). With a subscriber, first give the messages still queued for it
         ``LINGER_S`` to leave (a session's last messages are the ones a viewer wants to see)."""
@@ -184,6 +235,11 @@ class LiveServer(TopicWriter):
         if server is not None:
             if self.subscribed_topics:
                 time.sleep(LINGER_S)
+            while True:  # calls nobody will run: fail them now rather than at their timeout
+                try:
+                    self._calls.get_nowait().future.cancel()
+                except queue.Empty:
+                    break
             for ch in self._channels.values():
                 ch.close()
             server.stop()
@@ -196,7 +252,8 @@ class LiveServer(TopicWriter):
 
 
 class _Listener:
-    """The SDK's server listener: counts subscriptions (see :meth:`LiveServer.wait_for_subscriber`)."""
+    """The SDK's server listener: counts subscriptions (see :meth:`LiveServer.wait_for_subscriber`),
+    answers parameter requests from :meth:`LiveServer.set_parameters` and refuses to set them."""
 
     def __init__(self, server: LiveServer) -> None:
         self.server = server
@@ -209,26 +266,13 @@ class _Listener:
     def on_unsubscribe(self, client: Any, channel: Any) -> None:
         pass
 
+    def on_get_parameters(self, client: Any, param_names: list[str], request_id: str | None = None) -> list[Any]:
+        return self.server._parameters(list(param_names))
 
-class Tee:
-    """Send every ``write_*`` / metadata call to several sinks (a Recorder and a LiveServer); ``None``
-    sinks are skipped. :attr:`path` is the first sink's that has one (the recording's file)."""
-
-    def __init__(self, *sinks: Any) -> None:
-        self.sinks = [s for s in sinks if s is not None]
-        self.path = next((s.path for s in self.sinks if hasattr(s, "path")), None)
-        self.clock = self.sinks[0].clock if self.sinks else RealClock()
-
-    def __getattr__(self, name: str) -> Any:
-        if not (name.startswith("write") or name.startswith("add_") or name in ("flush",)):
-            raise AttributeError(name)
-
-        def call(*args: Any, **kw: Any) -> None:
-            for s in self.sinks:
-                getattr(s, name)(*args, **kw)
-
-        return call
-
-    def close(self) -> None:
-        for s in self.sinks:
-            s.close()
+    def on_set_parameters(self, client: Any, parameters: list[Any], request_id: str | None = None) -> list[Any]:
+        server = self.server._server
+        if server is not None and parameters:
+            names = ", ".join(str(p.name) for p in parameters)
+            server.publish_status(f"parameters are read-only ({names}): they describe the session",
+                                  self.server._fg.StatusLevel.Warning)
+        return self.server._parameters([str(p.name) for p in parameters])

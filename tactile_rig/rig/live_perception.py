@@ -4,8 +4,10 @@ with the frame rate measured as it runs and, optionally, everything on the live 
 :func:`run_live` owns the loop (open the camera, read each new frame, process, report, publish) and
 the rate meter; :class:`FingerVisionStep` and :class:`GelSightHeightStep` are the per-frame work.
 What a step returns is one JSON-able dict per frame; it is published on
-``/perception/<camera>/<step>`` with the frame on ``/<camera>/image/compressed`` (the recording
-schemas), so the live view and a recording of the same run look alike.
+``/perception/<camera>/<step>`` with the frame on ``/<camera>/image/compressed``, and the step's
+:meth:`publish` adds its typed views (FingerVision: the markers over the image, their arrows and the
+wrench; GelSight: the height map as a point cloud, the localized pose), all through the one mapping
+of :mod:`tactile_rig.rig.messages`, so the live view and a recording of the same run look alike.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from tactile_rig.rig.bench_camera import camera_name, open_camera
 from tactile_rig.rig.camera_calibrations import CameraCalibrations, FingerVisionCalibration
 
 RATE_WINDOW = 30  # frames the displayed rate is measured over
+TACTILE_MAP_FRAME = "tactile_map"  # the frame of a tactile map's poses (mm, deg)
 
 
 @dataclass
@@ -70,6 +73,17 @@ class FingerVisionStep:
         self.force_map = calibrations.force_map if calibrations is not None else None
         self.mm_per_px = mm_per_px
 
+    def publish(self, sink: Any, camera: str, image: np.ndarray, row: dict[str, Any], t_s: float) -> None:
+        """The frame's markers over the image (``/<camera>/markers``), their displacement arrows and the
+        net force in the sensor frame (``/<camera>/marker_arrows``, with ``mm_per_px``) and, in newtons,
+        the wrench (``/<camera>/wrench``)."""
+        force = row.get("force_n")
+        sink.write_markers(camera, row["markers_px"], t_s=t_s, displacements_px=row.get("marker_displacements_px"),
+                           valid=row.get("marker_valid"), image_size_px=(int(image.shape[1]), int(image.shape[0])),
+                           mm_per_px=self.mm_per_px, force_n=force)
+        if force is not None:
+            sink.write_wrench(camera, force, torque_nmm=row.get("torque_nmm"), t_s=t_s)
+
     def __call__(self, image: np.ndarray, t_s: float) -> dict[str, Any]:
         r = self.fv.process(image, t_s)
         base = self.fv.tracker.baseline if self.fv.tracker is not None else None
@@ -101,9 +115,15 @@ class GelSightHeightStep:
     def __init__(self, calibration: GelSightCalibration, *, contact_mm: float = 0.02,
                  integration: IntegrationParams | None = None) -> None:
         self.rec = Reconstructor(calibration, integration)
-        self.mm2_per_px = float(calibration.mm_per_px_x) * float(calibration.mm_per_px_y)
+        self.mm_per_px = (float(calibration.mm_per_px_x), float(calibration.mm_per_px_y))
+        self.mm2_per_px = self.mm_per_px[0] * self.mm_per_px[1]
         self.contact_mm = float(contact_mm)
         self.last: np.ndarray | None = None
+
+    def publish(self, sink: Any, camera: str, image: np.ndarray, row: dict[str, Any], t_s: float) -> None:
+        """The frame's height map as a point cloud in the sensor frame (``/<camera>/height/points``)."""
+        if self.last is not None:
+            sink.write_height(camera, self.last, *self.mm_per_px, t_s=t_s)
 
     def __call__(self, image: np.ndarray, t_s: float) -> dict[str, Any]:
         h = self.rec.height_mm(image)
@@ -123,6 +143,13 @@ class GelSightLocalizeStep:
     def __init__(self, calibration: GelSightCalibration, tactile_map: Any) -> None:
         self.rec = Reconstructor(calibration)
         self.map = tactile_map
+
+    def publish(self, sink: Any, camera: str, image: np.ndarray, row: dict[str, Any], t_s: float) -> None:
+        """A localized touch as a pose in the tactile map's frame (``/<camera>/localize/pose``)."""
+        t = row.get("translation_mm")
+        if row.get("ok") and t is not None and row.get("rotation_deg") is not None:
+            sink.write_contact_pose(f"{camera}/localize", TACTILE_MAP_FRAME, float(t[0]), float(t[1]),
+                                    float(row["rotation_deg"]), t_s=t_s)
 
     def __call__(self, image: np.ndarray, t_s: float) -> dict[str, Any]:
         return self.map.localize(self.rec.height_mm(image)).as_dict()
@@ -160,8 +187,9 @@ def run_live(bench: Bench, camera: str | None, step: Callable[[np.ndarray, float
              publish_image: Callable[[np.ndarray], np.ndarray | None] | None = None) -> LiveSummary:
     """Run ``step`` on every new frame of the bench camera until ``duration_s`` or ``max_frames``
     (or Ctrl-C). ``on_frame`` gets each frame's dict with ``frame``, ``t_s``, ``fps`` and
-    ``work_ms`` added. With ``live``, the frame and the dict are published (and
-    ``publish_image(image)``'s picture on ``/<camera>_<step>/image/compressed`` when it returns one)."""
+    ``work_ms`` added. With ``live`` (a LiveServer, a Recorder, or a Tee of both), the frame, the dict
+    and the step's typed views (its ``publish``) are written (and ``publish_image(image)``'s picture
+    on ``/<camera>_<step>/image/compressed`` when it returns one)."""
     name = camera_name(bench, camera, sensor)
     if duration_s is not None and not duration_s > 0:
         raise ValueError(f"duration_s={duration_s!r} must be > 0 s")
@@ -184,11 +212,13 @@ def run_live(bench: Bench, camera: str | None, step: Callable[[np.ndarray, float
                 row = {"frame": n, "t_s": round(fr.t_host_s, 6), "fps": round(meter.fps, 2),
                        "work_ms": round(meter.work_ms, 2), **out}
                 if live is not None:
-                    live.write_frame(name, fr.image, t_s=fr.t_host_s)
+                    live.write_frame(name, fr.image, t_s=fr.t_host_s, compress="jpeg")
                     live.write_perception(f"{name}/{step_name}", row, t_s=fr.t_host_s)
+                    if hasattr(step, "publish"):
+                        step.publish(live, name, fr.image, out, fr.t_host_s)
                     extra = publish_image(fr.image) if publish_image is not None else None
                     if extra is not None:
-                        live.write_frame(f"{name}_{step_name}", extra, t_s=fr.t_host_s)
+                        live.write_frame(f"{name}_{step_name}", extra, t_s=fr.t_host_s, compress="jpeg")
                 if on_frame is not None:
                     on_frame(row)
                 n += 1

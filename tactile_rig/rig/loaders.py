@@ -1,7 +1,7 @@
 """Checked loaders for the project's own file formats (GelSight calibration, tactile map,
 press folders, height maps, FingerVision configs, gripper calibrations).
 
-Each one checks the file with :mod:`tactile_rig.core.files` (size, dtype, shape, finiteness,
+Each one checks the file with :mod:`tactile_rig.rig.files` (size, dtype, shape, finiteness,
 nesting) before the format's own reader sees it, and turns whatever that reader still raises into
 a :class:`~tactile_rig.core.errors.BadFile` naming the file, so the command exits 2 with one line.
 """
@@ -16,11 +16,14 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from tactile_rig.core import files
+from tactile_rig.rig import files
 from tactile_rig.core.errors import BadFile, CalibrationError, MissingFile
 from tactile_rig.drivers.dynamixel.gripper import GripperCalibration
 from tactile_rig.perception.fingervision import FingerVisionParams
 from tactile_rig.perception.gelsight import GelSightCalibration, Reconstructor, TactileMap, load_presses
+from tactile_rig.perception.gelsight.calibration import CALIBRATION_FILE
+from tactile_rig.perception.gelsight.models import MODELS
+from tactile_rig.perception.gelsight.tactile_map import MAP_FILE
 
 __all__ = ["load_height_mm", "read_frame", "load_gelsight_calibration", "load_tactile_map", "load_press_folder",
            "load_config_mapping", "load_fingervision_params", "load_gripper_calibration", "check_settings", "IMAGE_SUFFIXES"]
@@ -56,7 +59,10 @@ def load_gelsight_calibration(path: str | Path) -> GelSightCalibration:
     base, jpath, npath = _calibration_paths(path)
     if not jpath.exists() and not npath.exists():
         raise MissingFile(base, "GelSight calibration (.json + .npz)")
-    meta = files.load_json(jpath, "GelSight calibration metadata")
+    meta = CALIBRATION_FILE.check(files.load_json(jpath, "GelSight calibration metadata"), jpath)
+    if meta.get("model") not in MODELS:
+        raise BadFile(jpath, f"GelSight calibration metadata has model={meta.get('model')!r}",
+                      "one of " + ", ".join(sorted(MODELS)))
     for key in ("mm_per_px_x", "mm_per_px_y", "ball_radius_mm"):
         v = meta.get(key)
         if not isinstance(v, (int, float)) or isinstance(v, bool) or not 0 < float(v) < 1e3:
@@ -70,9 +76,11 @@ def load_gelsight_calibration(path: str | Path) -> GelSightCalibration:
         raise BadFile(npath, f"GelSight calibration background has dtype {bg.dtype}", "uint8 BGR")
     with files.checked(npath, "GelSight calibration", "a calibration written by 'tactile-rig gelsight calibrate'"):
         try:
-            cal = GelSightCalibration.from_saved(meta, arrays, str(jpath))  # the files read once
-        except CalibrationError as exc:
-            raise BadFile(jpath, str(exc).split(": ", 1)[-1], "a GelSight calibration of this version") from None
+            cal = GelSightCalibration.from_saved(meta, arrays, str(jpath), str(npath))  # the files read once
+        except CalibrationError as exc:  # the metadata is checked above: what is left is in the arrays
+            msg = str(exc.args[0])
+            problem = msg[len(f"{npath}: "):] if msg.startswith(f"{npath}: ") else msg
+            raise BadFile(npath, problem, "the arrays of the model the metadata names") from None
         # A smoke run: a model whose arrays do not fit together fails here, naming the file.
         Reconstructor(cal).height_mm(cal.background)
     return cal
@@ -88,9 +96,7 @@ def load_tactile_map(path: str | Path, params: Any = None) -> TactileMap:
     if arrays["total"].shape != arrays["count"].shape:
         raise BadFile(p, f"tactile map total {arrays['total'].shape} and count {arrays['count'].shape} differ",
                       "arrays of one shape")
-    meta = files.loads_json(str(arrays["meta"]), p, "tactile map metadata")
-    if not isinstance(meta, dict):
-        raise BadFile(p, "tactile map metadata is not a JSON object", "a JSON object")
+    meta = MAP_FILE.check(files.loads_json(str(arrays["meta"]), p, "tactile map metadata"), p)
     for key, lo, hi in (("mm_per_px", 1e-6, 100.0), ("canvas_factor", 1.0, 100.0), ("accept_confidence", 0.0, 1.0)):
         v = meta.get(key)
         if not isinstance(v, (int, float)) or isinstance(v, bool) or not lo <= float(v) <= hi:

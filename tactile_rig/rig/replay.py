@@ -8,6 +8,7 @@ recorded time as the device timestamp.
 
 from __future__ import annotations
 
+import base64
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -15,8 +16,9 @@ import numpy as np
 
 from tactile_rig.core.clock import Clock
 from tactile_rig.core.errors import NotConnected
-from tactile_rig.core.files import check_file
+from tactile_rig.rig.files import check_file
 from tactile_rig.drivers.camera import RawFrame
+from tactile_rig.rig.messages import IMAGE_SCHEMAS
 from tactile_rig.rig.recording import (
     MAX_RECORDING_BYTES,
     Message,
@@ -26,7 +28,18 @@ from tactile_rig.rig.recording import (
     read_recording,
 )
 
-IMAGE_SCHEMAS = ("foxglove.RawImage", "foxglove.CompressedImage")
+
+
+def _plain(value: Any, include_bytes: bool) -> Any:
+    """A decoded message's value as JSON: bytes (protobuf images, point clouds) as base64 with
+    ``include_bytes``, else as ``"<N bytes>"``."""
+    if isinstance(value, (bytes, bytearray, memoryview)):
+        return base64.b64encode(bytes(value)).decode("ascii") if include_bytes else f"<{len(value)} bytes>"
+    if isinstance(value, dict):
+        return {k: _plain(v, include_bytes) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_plain(v, include_bytes) for v in value]
+    return value
 
 
 def summarize(path: str | Path) -> dict[str, Any]:
@@ -34,7 +47,7 @@ def summarize(path: str | Path) -> dict[str, Any]:
     rec = Recording(check_file(path, "recording", max_bytes=MAX_RECORDING_BYTES))
     topics: dict[str, dict[str, Any]] = {}
     for m in iter_messages(path, into=rec):
-        t = topics.setdefault(m.topic, {"count": 0, "schema": m.schema, "first_t_s": m.t_s, "last_t_s": m.t_s})
+        t = topics.setdefault(m.topic, {"count": 0, "schema": m.schema, "encoding": m.encoding, "first_t_s": m.t_s, "last_t_s": m.t_s})
         t["count"] += 1
         t["first_t_s"] = min(t["first_t_s"], m.t_s)
         t["last_t_s"] = max(t["last_t_s"], m.t_s)
@@ -53,12 +66,14 @@ def summarize(path: str | Path) -> dict[str, Any]:
 
 
 def dump(path: str | Path, *, topic: str | None = None, include_images: bool = False) -> Iterator[dict[str, Any]]:
-    """Every message as a dict (topic, t_s, data); image payloads are elided unless asked for."""
+    """Every message as a JSON-able dict (topic, t_s, schema, encoding, data); image and other byte
+    payloads are elided as ``"<N bytes>"`` unless asked for (then base64)."""
     for m in iter_messages(path, topics={topic} if topic else None):
-        data = dict(m.data)
-        if m.schema in IMAGE_SCHEMAS and not include_images:
-            data["data"] = f"<{len(data.get('data', '')) * 3 // 4} bytes>"
-        yield {"topic": m.topic, "t_s": m.t_s, "schema": m.schema, "data": data}
+        data = _plain(m.data, include_images)
+        if m.schema in IMAGE_SCHEMAS and not include_images and isinstance(data.get("data"), str) \
+                and not data["data"].startswith("<"):  # a JSON recording's base64
+            data["data"] = f"<{len(data['data']) * 3 // 4} bytes>"
+        yield {"topic": m.topic, "t_s": m.t_s, "schema": m.schema, "encoding": m.encoding, "data": data}
 
 
 def image_topics(rec: Recording) -> list[str]:

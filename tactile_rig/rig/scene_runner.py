@@ -28,7 +28,7 @@ import numpy as np
 from tactile_rig.control.common import ControllerResult
 from tactile_rig.core.clock import Clock, VirtualClock
 from tactile_rig.core.errors import RigError
-from tactile_rig.core.files import load_toml
+from tactile_rig.rig.files import load_toml
 from tactile_rig.sim.fakes.sensors import ModelSensor, RenderedSensor
 from tactile_rig.sim.scenes import Scene, builtin_scenes, load_scene, resolve_scene_path
 

@@ -48,7 +48,7 @@ def test_malformed_files_exit_2_with_one_line_naming_the_file(cases, kind: str, 
             code = exc.code
         err = capfd.readouterr().err
         lines = [ln for ln in err.splitlines() if ln.strip()]
-        assert code == 2, f"{case.name}: exit {code}: {err}"
+        assert code == case.exit_code == 2, f"{case.name}: exit {code}: {err}"
         assert len(lines) == 1 and "Traceback" not in err, f"{case.name}: {err}"
         assert lines[0].startswith("tactile-rig"), f"{case.name}: {err}"
         assert _named(case) in lines[0], f"{case.name}: the refusal does not name {_named(case)!r}: {err}"
@@ -133,7 +133,7 @@ def test_the_same_command_accepts_a_valid_file(tmp_path, kind: str, capfd) -> No
     assert case is not None
     code = main(list(case.argv))
     out, err = capfd.readouterr()
-    assert (code, err) == (0, ""), f"{kind}: exit {code}: {err}"
+    assert (code, err) == (case.exit_code, "") == (0, ""), f"{kind}: exit {code}: {err}"
     if kind in ("npy", "arguments"):
         _check_registration(out, exact=True)
     elif kind == "tactile-map":

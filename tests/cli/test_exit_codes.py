@@ -1,9 +1,13 @@
-"""The CLI's exit codes: bad input 2 with one line, a bug 70 with one line and a hint, a traceback
-only at --log-level DEBUG; argument types bound every number; -o never makes a chain of folders."""
+"""The CLI's exit codes: 0 done, 1 a failed verdict, 2 bad input or usage with one line, 3 a device
+fault, 70 a bug with one line and a hint, a traceback only at --log-level DEBUG; the README and the
+docs state the same table as the code; argument types bound every number; -o never makes a chain of
+folders; a command group without an action is a one-line usage error."""
 
 from __future__ import annotations
 
 import argparse
+import re
+import shlex
 from pathlib import Path
 
 import numpy as np
@@ -11,8 +15,19 @@ import pytest
 
 from tactile_rig.cli import COMMAND_MODULES, _command_of, build_parser, main
 from tactile_rig.cli.args import float_in, int_in, output_dir, output_file
-from tactile_rig.cli.common import EXIT_INTERNAL, run_handler
+from tactile_rig.cli.common import (
+    EXIT_CODES,
+    EXIT_ERROR,
+    EXIT_FAILED,
+    EXIT_FAULT,
+    EXIT_INTERNAL,
+    EXIT_OK,
+    exit_codes_text,
+    run_handler,
+)
 from tactile_rig.core.errors import BadFile, DeviceFault
+from tactile_rig.mocks.dynamixel import make_bus
+from tactile_rig.testing import serve_in_process
 
 
 def _args(level: str = "WARNING") -> argparse.Namespace:
@@ -161,3 +176,103 @@ def test_one_group_parser_reads_every_command_as_the_whole_parser_does(capsys) -
     with pytest.raises(SystemExit) as info:
         main(["gelsigth", "height"])
     assert info.value.code == 2 and "fingervision" in capsys.readouterr().err
+
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_the_exit_codes_are_the_designs() -> None:
+    assert (EXIT_OK, EXIT_FAILED, EXIT_ERROR, EXIT_FAULT, EXIT_INTERNAL) == (0, 1, 2, 3, 70)
+    assert set(EXIT_CODES) == {0, 1, 2, 3, 70, 130}
+
+
+def _exit_rows(path: Path) -> dict[int, str]:
+    """The rows of the exit-code table on a page: code -> the meaning cell."""
+    rows = {}
+    for line in path.read_text(encoding="utf-8").splitlines():
+        m = re.match(r"\|\s*(\d+)\s*\|\s*([^|]+)\|", line)
+        if m and line.lstrip("| ").split("|")[0].strip().isdigit() and int(m.group(1)) in EXIT_CODES:
+            rows[int(m.group(1))] = m.group(2).strip()
+    return rows
+
+
+def test_the_readme_and_the_docs_state_the_codes_table() -> None:
+    """README.md gives each code its label and a detail; docs/files_and_recordings.md gives both as the
+    code has them; ``--help`` ends with them."""
+    readme, docs = _exit_rows(ROOT / "README.md"), _exit_rows(ROOT / "docs/files_and_recordings.md")
+    assert set(readme) == set(docs) == set(EXIT_CODES), (readme, docs)
+    help_text = exit_codes_text()
+    for code, (label, detail) in EXIT_CODES.items():
+        assert readme[code].replace("`", "").startswith(label), (code, readme[code])
+        assert docs[code].replace("`", "") == f"{label}: {detail}", (code, docs[code])
+        assert re.search(rf"^  {code}\s+{re.escape(label)}:", help_text, re.M), code
+
+
+def _readme_examples() -> list[tuple[str, int]]:
+    """The README's command examples that state their exit code: ``tactile-rig ...  # ... (exit N)``."""
+    out = []
+    for line in (ROOT / "README.md").read_text(encoding="utf-8").splitlines():
+        m = re.match(r"(tactile-rig [^#]+?)\s+#.*\(exit (\d)\)", line.strip())
+        if m:
+            out.append((m.group(1), int(m.group(2))))
+    return out
+
+
+def test_the_readme_has_examples_of_refused_commands() -> None:
+    assert len(_readme_examples()) >= 2
+
+
+@pytest.mark.parametrize("command,code", _readme_examples())
+def test_each_readme_example_exits_as_it_says(command: str, code: int, capsys) -> None:
+    try:
+        got = main(shlex.split(command)[1:])
+    except SystemExit as exc:
+        got = exc.code
+    err = capsys.readouterr().err
+    assert got == code, (command, err)
+    assert err.count("\n") == 1 and "Traceback" not in err
+
+
+def test_a_refused_touch_is_a_failed_verdict_not_bad_input(tmp_path: Path, capsys) -> None:
+    rng = np.random.default_rng(0)
+    a, b = tmp_path / "a.npy", tmp_path / "b.npy"
+    np.save(a, np.zeros((64, 64), np.float32))  # a flat map: nothing to register
+    np.save(b, (rng.standard_normal((64, 64)) * 0.05).astype(np.float32))
+    assert main(["gelsight", "register", str(a), str(b), "--mm-per-px", "0.0634", "--json"]) == EXIT_FAILED
+    out = capsys.readouterr().out
+    assert '"ok":false' in out.replace(" ", "") and "reason" in out
+
+
+def test_a_target_beyond_the_limits_and_a_command_the_device_refuses_are_bad_input(capsys) -> None:
+    assert main(["jig", "move", "--port", "rigsim://jig", "--x", "50"]) == EXIT_ERROR
+    assert "x = 50 mm is outside" in capsys.readouterr().err
+    assert main(["jig", "move", "--port", "rigsim://jig", "--x", "3"]) == EXIT_ERROR  # locked: GRBL's error:9
+    assert "error:9" in capsys.readouterr().err
+
+
+def test_a_latched_device_fault_is_3(capsys) -> None:
+    dev = make_bus(ids=[1], timing=False)
+    dev.servo(1).inject_hardware_error(0x20)  # overload
+    with serve_in_process(dev) as url:
+        assert main(["gripper", "go", "0.02", "--port", url]) == EXIT_FAULT
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("tactile-rig: device fault:")
+
+
+@pytest.mark.parametrize("group", [g for g in COMMAND_MODULES if g not in ("devices", "record", "replay", "sweep",
+                                                                          "trade")])
+def test_a_group_without_an_action_is_one_usage_line_naming_the_actions(group: str, capsys) -> None:
+    with pytest.raises(SystemExit) as info:
+        main([group])
+    err = capsys.readouterr().err
+    assert info.value.code == EXIT_ERROR and err.count("\n") == 1 and "one of" in err, err
+    actions = [a for a in PARSER._subparsers._group_actions[0].choices[group]._subparsers._group_actions[0].choices]
+    assert all(a in err for a in actions), err
+
+
+def test_no_command_is_one_usage_line_naming_the_commands(capsys) -> None:
+    with pytest.raises(SystemExit) as info:
+        main([])
+    err = capsys.readouterr().err
+    assert info.value.code == EXIT_ERROR and err.count("\n") == 1
+    assert all(g in err for g in COMMAND_MODULES)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from tactile_rig.cli import main
 
 
@@ -36,7 +38,10 @@ def test_scale_tare_and_calibrate(capsys) -> None:
 
 
 def test_scale_bad_arguments_are_one_line_errors(capsys) -> None:
-    assert main(["scale", "read", "--port", "rigsim://scale", "--count", "0"]) == 2
-    assert "--count=0" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as info:  # a usage error, before any port is opened
+        main(["scale", "read", "--port", "rigsim://scale", "--count", "0"])
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--count" in err and "[1, 1000000000]" in err
     assert main(["scale", "read", "--port", "/dev/does-not-exist"]) == 2
     assert "cannot open port" in capsys.readouterr().err

@@ -104,6 +104,7 @@ def test_firmware_that_ignores_a_control_is_caught():
 
 def test_format_change_resets_controls_so_driver_sets_format_first():
     clock, sim, cam = make()
+    sim.reset_controls_on_format = True  # a camera whose firmware resets its controls on a format change
     with cam:
         assert sim.table.get("auto_exposure") == 1
         sim.set_format("YUYV", 64, 48, 15)  # what a naive "controls, then format" order would do

@@ -61,8 +61,9 @@ def test_threaded_capture_locks_and_streams(rig):
     assert all(f.t_device_s is not None and f.t_device_s > 0 for f in frames)  # CAP_PROP_POS_MSEC
 
 
-def test_fourcc_write_resets_controls_like_v4l2(rig):
+def test_fourcc_write_reinitialises_the_stream_and_width_waits_for_height(rig):
     clock, sim, src, cam = rig
+    sim.reset_controls_on_format = True  # a camera whose firmware resets its controls on a format change
     cap = FakeVideoCapture(sim)
     assert cap.set(cv2.CAP_PROP_AUTO_EXPOSURE, 1)
     assert cap.get(cv2.CAP_PROP_AUTO_EXPOSURE) == 1

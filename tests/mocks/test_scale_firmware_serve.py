@@ -64,7 +64,6 @@ def test_serve_prints_the_port_and_the_control_fifo_moves_the_load(firmware) -> 
     (["mock", "serve", "jig", "--firmware"], "has no firmware here"),
     (["mock", "serve", "scale", "--firmware", "--param", "speed=3"], "unknown parameter 'speed'"),
     (["mock", "serve", "scale", "--firmware", "--scene", "press"], "control FIFO"),
-    (["mock", "serve", "scale", "--firmware", "--rate", "40"], "10 or 80"),
     (["mock", "serve", "scale", "--firmware", "--param", "force_n=heavy"], "is not a number"),
     (["mock", "serve", "scale", "--firmware", "--baud", "9600"], "57600"),
 ])
@@ -72,6 +71,13 @@ def test_bad_firmware_options_are_one_line_and_exit_2(argv, message, capsys) -> 
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_rate_the_hx711_cannot_run_is_a_usage_error(capsys) -> None:
+    with pytest.raises(SystemExit) as info:
+        main(["mock", "serve", "scale", "--firmware", "--rate", "40"])
+    err = capsys.readouterr().err
+    assert info.value.code == 2 and "'10', '80'" in err and len(err.strip().splitlines()) == 1
 
 
 def test_a_missing_toolchain_is_one_line_naming_the_packages(monkeypatch, capsys) -> None:

@@ -103,7 +103,7 @@ def test_ch340_is_the_published_one():
 def test_c310_configuration_holds_the_published_fields():
     m = load_model("logitech_c310")
     d, c = m.device, m.parsed_configuration()
-    # usb-proxy issue 30: the C310's device descriptor and configuration header
+    # github.com/AristoChen/usb-proxy/issues/30: the C310's device descriptor and configuration header
     assert (d.bDeviceClass, d.bDeviceSubClass, d.bDeviceProtocol, d.bcdDevice) == (0xEF, 2, 1, 0x0010)
     assert (d.iManufacturer, d.iProduct, d.iSerialNumber) == (0, 0, 2)
     assert (c.wTotalLength, c.bNumInterfaces, c.bmAttributes, c.bMaxPower * 2) == (0x09A5, 4, 0x80, 500)

@@ -16,6 +16,7 @@ import mcap  # noqa: F401  (the record extra is a test dependency)
 from tactile_rig.cli import main
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.core.errors import BadFile
+from tactile_rig.rig.messages import Encoded, json_schema
 from tactile_rig.rig.recording import Recorder, read_recording
 
 
@@ -99,7 +100,7 @@ def test_replay_names_the_corrupt_chunk(tmp_path: Path, session, capsys) -> None
 def test_deeply_nested_message_is_refused_by_name(tmp_path: Path, capsys) -> None:
     p = tmp_path / "deep.mcap"
     with Recorder(p, clock=VirtualClock()) as rec:
-        rec._add("/deep", "tactile_rig.Json", b"[" * 50000 + b"]" * 50000, 0.0)
+        rec.publish(Encoded("/deep", json_schema("tactile_rig.Json"), b"[" * 50000 + b"]" * 50000, 0.0, 0))
     with pytest.raises(BadFile, match="levels deep"):
         read_recording(p)
     err = _one_line_exit_2(capsys, ["replay", str(p)])

@@ -4,7 +4,7 @@ Per marker: ``f = (dx, dy, fz)`` with ``(dx, dy)`` the displacement from the res
 either the diameter growth ``max(0, ds)`` (a pressed marker looks bigger: ``normal="size"``) or
 ``|d|`` (``normal="norm"``). Torque per marker is ``r x f`` with ``r = (rx, ry, 0)`` the rest position
 relative to the image centre. Units: ``force_px`` is in pixels and ``torque_px2`` in pixels squared,
-always: converting to newtons is a force map's job (fitted on the rig, applied outside perception).
+always: converting to newtons is a force map's job (:mod:`.force_map`, fitted on the rig).
 Image axes: x right, y down, z into the skin, so a positive z torque turns x towards y (clockwise on
 screen).
 

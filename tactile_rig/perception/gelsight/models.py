@@ -2,17 +2,51 @@
 
 Every model maps features ``(N, 5)`` = (dB, dG, dR, u, v) to slopes ``(N, 2)`` = (gx, gy), where dB/dG/dR
 are the frame minus background in 0..255 units divided by 255 and u, v the pixel position normalised to
--1..1. Models store their parameters as plain float arrays so that they save without pickle.
+-1..1. Models store their parameters as plain float arrays so that they save without pickle; each
+``from_arrays`` refuses arrays that are missing, of another shape than the model's declared sizes, or
+not finite, with a :class:`~tactile_rig.core.errors.CalibrationError` naming the array (as saved in a
+calibration's ``.npz``: ``model_<name>``).
 """
 
 from __future__ import annotations
 
 import itertools
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
+from tactile_rig.core.errors import CalibrationError
+
 COLOUR_SCALE = 255.0
+MLP_MAX_LAYERS = 16    # hidden layers a saved MLP may declare
+MLP_MAX_WIDTH = 4096   # units a saved MLP's hidden layer may declare
+
+
+def _model_array(arrays: Mapping[str, np.ndarray], key: str, shape: tuple[int | None, ...], sizes: str) -> np.ndarray:
+    """``arrays[key]``: present, real, finite and of ``shape`` (None: any length on that axis), which
+    ``sizes`` (the model's declared sizes) explains; else CalibrationError naming ``model_<key>``."""
+    if key not in arrays:
+        raise CalibrationError(f"the model array model_{key} is missing ({sizes})", device="gelsight.calibration")
+    a = np.asarray(arrays[key])
+    want = "(" + ", ".join("N" if n is None else str(n) for n in shape) + ("," if len(shape) == 1 else "") + ")"
+    if a.ndim != len(shape) or any(n is not None and n != m for n, m in zip(shape, a.shape)):
+        raise CalibrationError(f"the model array model_{key} has shape {a.shape}; {sizes} need {want}",
+                               device="gelsight.calibration")
+    if a.dtype.kind not in "biuf":
+        raise CalibrationError(f"the model array model_{key} has dtype {a.dtype}; a real numeric array is needed",
+                               device="gelsight.calibration")
+    if a.dtype.kind == "f" and not np.isfinite(a).all():
+        raise CalibrationError(f"the model array model_{key} holds NaN or infinity", device="gelsight.calibration")
+    return a
+
+
+def _declared(make: Any, *args: Any) -> Any:
+    """A model built from saved hyper-parameters; a value outside its range is a CalibrationError."""
+    try:
+        return make(*args)
+    except (ValueError, OverflowError) as exc:
+        raise CalibrationError(f"the model's saved hyper-parameters are invalid ({exc})",
+                               device="gelsight.calibration") from None
 
 
 class LutModel:
@@ -69,11 +103,13 @@ class LutModel:
                 "hyper": np.array([self.bins, self.colour_range], np.float64)}
 
     @classmethod
-    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> "LutModel":
-        bins, rng = arrays["hyper"]
-        m = cls(int(bins), float(rng))
-        m.table = arrays["table"].astype(np.float32)
-        m.filled = arrays["filled"].astype(bool)
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> "LutModel":
+        """The table saved by :meth:`to_arrays`, its shape checked against its bins."""
+        bins, rng = _model_array(arrays, "hyper", (2,), "a lookup table's (bins, colour range)")
+        m = _declared(cls, int(bins), float(rng))
+        sizes = f"a lookup table of {m.bins} bins a channel"
+        m.table = _model_array(arrays, "table", (m.bins,) * 3 + (2,), sizes).astype(np.float32)
+        m.filled = _model_array(arrays, "filled", (m.bins,) * 3, sizes).astype(bool)
         return m
 
 
@@ -122,10 +158,12 @@ class PolyModel:
         return {"coef": self.coef, "hyper": np.array([self.degree, float(self.position), self.ridge])}
 
     @classmethod
-    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> "PolyModel":
-        deg, pos, ridge = arrays["hyper"]
-        m = cls(int(deg), bool(pos), float(ridge))
-        m.coef = arrays["coef"].astype(np.float64)
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> "PolyModel":
+        """The coefficients saved by :meth:`to_arrays`, their shape checked against the degree."""
+        deg, pos, ridge = _model_array(arrays, "hyper", (3,), "a polynomial's (degree, position, ridge)")
+        m = _declared(cls, int(deg), bool(pos), float(ridge))
+        sizes = f"a degree-{m.degree} polynomial of {m.exps.shape[1]} variables ({len(m.exps)} terms)"
+        m.coef = _model_array(arrays, "coef", (len(m.exps), 2), sizes).astype(np.float64)
         return m
 
 
@@ -219,12 +257,20 @@ class MlpModel:
         return d
 
     @classmethod
-    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> "MlpModel":
-        epochs, batch, lr, seed = arrays["hyper"]
-        m = cls(tuple(int(h) for h in arrays["hidden"]), int(epochs), int(batch), float(lr), int(seed))
-        n = len(m.weights)
-        m.weights = [arrays[f"w{i}"].astype(np.float32) for i in range(n)]
-        m.biases = [arrays[f"b{i}"].astype(np.float32) for i in range(n)]
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> "MlpModel":
+        """The weights saved by :meth:`to_arrays`, each shape checked against the declared layer sizes."""
+        epochs, batch, lr, seed = _model_array(arrays, "hyper", (4,), "an MLP's (epochs, batch, rate, seed)")
+        hidden = _model_array(arrays, "hidden", (None,), "an MLP's hidden layer sizes")
+        if not 1 <= hidden.size <= MLP_MAX_LAYERS or hidden.min() < 1 or hidden.max() > MLP_MAX_WIDTH:
+            # Checked before the model is built: its constructor allocates every layer.
+            raise CalibrationError(f"the model array model_hidden is {hidden.tolist()}; an MLP of 1-{MLP_MAX_LAYERS} "
+                                   f"hidden layers of 1-{MLP_MAX_WIDTH} units is needed", device="gelsight.calibration")
+        m = _declared(cls, tuple(int(h) for h in hidden), int(epochs), int(batch), float(lr), int(seed))
+        layers = (5,) + m.hidden + (2,)
+        sizes = f"the layer sizes {list(layers)}"
+        m.weights = [_model_array(arrays, f"w{i}", (a, b), sizes).astype(np.float32)
+                     for i, (a, b) in enumerate(zip(layers[:-1], layers[1:]))]
+        m.biases = [_model_array(arrays, f"b{i}", (b,), sizes).astype(np.float32) for i, b in enumerate(layers[1:])]
         return m
 
 

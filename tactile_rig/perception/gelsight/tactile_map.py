@@ -14,21 +14,17 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from tactile_rig.core.envelope import FileFormat
+from tactile_rig.core.errors import BadFile
 from tactile_rig.core.geometry import invert_rigid
-from tactile_rig.perception.gelsight.registration import (
-    Features,
-    RegistrationParams,
-    RegistrationResult,
-    _check_height,
-    _pinned,
-    _result,
-    dense_refine,
-    detect_scale,
-    extract_features,
-    register,
-)
+from tactile_rig.perception.gelsight.dense_refinement import dense_refine, pose_pinned
+from tactile_rig.perception.gelsight.features import Features, check_height, detect_scale, extract_features
+from tactile_rig.perception.gelsight.registration import RegistrationResult, register
+from tactile_rig.perception.gelsight.registration_params import RegistrationParams
 
-MAP_FORMAT_VERSION = 1
+# The metadata (a JSON string) inside a saved map's .npz.
+MAP_FILE = FileFormat("gelsight.tactile_map", 1, "tactile map")
+MAP_FORMAT_VERSION = MAP_FILE.version
 ACCEPT_CONFIDENCE = 0.98  # Li 2014: a touch joins the map only above this confidence
 
 
@@ -130,7 +126,7 @@ class TactileMap:
         The first touch becomes the root (identity pose). pose_hint: optional 2x3 (mm) touch -> map
         transform (e.g. from the jig) used as the start of a dense alignment when keypoints refuse.
         """
-        z = _check_height(height_mm, "height_mm")
+        z = check_height(height_mm, "height_mm")
         if self.total is None:
             h, w = z.shape
             self._touch_shape = (h, w)
@@ -141,8 +137,8 @@ class TactileMap:
             self._place(z, m_px)
             pose = self._touch_px_to_mm(m_px, z.shape)
             self.poses.append(invert_rigid(pose))
-            res = _result(True, m_px, self.total.shape, z.shape, (self.mm_per_px,) * 2, 1.0, 0, "root",
-                          None, 0, 1.0)
+            res = RegistrationResult.placed(m_px, self.total.shape, z.shape, (self.mm_per_px,) * 2,
+                                            confidence=1.0, inliers=0, method="root", matches=0, ncc=1.0)
             res.matrix_mm = pose
             res.translation_mm = pose[:, 2].copy()
             return TouchRecord(True, res, self.poses[-1])
@@ -162,13 +158,12 @@ class TactileMap:
         fit = dense_refine(fa, fb.smooth, self._mm_to_px(hint_mm, z.shape), self.params.refine_iters,  # type: ignore[arg-type]
                            gain_fit=self.params.dense_gain, valid_b=fb.valid,
                            bias_order=self.params.dense_bias_order)
-        ok = fit.ncc >= self.params.min_ncc and fit.overlap >= self.params.min_overlap and _pinned(fit, self.params)
+        ok = fit.ncc >= self.params.min_ncc and fit.overlap >= self.params.min_overlap and pose_pinned(fit, self.params)
         assert self.total is not None
         if not ok:
-            return _result(False, None, self.total.shape, z.shape, (self.mm_per_px,) * 2, 0.0, 0, "hint",
-                           "hint_not_confirmed", 0, fit.ncc)
-        return _result(True, fit.matrix_px, self.total.shape, z.shape, (self.mm_per_px,) * 2, 1.0, 0,
-                       "hint", None, 0, fit.ncc)
+            return RegistrationResult.refused("hint_not_confirmed", "hint", ncc=fit.ncc)
+        return RegistrationResult.placed(fit.matrix_px, self.total.shape, z.shape, (self.mm_per_px,) * 2,
+                                         confidence=1.0, inliers=0, method="hint", matches=0, ncc=fit.ncc)
 
     def _map_features(self) -> Features:
         if self._features is None:
@@ -183,7 +178,7 @@ class TactileMap:
         refusals (``no_contact``, ``degenerate_transform``, ...) as :func:`register`."""
         if self.total is None:
             raise ValueError("the tactile map is empty: add a touch first")
-        z = _check_height(height_mm, "height_mm")
+        z = check_height(height_mm, "height_mm")
         res = register(self._mosaic(), z, self.mm_per_px, self.params, features_a=self._map_features())
         return res
 
@@ -196,8 +191,7 @@ class TactileMap:
         if p.suffix != ".npz":
             p = p.with_suffix(".npz")
         p.parent.mkdir(parents=True, exist_ok=True)
-        meta = {"format": "tactile_rig.gelsight.tactile_map", "version": MAP_FORMAT_VERSION,
-                "mm_per_px": self.mm_per_px, "canvas_factor": self.canvas_factor,
+        meta = {**MAP_FILE.header(), "mm_per_px": self.mm_per_px, "canvas_factor": self.canvas_factor,
                 "accept_confidence": self.accept_confidence, "touches": len(self.poses),
                 "touch_shape": list(self._touch_shape) if self._touch_shape else None}
         np.savez_compressed(p, total=self.total, count=self.count,
@@ -207,14 +201,11 @@ class TactileMap:
 
     @classmethod
     def load(cls, path: str | Path, params: RegistrationParams | None = None) -> "TactileMap":
-        """Read a map written by :meth:`save`."""
+        """Read a map written by :meth:`save`; another file is a :class:`BadFile` (a ValueError)."""
         with np.load(Path(path), allow_pickle=False) as d:
             if "meta" not in d.files:
-                raise ValueError(f"{path} is not a tactile map (no metadata)")
-            meta = json.loads(str(d["meta"]))
-            if meta.get("format") != "tactile_rig.gelsight.tactile_map" or meta.get("version") != MAP_FORMAT_VERSION:
-                raise ValueError(f"{path}: unsupported tactile map format/version {meta.get('format')!r} "
-                                 f"v{meta.get('version')!r}")
+                raise BadFile(path, "it holds no 'meta' array", f"a {MAP_FILE.what} written by TactileMap.save")
+            meta = MAP_FILE.check(json.loads(str(d["meta"])), path)
             m = cls(float(meta["mm_per_px"]), float(meta["canvas_factor"]), float(meta["accept_confidence"]),
                     params or RegistrationParams())
             m.total = d["total"].astype(np.float32)

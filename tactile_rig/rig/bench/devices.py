@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any, Callable, ClassVar
 
 from tactile_rig.core.errors import CalibrationError, LimitError
-from tactile_rig.core.files import load_json
+from tactile_rig.rig.files import load_json
 from tactile_rig.drivers.camera import FingertipCamera
 from tactile_rig.drivers.dynamixel.bus import DEFAULT_LATENCY_TIMER_MS
 from tactile_rig.drivers.dynamixel.gripper import DynamixelGripper, GripperCalibration

@@ -16,7 +16,7 @@ from typing import Any, Mapping
 import tomllib
 
 from tactile_rig.core.errors import BadFile, BenchError
-from tactile_rig.core.files import MAX_JSON_DEPTH, check_file, toml_depth
+from tactile_rig.rig.files import MAX_JSON_DEPTH, check_file, toml_depth
 from tactile_rig.core.jsonable import to_jsonable
 from tactile_rig.rig.bench.devices import DEVICE_CLASSES, CameraConfig, DeviceConfig
 from tactile_rig.rig.bench.toml_lines import line_index

@@ -30,10 +30,12 @@ Modules: :mod:`.plan` (configuration, points, pose algebra), :mod:`.results` (sc
 :mod:`.session` (the whole run as the CLI starts it).
 """
 
+import warnings
+from typing import Any
+
 from tactile_rig.core.errors import RunConflict
 from tactile_rig.core.geometry import Pose, wrap_deg
 from tactile_rig.rig.jig_accuracy.devices import (
-    MOCK_PRESS_SCENE,
     MOCK_SCENE,
     DeviceJigRig,
     connect_bench_jig_rig,
@@ -72,9 +74,10 @@ from tactile_rig.rig.jig_accuracy.session import (
     open_run_recording,
 )
 from tactile_rig.rig.jig_accuracy.store import RUN_FORMAT, RUN_FORMAT_VERSION, RunStore
+from tactile_rig.sim.scenes import GELSIGHT_BALL_PRESS_SCENE
 
 __all__ = [
-    "DEFAULT_REGISTRATION", "MOCK_PRESS_SCENE", "MOCK_SCENE", "PAPER_FIGURES", "RUN_FORMAT", "RUN_FORMAT_VERSION",
+    "DEFAULT_REGISTRATION", "MOCK_SCENE", "PAPER_FIGURES", "RUN_FORMAT", "RUN_FORMAT_VERSION",
     "SWEEPS", "DeviceJigRig", "JigAccuracyConfig", "JigPoint", "JigRig", "PointResult", "Pose", "RunConflict",
     "RunOutcome", "RunRecorder", "RunStore", "TouchLocalization", "TouchLocalizer", "build_map",
     "calibration_digest", "connect_bench_jig_rig", "connect_mock_jig_rig", "execute_jig_accuracy", "format_table",
@@ -82,3 +85,14 @@ __all__ = [
     "prepare_jig", "run_jig_accuracy", "sim_camera_connector", "summarize", "touch_matrix_from_pose", "wrap_deg",
     "write_report",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    """``MOCK_PRESS_SCENE``, the old name of :data:`tactile_rig.sim.scenes.GELSIGHT_BALL_PRESS_SCENE`,
+    kept for one release with a DeprecationWarning."""
+    if name == "MOCK_PRESS_SCENE":
+        warnings.warn("tactile_rig.rig.jig_accuracy.MOCK_PRESS_SCENE is "
+                      "tactile_rig.sim.scenes.GELSIGHT_BALL_PRESS_SCENE; the old name goes away in the next release",
+                      DeprecationWarning, stacklevel=2)
+        return GELSIGHT_BALL_PRESS_SCENE
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -13,10 +13,10 @@ from tactile_rig.core.geometry import Pose
 from tactile_rig.drivers.camera import CameraConfig, FingertipCamera
 from tactile_rig.mocks.camera import SimulatedCamera
 from tactile_rig.rig.bench import Bench, connect_bench, load_bench, mock_bench_path
+from tactile_rig.sim.scenes import JIG_ACCURACY_SCENE
 
-MOCK_SCENE = "jig_accuracy"
+MOCK_SCENE = JIG_ACCURACY_SCENE  # the world of a run on mocks
 STALE_FRAMES_MAX = 30  # frames from before the settle that a touch skips before giving up (1 s at 30 fps)
-MOCK_PRESS_SCENE = "gelsight_ball_presses"
 
 
 class DeviceJigRig:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Callable, Protocol
 
 import numpy as np
 
@@ -79,9 +79,13 @@ class TouchLocalizer:
             raise CalibrationError(f"the tactile map needs square pixels; the calibration has {mx} x {my} mm/px",
                                    device="jig_accuracy")
         self.map = TactileMap(mx, accept_confidence=self.min_map_confidence, params=self.params)
+        self.on_height: Callable[[np.ndarray], None] | None = None  # sees every height map (the recording)
 
     def height_mm(self, frame_bgr: np.ndarray) -> np.ndarray:
-        return self.reconstructor.height_mm(frame_bgr)
+        h = self.reconstructor.height_mm(frame_bgr)
+        if self.on_height is not None:
+            self.on_height(h)
+        return h
 
     @property
     def map_size(self) -> int:

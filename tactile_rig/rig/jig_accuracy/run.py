@@ -12,7 +12,7 @@ from typing import Any, Callable
 import numpy as np
 
 from tactile_rig.core.errors import CalibrationError
-from tactile_rig.core.files import load_json
+from tactile_rig.rig.files import load_json
 from tactile_rig.core.geometry import Pose
 from tactile_rig.rig.jig_accuracy.localizer import (
     JigRig,

@@ -11,7 +11,6 @@ from typing import Any
 from tactile_rig.core.errors import BadFile, CalibrationError
 from tactile_rig.rig.calibration_sessions import BallPressPlan, gelsight_session
 from tactile_rig.rig.jig_accuracy.devices import (
-    MOCK_PRESS_SCENE,
     MOCK_SCENE,
     DeviceJigRig,
     connect_bench_jig_rig,
@@ -26,7 +25,9 @@ from tactile_rig.rig.jig_accuracy.run import PointCallback, RunOutcome, run_jig_
 from tactile_rig.rig.jig_accuracy.store import RunStore
 from tactile_rig.rig.live import Tee
 from tactile_rig.rig.loaders import load_gelsight_calibration
+from tactile_rig.rig.messages.frames import WORLD
 from tactile_rig.rig.recording import Recorder, iter_messages
+from tactile_rig.sim.scenes import GELSIGHT_BALL_PRESS_SCENE
 
 
 class RunRecorder:
@@ -41,6 +42,10 @@ class RunRecorder:
         self.recorder.flush()
 
     def record_point(self, result: PointResult) -> None:
+        est = result.estimate
+        if est is not None:  # the localized stage pose, beside the stage's frame in the 3-D panel
+            self.recorder.write_contact_pose("jig_accuracy/estimate", WORLD, est.x_mm, est.y_mm, est.theta_deg)
+        # The point's message comes last: a resume keeps everything up to it (kept_messages).
         self.recorder.write_perception("jig_accuracy_point", result.to_json())
         self.recorder.flush()  # the point is in points.jsonl: make it readable in the MCAP too
 
@@ -92,7 +97,7 @@ def open_run_recording(out_dir: Path, clock: Any, *, resume: bool, finished: int
     rec = Recorder(tmp, clock=clock, background_flush=False)
     try:
         for m in old:
-            rec.write(m.topic, m.data, t_s=m.t_s, schema=m.schema)
+            rec.write_message(m)  # bytes and schema as recorded (typed or JSON)
         recorded = {m.data.get("index") for m in old if m.topic == "/perception/jig_accuracy_point"}
         for r in sorted(points or [], key=lambda r: r.index):
             if r.index not in recorded:
@@ -106,7 +111,7 @@ def open_run_recording(out_dir: Path, clock: Any, *, resume: bool, finished: int
 
 def mock_gelsight_calibration(out: Path, *, seed: int = 0, guide: Any = None) -> Path:
     """Run the GelSight calibration session on the mocks (ball scene) and return the calibration path."""
-    rig = connect_mock_jig_rig(scene=MOCK_PRESS_SCENE, seed=seed)
+    rig = connect_mock_jig_rig(scene=GELSIGHT_BALL_PRESS_SCENE, seed=seed)
     try:
         prepare_jig(rig.jig)
         cam = rig.bench.devices["camera"]
@@ -200,6 +205,10 @@ def execute_jig_accuracy(cfg: JigAccuracyConfig, out_dir: str | Path, *, bench: 
                            feed_mm_per_min=cfg.feed_mm_per_min, settle_s=cfg.settle_s, description=description,
                            recorder=recorder, camera_name=cam_name)
         localizer = TouchLocalizer(cal, dict(cfg.registration), cfg.map_min_confidence)
+        if recorder is not None:  # each touch's height map as a point cloud in the sensor frame
+            sink = recorder
+            localizer.on_height = lambda h: sink.write_height(cam_name, h, float(cal.mm_per_px_x),
+                                                              float(cal.mm_per_px_y))
         outcome = run_jig_accuracy(rig, localizer, cfg, out, resume=resume, overwrite=False, on_point=on_point,
                                    recorder=RunRecorder(recorder) if recorder is not None else None,
                                    stop_after=stop_after, calibration=cal_id)

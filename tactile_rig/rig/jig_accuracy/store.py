@@ -9,13 +9,15 @@ from pathlib import Path
 from typing import Any
 
 from tactile_rig.core.clock import utc_now
-from tactile_rig.core.errors import RunConflict
-from tactile_rig.core.files import load_json
+from tactile_rig.core.envelope import FileFormat
+from tactile_rig.core.errors import BadFile, RunConflict
+from tactile_rig.rig.files import load_json
 from tactile_rig.rig.jig_accuracy.plan import JigAccuracyConfig, plan_points
 from tactile_rig.rig.jig_accuracy.results import PointResult
 
-RUN_FORMAT = "tactile_rig.jig_accuracy.run"
-RUN_FORMAT_VERSION = 1
+RUN_FILE = FileFormat("jig_accuracy.run", 1, "jig accuracy run")
+RUN_FORMAT = RUN_FILE.format_id
+RUN_FORMAT_VERSION = RUN_FILE.version
 
 
 class RunStore:
@@ -88,9 +90,10 @@ class RunStore:
             self.reset()
         done: list[PointResult] = []
         if meta is not None:
-            if meta.get("format") != RUN_FORMAT or meta.get("version") != RUN_FORMAT_VERSION:
-                raise RunConflict(f"{self.run_path} is not a jig accuracy run of format version "
-                                  f"{RUN_FORMAT_VERSION}; use another --out or --overwrite")
+            try:
+                RUN_FILE.check(meta, self.run_path)
+            except BadFile as exc:
+                raise RunConflict(f"{exc}; use another --out or --overwrite") from None
             if meta.get("fingerprint") != cfg.fingerprint() or meta.get("bench_kind") != bench.get("kind"):
                 raise RunConflict(f"{self.out} holds a run with another configuration "
                                   f"(fingerprint {meta.get('fingerprint')} vs {cfg.fingerprint()}); "
@@ -107,7 +110,7 @@ class RunStore:
         elif resume:
             raise RunConflict(f"--resume: {self.out} holds no run to resume")
         if meta is None:
-            meta = {"format": RUN_FORMAT, "version": RUN_FORMAT_VERSION, "config": cfg.to_dict(),
+            meta = {**RUN_FILE.header(), "config": cfg.to_dict(),
                     "fingerprint": cfg.fingerprint(), "bench_kind": bench.get("kind"), "bench": bench,
                     "started": utc_now(), "points_planned": len(plan_points(cfg)), "attempts": 0,
                     "calibration": calibration}

@@ -34,10 +34,9 @@ from tactile_rig.mocks.pty_server import PtyServer
 from tactile_rig.mocks.registry import Params, create_device
 from tactile_rig.rig.rehearsal.camera_server import CameraServer
 from tactile_rig.rig.rehearsal.frames import load_footage
-from tactile_rig.sim.scenes import load_scene
+from tactile_rig.sim.scenes import FORCE_MAP_PRESS_SCENE, JIG_ACCURACY_SCENE, load_scene
 
-STAGE_SCENE = "jig_accuracy"
-PRESS_SCENE = "force_map_press"
+STAGE_SCENE = JIG_ACCURACY_SCENE  # what lies on the jig's stage unless the rehearsal names another
 GELSIGHT_FORMAT = ("MJPG", 320, 240)  # GelSight Mini's 320x240 mode, the mock bench's camera
 
 
@@ -129,7 +128,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     st.add_argument("--jpeg-quality", type=int, default=95)
     st.set_defaults(func=serve_stage)
     pr = sub.add_parser("press")
-    pr.add_argument("--scene", default=PRESS_SCENE)
+    pr.add_argument("--scene", default=FORCE_MAP_PRESS_SCENE)
     pr.add_argument("--seed", type=int, default=0)
     pr.add_argument("--fps", type=float, default=25.0)
     pr.add_argument("--rate", type=int, default=80, help="scale samples per second (10 or 80)")

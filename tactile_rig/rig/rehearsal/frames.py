@@ -22,7 +22,7 @@ import math
 import cv2
 import numpy as np
 
-from tactile_rig.core.files import read_image
+from tactile_rig.rig.files import read_image
 from tactile_rig.rig.recording import read_recording
 from tactile_rig.sim.render.fingervision import FingerVisionRenderer, contact_shear_field
 

@@ -2,7 +2,7 @@
 
 Knobs (one row per setting, every other knob at its default): the detector's background kernel
 (the closing that estimates the local background: its size and disc/square shape), how the baseline
-is made (``init=lattice`` ids from the first frame with N refinement frames, or the old
+is made (``init=lattice`` ids from the first frame with N refinement frames, or the reference's
 ``init=frames`` scheme with N baseline frames), the Kalman filter on/off, and the proximity grid
 (the downsampling of the back-projection and of the slip estimate).
 
@@ -351,7 +351,7 @@ def measure(*, quick: bool = False, seed: int = 0) -> TradeTable:
         rows=rows,
         knobs={"kernel_px": "background closing diameter (default 15)", "kernel": "disc (default) or square",
                "refine_frames": "lattice init: frames refining the rest positions (default 10)",
-               "init/baseline_frames": "old scheme: ids only after N baseline frames",
+               "init/baseline_frames": "the frames-baseline scheme: ids only after N baseline frames",
                "kalman": "per-marker Kalman filter (default on)",
                "proximity_grid": "proximity back-projection and slip downsampling (default 2)"},
         notes=["proximity_grid rows change only proximity vision: compare their object_* and slip columns, "

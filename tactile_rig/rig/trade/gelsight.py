@@ -140,8 +140,8 @@ def _interleaved(fns: list[Callable[[], Any]], calls: list[int], rounds: int) ->
     for fn in fns:
         fn()  # warm caches and lazy set-up outside the timing
     for r in range(rounds):
-        # Each round starts one function further on, so no function always follows the same one: a
-        # fixed order read the registration defaults (first after the baseline) 7 % under rows that
+        # Each round starts one function further on, so no function always follows the same one: with
+        # a fixed order the function timed first after the baseline reads ~7 % under functions that
         # run the very same work.
         for i in [(r + k) % len(fns) for k in range(len(fns))]:
             fn, n = fns[i], calls[i]

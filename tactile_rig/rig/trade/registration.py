@@ -36,10 +36,12 @@ from tactile_rig.rig.trade.table import TradeRow, TradeTable
 TOPIC = "registration"
 SUMMARY = "GelSight registration knobs: independent re-touches not localized (%) vs fresh pairs/s"
 
-OLD_DEFAULTS = {"max_sigma_px": 0.1, "max_sigma_rot_deg": 0.1, "min_ncc": 0.6, "min_rotation_pinning": 0.0,
-                "dense_bias_order": 0, "dense_gain": False, "detect_short_px": 160, "dense_highpass_px": 0.0}
-# The defaults before the polish compared high-passed heights (plain heights, NCC bar 0.9, detection
-# at 160 px): up to 2.3 px of bias on the plate's re-touches, confident wrong answers on seeds 1-2.
+# Strict refusal bars (sigma 0.1, no pinning test) with an offset-only polish on plain heights: what
+# the pinning test, the quadratic-and-gain polish and the high-pass each buy, in one row.
+STRICT_BARS = {"max_sigma_px": 0.1, "max_sigma_rot_deg": 0.1, "min_ncc": 0.6, "min_rotation_pinning": 0.0,
+               "dense_bias_order": 0, "dense_gain": False, "detect_short_px": 160, "dense_highpass_px": 0.0}
+# The polish on plain heights (NCC bar 0.9, detection at 160 px): the integration's low-frequency
+# differences between touches bias the plate's re-touches by up to 2.3 px and give confident wrong answers.
 PLAIN_HEIGHTS = {"dense_highpass_px": 0.0, "min_ncc": 0.9, "detect_short_px": 160}
 
 
@@ -77,7 +79,7 @@ def settings() -> list[dict[str, Any]]:
         {"dense_fallback": False},
         {"search_step_deg": 10.0},
         {"search_min_patches": 15, "search_min_ratio": 1.0},
-        dict(OLD_DEFAULTS),
+        dict(STRICT_BARS),
         {"heights_downsample": 1},
         {"heights_lookup": "reduced"},
     ]
@@ -218,8 +220,8 @@ def measure(*, quick: bool, seed: int = 0) -> TradeTable:
                "dense_bias_order/dense_gain": "height difference the polish allows between touches "
                                               "(0 offset, 1 plane, 2 quadratic) and a height gain",
                "dense_highpass_px": "sigma (px) of the low-pass the polish removes from the heights (0: plain heights)",
-               "min_ncc, max_sigma_*, min_rotation_pinning": "refusal thresholds (one row: the pre-issue-13 "
-                                                             "defaults, offset-only polish)",
+               "min_ncc, max_sigma_*, min_rotation_pinning": "refusal thresholds (one row: strict bars, sigma 0.1 "
+                                                             "and no pinning test, with an offset-only polish)",
                "dense_fallback": "the dense search when keypoints fail (False: refuse instead)",
                "search_step_deg": "rotation step of the dense search (deg)",
                "search_min_patches/search_min_ratio": "the dense search's evidence bars (one row loosened)",

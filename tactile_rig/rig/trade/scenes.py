@@ -5,7 +5,7 @@ with rows of its own scene, and each scene's own setting is its default):
 
 * ``sensor``: ``model`` (the perception result straight from the world models, plus noise) or
   ``rendered`` (the renderer draws the camera frame and the real perception processor reads it), at
-  several sensing rates, for the scenes that wire both (today: proximity following). Reference: the
+  several sensing rates, for the scenes that wire both (proximity following). Reference: the
   scene's own sensor (rendered, at its rate).
 * ``arm_dt_ms``: the simulated arm's integration step, for scenes driven by the arm (collision stop,
   force following, insertion). Reference: the finest step (0.2 ms); the scenes ship 1 ms.
@@ -174,7 +174,7 @@ def measure(*, quick: bool, seed: int) -> TradeTable:
         "is the median of the scene's judged figure (named in the note), `judged_abs_diff` its median "
         "difference from the reference on the same seed.")
     table.notes.append(
-        "Only proximity following wires a rendered sensor today; the other controller scenes run the model "
+        "Only proximity following wires a rendered sensor; the other controller scenes run the model "
         "sensor only (their [sensor] kind 'rendered' is refused with a one-line error)."
         + (f" Also rendered, not yet measured here: {', '.join(others)}." if others else ""))
     off = [rows[i] for i in table.default_indices if i not in set(table.front())]

@@ -43,8 +43,8 @@ def rates_per_s(fns: Mapping[K, Callable[[], Any]], *, rounds: int = 3, min_time
     best: dict[K, float] = {k: 0.0 for k in fns}
     items = list(fns.items())
     for r in range(rounds):
-        # Each round starts one setting further on, so no setting always follows the same one (a
-        # fixed order read one registration setting 7 % under others running the very same work).
+        # Each round starts one setting further on, so no setting always follows the same one (with a
+        # fixed order one registration setting reads ~7 % under others running the very same work).
         for k, fn in items[r % len(items):] + items[:r % len(items)]:
             best[k] = max(best[k], _one_round(fn, min_time_s, min_calls))
     return best

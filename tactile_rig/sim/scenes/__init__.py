@@ -28,6 +28,11 @@ from tactile_rig.sim import World
 
 SCENE_DIR = Path(__file__).resolve().parent
 
+# Built-in scenes that the rig's sessions and the rehearsal bench name (each a file of this folder).
+JIG_ACCURACY_SCENE = "jig_accuracy"  # a textured part on the jig's stage under the GelSight camera
+GELSIGHT_BALL_PRESS_SCENE = "gelsight_ball_presses"  # the calibration ball on the stage: GelSight calibration
+FORCE_MAP_PRESS_SCENE = "force_map_press"  # the gripper presses a FingerVision fingertip on the scale: force map
+
 
 @dataclass
 class Scene:

@@ -28,7 +28,7 @@ from tactile_rig.sim.base import register_model
 
 COIL_RESISTANCE_OHM = 12.0 / STALL_CURRENT_A  # the winding: stall current at 12 V is V / R
 # A rigid part (wood, hard plastic) between rubber finger pads: ~100 N/mm, so 100 N of grip squeezes
-# it by 1 mm. (5 kN/m, the former default, let a 40 mm object be squashed to 20 mm at 40 % effort.)
+# it by 1 mm. (5 kN/m would let a 40 mm object be squashed to 20 mm at 40 % effort.)
 OBJECT_STIFFNESS_NPM = 1.0e5
 
 

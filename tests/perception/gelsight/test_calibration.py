@@ -202,3 +202,45 @@ def test_saved_baked_table_is_loaded_not_rebaked(tmp_path, mlp_cal, presses, mon
     for frame in presses.frames[:3]:
         for g_saved, g_fit in zip(back.gradients(frame), mlp_cal.gradients(frame)):
             np.testing.assert_array_equal(g_saved, g_fit)
+
+
+def _saved_arrays(model: str) -> tuple[dict, dict[str, np.ndarray]]:
+    base = test_data("file_formats") / f"gelsight_calibration_{model}"
+    with np.load(base.with_suffix(".npz"), allow_pickle=False) as z:
+        return json.loads(base.with_suffix(".json").read_text()), {k: z[k] for k in z.files}
+
+
+# Each model array with a shape its model does not declare (the MLP is 5-4-2, the table 8 bins).
+WRONG_SHAPES = [("mlp", "model_w0", np.zeros((4, 5), np.float32)), ("mlp", "model_w0", np.zeros((5, 4, 1), np.float32)),
+                ("mlp", "model_w1", np.zeros((4, 3), np.float32)), ("mlp", "model_b0", np.zeros(5, np.float32)),
+                ("mlp", "model_b1", np.zeros((1, 2), np.float32)), ("mlp", "model_hidden", np.array([[4]])),
+                ("mlp", "model_hyper", np.zeros(3)), ("lut", "model_table", np.zeros((8, 8, 8, 3), np.float32)),
+                ("lut", "model_filled", np.ones((8, 8, 7), bool)), ("lut", "model_hyper", np.array([8.0]))]
+
+
+@pytest.mark.parametrize(("model", "key", "value"), WRONG_SHAPES)
+def test_a_model_array_of_the_wrong_shape_is_refused_naming_it(model: str, key: str, value: np.ndarray) -> None:
+    """A calibration whose baked table is fine but whose model arrays do not fit the model's declared
+    sizes is refused at load, not kept to fail (or answer wrongly) once the model is evaluated."""
+    meta, arrays = _saved_arrays(model)
+    good = GelSightCalibration.from_saved(meta, arrays, "cal.json", "cal.npz")  # the file as written loads
+    assert good.model.kind == model
+    with pytest.raises(CalibrationError, match=rf"cal\.npz: the model array {key} (has shape|is)"):
+        GelSightCalibration.from_saved(meta, {**arrays, key: value}, "cal.json", "cal.npz")
+
+
+@pytest.mark.parametrize(("model", "key"), [("mlp", "model_w0"), ("mlp", "model_b1"), ("lut", "model_table")])
+def test_a_model_array_missing_or_not_finite_is_refused_naming_it(model: str, key: str) -> None:
+    meta, arrays = _saved_arrays(model)
+    with pytest.raises(CalibrationError, match=rf"cal\.npz: the model array {key} is missing"):
+        GelSightCalibration.from_saved(meta, {k: v for k, v in arrays.items() if k != key}, "cal.json", "cal.npz")
+    nan = arrays[key].astype(np.float32).copy()
+    nan.flat[0] = np.nan
+    with pytest.raises(CalibrationError, match=rf"cal\.npz: the model array {key} holds NaN"):
+        GelSightCalibration.from_saved(meta, {**arrays, key: nan}, "cal.json", "cal.npz")
+
+
+def test_a_saved_mlp_declaring_absurd_layers_is_refused_before_it_is_built() -> None:
+    meta, arrays = _saved_arrays("mlp")
+    with pytest.raises(CalibrationError, match=r"model_hidden is \[1000000000\]"):
+        GelSightCalibration.from_saved(meta, {**arrays, "model_hidden": np.array([10**9])}, "cal.json", "cal.npz")

@@ -9,9 +9,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tactile_rig.perception.gelsight import HeightMapper, TactileMap, extract_features, register, render_u8
-from tactile_rig.perception.gelsight.registration import (
-    RegistrationParams, _dense_samples, _even_picks, _grad, _ransac_samples, _sample, hamming_cross_matches,
-    ransac_rigid)
+from tactile_rig.perception.gelsight.dense_refinement import _sample
+from tactile_rig.perception.gelsight.features import _dense_samples, _even_picks, _upper_quartile
+from tactile_rig.perception.gelsight.registration import RegistrationParams, hamming_cross_matches, ransac_rigid
+from tactile_rig.perception.gelsight.rigid_fit import _grad, _ransac_samples
 from tactile_rig.perception.gelsight.synthetic import jig_move
 
 MM = 0.1245
@@ -218,8 +219,6 @@ def test_integration_leaves_inputs_alone_and_masks_like_where(solver: str, downs
 @settings(deadline=None, max_examples=40)
 @given(st.lists(st.floats(0.0, 1e6, allow_nan=False, width=32), min_size=1, max_size=60))
 def test_upper_quartile_is_numpys(values: list[float]) -> None:
-    from tactile_rig.perception.gelsight.registration import _upper_quartile
-
     x = np.array(values, np.float32)
     assert _upper_quartile(x) == pytest.approx(float(np.quantile(x, 0.75)), rel=1e-6, abs=1e-30)
 

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from tactile_rig.perception.gelsight import (Reconstructor, RegistrationParams, calibrate_from_presses, load_presses,
                                              register)
-from tactile_rig.perception.gelsight.registration import _pinned, dense_refine, extract_features
+from tactile_rig.perception.gelsight.registration import dense_refine, extract_features, pose_pinned
 from tactile_rig.perception.gelsight.synthetic import jig_move, tile
 from tactile_rig.rig.trade.registration_data import is_right, pose_error, retouch_set, score_pairs
 from tests._data import test_data
@@ -66,7 +66,7 @@ def _polish(fa, fb, start):
 def test_polish_converges_from_a_start_a_few_degrees_off(pair) -> None:
     a, fa, fb, truth = pair
     fit = _polish(fa, fb, _turn(truth, 3.0, (3.0, -2.0), a.shape))
-    assert fit.converged and not fit.wandered and _pinned(fit, PARAMS)
+    assert fit.converged and not fit.wandered and pose_pinned(fit, PARAMS)
     rot_err, px_err = _error(fit.matrix_px, truth, a.shape)
     assert rot_err < 0.1 and px_err < 0.3, (rot_err, px_err)
 
@@ -87,7 +87,7 @@ def test_a_start_far_off_is_never_accepted(pair) -> None:
         fit = _polish(fa, fb, start)
         # It wandered off (handed back unpolished, flagged), crept without converging, or settled in a
         # pit that neither pins the pose nor correlates: never an answer.
-        assert not (_pinned(fit, PARAMS) and fit.ncc >= PARAMS.min_ncc), (deg, fit)
+        assert not (pose_pinned(fit, PARAMS) and fit.ncc >= PARAMS.min_ncc), (deg, fit)
         assert fit.wandered or not fit.converged or fit.ncc < 0.3 or fit.sigma_px > 2 * PARAMS.max_sigma_px
         if fit.wandered:
             np.testing.assert_allclose(fit.matrix_px, start, atol=1e-9)
@@ -99,7 +99,7 @@ def test_an_accepted_polish_is_never_far_from_the_truth(pair, deg, dx, dy) -> No
     a, fa, fb, truth = pair
     fit = _polish(fa, fb, _turn(truth, deg, (dx, dy), a.shape))
     assert np.isfinite(fit.matrix_px).all()
-    if _pinned(fit, PARAMS) and fit.ncc >= PARAMS.min_ncc:
+    if pose_pinned(fit, PARAMS) and fit.ncc >= PARAMS.min_ncc:
         rot_err, px_err = _error(fit.matrix_px, truth, a.shape)
         assert rot_err < 0.5 and px_err < 1.0, (rot_err, px_err, fit)
 

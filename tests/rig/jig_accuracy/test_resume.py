@@ -41,8 +41,17 @@ def _messages(path: Path) -> list[tuple]:
     """Every message without its times (a resumed attempt's clock starts later)."""
     rec = read_recording(path)
     assert not rec.truncated
-    return [(m.topic, json.dumps({k: v for k, v in m.data.items() if k not in VOLATILE}, sort_keys=True))
-            for m in rec.messages]
+    return [(m.topic, json.dumps(_timeless(m.data), sort_keys=True)) for m in rec.messages]
+
+
+def _timeless(value: Any) -> Any:
+    """A decoded message without its times, at any depth (typed messages stamp their frames and
+    transforms); bytes (image payloads) as hex."""
+    if isinstance(value, dict):
+        return {k: _timeless(v) for k, v in value.items() if k not in VOLATILE}
+    if isinstance(value, list):
+        return [_timeless(v) for v in value]
+    return value.hex() if isinstance(value, bytes) else value
 
 
 def test_stopped_and_resumed_run_equals_an_uninterrupted_one(tmp_path, calibration, straight) -> None:
@@ -104,9 +113,11 @@ def test_a_crash_at_any_step_of_a_resume_loses_nothing(tmp_path, monkeypatch) ->
     run.mcap still holds every message of the earlier attempt, and a later resume completes."""
     path = tmp_path / "run.mcap"
     before = _earlier_attempt_recording(path, 30)
-    kept = before[:60]  # up to the 30th point message; the cut-short move goes
+    # Up to the 30th point message (each point: the move's command, its log line, the point); the
+    # cut-short move goes.
+    kept = before[: [i for i, (topic, _) in enumerate(before) if topic == "/perception/jig_accuracy_point"][29] + 1]
     steps = {"n": 0, "crash_at": 0}
-    real = {"write": Recorder._add, "sync": jig_session.os.replace}
+    real = {"write": Recorder.publish, "sync": jig_session.os.replace}
 
     def counting(fn):
         def wrapped(*a, **kw):
@@ -116,10 +127,10 @@ def test_a_crash_at_any_step_of_a_resume_loses_nothing(tmp_path, monkeypatch) ->
             return fn(*a, **kw)
         return wrapped
 
-    monkeypatch.setattr(Recorder, "_add", counting(real["write"]))
+    monkeypatch.setattr(Recorder, "publish", counting(real["write"]))
     monkeypatch.setattr(jig_session.os, "replace", counting(real["sync"]))
-    monkeypatch.setattr("tactile_rig.rig.recording.os.replace", counting(real["sync"]))
-    monkeypatch.setattr("tactile_rig.rig.recording.os.fsync", counting(__import__("os").fsync))
+    monkeypatch.setattr("tactile_rig.rig.recording.writer.os.replace", counting(real["sync"]))
+    monkeypatch.setattr("tactile_rig.rig.recording.writer.os.fsync", counting(__import__("os").fsync))
     crash_at = 1
     while True:
         steps.update(n=0, crash_at=crash_at)
@@ -132,7 +143,7 @@ def test_a_crash_at_any_step_of_a_resume_loses_nothing(tmp_path, monkeypatch) ->
             continue
         rec.close()
         break
-    assert crash_at > 60  # every write of the copy was a crash point
+    assert crash_at > len(kept)  # every write of the copy was a crash point
     assert _messages(path) == kept
 
 
@@ -183,5 +194,14 @@ def test_sigkill_at_any_moment_of_a_resume_loses_nothing(tmp_path, delay_s: floa
 def _messages_any(path: Path) -> list[tuple]:
     """Like _messages, but a recording cut off by the kill is fine (read up to its last flush)."""
     rec = read_recording(path)
-    return [(m.topic, json.dumps({k: v for k, v in m.data.items() if k not in VOLATILE}, sort_keys=True))
-            for m in rec.messages]
+    return [(m.topic, json.dumps(_timeless(m.data), sort_keys=True)) for m in rec.messages]
+
+
+def _timeless(value: Any) -> Any:
+    """A decoded message without its times, at any depth (typed messages stamp their frames and
+    transforms); bytes (image payloads) as hex."""
+    if isinstance(value, dict):
+        return {k: _timeless(v) for k, v in value.items() if k not in VOLATILE}
+    if isinstance(value, list):
+        return [_timeless(v) for v in value]
+    return value.hex() if isinstance(value, bytes) else value

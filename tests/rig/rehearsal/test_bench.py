@@ -143,13 +143,14 @@ def test_record_live_streams_what_it_records(rehearsal, tmp_path, capsys) -> Non
         # The topics are advertised and subscribed before the recording starts (--live-wait): the
         # client gets what was recorded, in order (a message or two may still be in flight at the end).
         assert counts[topic] - 5 <= len(got) <= counts[topic], topic
-        t = [m.data["t_s"] for m in got]
+        t = [m.data["t_s"] if m.encoding == "json" else m.log_time_ns for m in got]
         assert t == sorted(t) and len(set(t)) == len(t), topic
         assert [m.log_time_ns for m in got] == sorted(m.log_time_ns for m in got)
     seqs = [m.data["seq"] for m in client.on("/scale/force")]
     assert all((b - a) % 65536 == 1 for a, b in zip(seqs, seqs[1:]))  # no sample lost or reordered
-    frame = client.on("/camera_fingervision/image/compressed")[-1].data
-    assert frame["format"] == "jpeg" and frame["frame_id"] == "camera_fingervision"
+    frame = client.on("/camera_fingervision/image/compressed")[-1]
+    assert frame.encoding == "protobuf" and frame.message.format == "jpeg"
+    assert frame.message.frame_id == "camera_fingervision" and frame.message.data[:2] == b"\xff\xd8"
 
 
 def test_fingervision_track_live_from_the_bench_camera_in_newtons(rehearsal, tmp_path, capsys) -> None:

@@ -78,8 +78,9 @@ def test_cli_list_and_errors(demo_topic, tmp_path, capsys):
     assert "needs a TOPIC" in capsys.readouterr().err
     f = tmp_path / "file.png"
     f.write_bytes(b"")
-    assert main(["trade", demo_topic, "--plot", str(f)]) == 2
-    assert "is a file" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as info:  # a usage error
+        main(["trade", demo_topic, "--plot", str(f)])
+    assert info.value.code == 2 and "is a file" in capsys.readouterr().err
     assert CALLS == []  # nothing measured on bad input
 
 

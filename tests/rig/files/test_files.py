@@ -1,9 +1,10 @@
-"""core.files: whatever bytes a file holds, a loader returns a checked value or raises BadFile
+"""rig.files: whatever bytes a file holds, a loader returns a checked value or raises BadFile
 (never another exception, never an allocation the header asked for)."""
 
 from __future__ import annotations
 
 import io
+import json
 import struct
 import zlib
 from pathlib import Path
@@ -13,8 +14,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tactile_rig.core import files
+import cv2
+
 from tactile_rig.core.errors import BadFile, MissingFile
+from tactile_rig.rig import files
 
 SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 
@@ -38,8 +41,6 @@ def _npz_stored(**arrays: np.ndarray) -> bytes:
 
 
 def _png(img: np.ndarray) -> bytes:
-    import cv2
-
     return cv2.imencode(".png", img)[1].tobytes()
 
 
@@ -68,28 +69,83 @@ def _mutate(data: bytes, pos: float, bit: int, cut: float, mode: str) -> bytes:
     return data[: int(cut * len(data))]
 
 
+def _npz_arrays(data: bytes) -> dict[str, np.ndarray]:
+    with np.load(io.BytesIO(data), allow_pickle=False) as z:
+        return {k: z[k] for k in z.files}
+
+
+# What the field's own reader makes of the same bytes: a loader that returns a value returns this.
+REFERENCE = {
+    "npy": lambda data: np.load(io.BytesIO(data), allow_pickle=False),
+    "npz": _npz_arrays,
+    "npz_stored": _npz_arrays,
+    "json": json.loads,
+    "png": lambda data: cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR),
+}
+
+
+def _assert_same(kind: str, value: object, data: bytes) -> None:
+    """A loader's value is exactly what the reference reader decodes from the same bytes."""
+    ref = REFERENCE[kind](data)
+    if kind in ("npz", "npz_stored"):
+        assert isinstance(value, dict) and sorted(value) == sorted(ref)
+        for k in ref:
+            assert value[k].dtype == ref[k].dtype
+            np.testing.assert_array_equal(value[k], ref[k])
+    elif kind == "json":
+        assert value == ref
+    else:
+        assert isinstance(value, np.ndarray) and value.dtype == ref.dtype
+        np.testing.assert_array_equal(value, ref)
+
+
+def _assert_names_the_file(exc: BadFile, p: Path) -> None:
+    assert exc.path == str(p) and exc.problem and str(exc).startswith(str(p))
+
+
 @SETTINGS
 @given(kind=st.sampled_from(sorted(GOOD)), pos=st.floats(0, 1, exclude_max=True), bit=st.integers(0, 7),
        cut=st.floats(0, 1, exclude_max=True), mode=st.sampled_from(["flip", "cut"]))
 def test_a_damaged_file_is_a_value_or_a_badfile(tmp_path: Path, kind: str, pos: float, bit: int, cut: float,
                                                  mode: str) -> None:
+    """A flipped bit or a cut file: a BadFile naming it, or (damage the format cannot see, such as a
+    flipped bit in a .npy's data) exactly the value the bytes now hold."""
     p = tmp_path / f"x.{kind}"
-    p.write_bytes(_mutate(GOOD[kind], pos, bit, cut, mode))
+    data = _mutate(GOOD[kind], pos, bit, cut, mode)
+    p.write_bytes(data)
     try:
-        LOAD[kind](p)
+        value = LOAD[kind](p)
     except BadFile as exc:
-        assert exc.path == str(p) and exc.problem
+        _assert_names_the_file(exc, p)
+        return
+    assert kind != "png", "a damaged PNG was decoded: every chunk carries a CRC and the file ends with IEND"
+    _assert_same(kind, value, data)
 
 
 @SETTINGS
 @given(data=st.binary(max_size=400), kind=st.sampled_from(sorted(GOOD)))
 def test_arbitrary_bytes_are_a_badfile(tmp_path: Path, data: bytes, kind: str) -> None:
+    """Bytes that are not a file of the kind raise BadFile naming it; bytes that happen to be one
+    (``{}`` is a JSON object) give exactly what the field's own reader makes of them."""
     p = tmp_path / f"y.{kind}"
     p.write_bytes(data)
     try:
-        LOAD[kind](p)
-    except BadFile:
-        pass
+        value = LOAD[kind](p)
+    except BadFile as exc:
+        _assert_names_the_file(exc, p)
+        return
+    _assert_same(kind, value, data)
+
+
+def test_arbitrary_bytes_that_are_no_file_of_the_kind_are_refused(tmp_path: Path) -> None:
+    """The refusal is not left to chance: bytes no reader accepts are a BadFile for every kind."""
+    for kind in sorted(GOOD):
+        for data in (b"", b"\x00" * 40, b"not a file", GOOD[kind][: len(GOOD[kind]) // 2]):
+            p = tmp_path / f"z.{kind}"
+            p.write_bytes(data)
+            with pytest.raises(BadFile) as info:
+                LOAD[kind](p)
+            _assert_names_the_file(info.value, p)
 
 
 def test_uncompressed_npz_members_read_in_place_and_every_data_flip_is_refused(tmp_path: Path) -> None:

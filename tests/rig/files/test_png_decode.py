@@ -1,5 +1,5 @@
 """read_image's own PNG decode (8-bit RGB, rows filtered None or Sub) gives OpenCV's pixels; any other
-PNG goes to OpenCV, and damaged files are refused as before."""
+PNG goes to OpenCV, and a damaged file is refused by its chunk CRCs before any decoder sees it."""
 
 from __future__ import annotations
 
@@ -12,16 +12,17 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tactile_rig.core import files
 from tactile_rig.core.errors import BadFile
+from tactile_rig.rig import files
+from tactile_rig.rig.files import deflate, png
 
 
 @pytest.fixture(params=["default", "zlib"])
 def inflater(request, monkeypatch):
     """Both inflaters: the fast extra's if installed, and the standard library's."""
     if request.param == "zlib":
-        monkeypatch.setattr(files, "_decompressobj", zlib.decompressobj)
-        monkeypatch.setattr(files, "_crc", zlib.crc32)
+        monkeypatch.setattr(deflate, "_decompressobj", zlib.decompressobj)
+        monkeypatch.setattr(deflate, "_crc", zlib.crc32)
     return request.param
 
 
@@ -67,7 +68,7 @@ def test_opencv_written_pngs_decode_to_opencvs_pixels(tmp_path, h, w, level, see
     assert got.dtype == np.uint8 and got.shape == (h, w, 3)
     np.testing.assert_array_equal(got, img)
     if level is None:  # OpenCV's default writes Sub rows: decoded here, not by OpenCV
-        assert files._png_rgb8_bgr(files._png_chunks(buf.tobytes())[1]) is not None
+        assert png.decode_rgb8_bgr(png.png_chunks(buf.tobytes())[1]) is not None
 
 
 @pytest.mark.parametrize("filters", ["sub", "none", "mixed", "up", "paeth"])
@@ -82,7 +83,7 @@ def test_each_filter_mix_decodes_like_opencv(tmp_path, inflater, filters) -> Non
     data = _png(rows, kinds)
     got = _read(tmp_path, data)
     np.testing.assert_array_equal(got, _opencv(data))
-    ours = files._png_rgb8_bgr(files._png_chunks(data)[1])
+    ours = png.decode_rgb8_bgr(png.png_chunks(data)[1])
     if filters in ("sub", "none", "mixed"):
         np.testing.assert_array_equal(got, rgb[:, :, ::-1])
         assert ours is not None
