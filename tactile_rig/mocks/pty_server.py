@@ -48,7 +48,7 @@ _BAUD_BY_CONSTANT = {
 }
 
 # Below this much time to the next output we spin instead of sleeping in select(). With the
-# server thread's timer slack at 1 µs (see _tighten_timer_slack) a select() wake-up is only a few
+# server thread's timer slack at 1 µs (see _on_thread_start) a select() wake-up is only a few
 # tens of µs late, so a short spin suffices and the server leaves the CPU to the client.
 _SPIN_S = 0.0001
 _PR_SET_TIMERSLACK = 29  # linux/prctl.h
