@@ -323,6 +323,8 @@ class FingertipCamera(Driver):
         try:
             raw = self.source.read(timeout_s)
         except (NotConnected, OSError) as exc:
+            if self.threaded and not self._running:
+                return False  # close() released the source under this read: not a lost device
             self._reopen(exc)
             return False
         if raw is None:
