@@ -219,7 +219,7 @@ class FingertipCamera(Driver):
         with self._cond:
             self._cond.notify_all()
         try:
-            self.source.close()  # unblocks a capture thread stuck in a backend read
+            self.source.close()  # a source ends or waits out a read in progress (OpenCV's: its select() timeout)
         finally:
             if self._thread is not None:
                 self._thread.join(timeout=2.0)
@@ -471,6 +471,9 @@ class OpenCVSource:
         self._cap: Any = None
         self._fails = 0
         self._seq = 0
+        # One call into the capture at a time: cv2.VideoCapture is not thread-safe, and release()
+        # while another thread's read() waits in select() frees the buffers that read fills (SIGSEGV).
+        self._io = threading.Lock()
 
     @property
     def is_open(self) -> bool:
@@ -487,9 +490,10 @@ class OpenCVSource:
         self._cap, self._fails = cap, 0
 
     def close(self) -> None:
-        if self._cap is not None:
-            self._cap.release()
-            self._cap = None
+        with self._io:  # after a read in progress returns (a frame, or the backend's select() timeout)
+            if self._cap is not None:
+                self._cap.release()
+                self._cap = None
 
     def _need(self) -> Any:
         if self._cap is None:
@@ -498,7 +502,11 @@ class OpenCVSource:
 
     def set_format(self, fourcc: str, width: int, height: int, fps: float) -> tuple[str, int, int, float]:
         cv2 = _cv2()
-        cap = self._need()
+        with self._io:
+            return self._set_format(self._need(), cv2, fourcc, width, height, fps)
+
+    def _set_format(self, cap: Any, cv2: Any, fourcc: str, width: int, height: int,
+                    fps: float) -> tuple[str, int, int, float]:
         cap.set(cv2.CAP_PROP_FOURCC, fourcc_code(fourcc))  # first: it re-initialises the stream
         cap.set(cv2.CAP_PROP_FRAME_WIDTH, int(width))
         cap.set(cv2.CAP_PROP_FRAME_HEIGHT, int(height))  # the pair is applied on the second call
@@ -511,17 +519,22 @@ class OpenCVSource:
         prop = _control_props().get(canonical_control(name))
         if prop is None:
             return False
-        return bool(self._need().set(prop, float(value)))
+        with self._io:
+            return bool(self._need().set(prop, float(value)))
 
     def get_control(self, name: str) -> float | None:
         prop = _control_props().get(canonical_control(name))
         if prop is None:
             return None
-        v = float(self._need().get(prop))
+        with self._io:
+            v = float(self._need().get(prop))
         return None if v == -1.0 else v
 
     def read(self, timeout_s: float | None = None) -> RawFrame | None:
-        cap = self._need()
+        with self._io:
+            return self._read(self._need())
+
+    def _read(self, cap: Any) -> RawFrame | None:
         ok, img = cap.read()
         if not ok or img is None:
             self._fails += 1
