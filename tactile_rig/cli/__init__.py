@@ -103,7 +103,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
 def _bench_of(args: argparse.Namespace) -> str | None:
     """The bench file a parsed command uses (as :func:`~tactile_rig.cli.bench_args.bench_from_args`
     chooses it), or None for a command without ``--bench``."""
-    if not hasattr(args, "bench") or getattr(args, "mock", False):
+    if not hasattr(args, "bench") or getattr(args, "mock", False) or not getattr(args, "opens_devices", True):
         return None
     return args.bench or os.environ.get(emulation.BENCH_ENV) or None
 

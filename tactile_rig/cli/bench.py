@@ -84,7 +84,7 @@ def register(sub: Any) -> None:
                         "for a bench of real cameras.")
     e.add_argument("--bench", metavar="FILE", help=f"the bench file (default: ${BENCH_ENV})")
     add_json_flag(e)
-    e.set_defaults(func=_env)
+    e.set_defaults(func=_env, opens_devices=False)  # it reads the bench file, no device: no emulation needed
 
 
 def parse_camera_option(text: str) -> tuple[str, str, str]:

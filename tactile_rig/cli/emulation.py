@@ -41,8 +41,8 @@ BENCH_ENV = "TACTILE_RIG_BENCH"
 REGISTRY_KEY = "v4l2_registry"
 PRELOAD_KEY = "v4l2_preload"
 MAX_BENCH_BYTES = 1 << 20  # the loader's limit: a larger file is the loader's error to report
-# Commands that never open a bench's devices: $TACTILE_RIG_BENCH does not make them re-execute.
-_NO_BENCH = (("mock",), ("bench", "rehearse"))
+#: Commands that open no bench's devices: neither ``--bench`` nor ``$TACTILE_RIG_BENCH`` makes them re-execute.
+NO_DEVICES = (("mock",), ("bench", "rehearse"), ("bench", "env"))
 
 
 class EmulationError(RuntimeError):
@@ -116,11 +116,15 @@ def bench_emulation(path: str | Path, environ: Mapping[str, str] | None = None) 
 
 
 def bench_in_argv(argv: Sequence[str], environ: Mapping[str, str] | None = None) -> str | None:
-    """The bench file a command line uses, read from the words alone (before parsing): ``--bench
-    FILE`` (or an abbreviation argparse accepts, ``--ben FILE``, ``--bench=FILE``); else, unless the
-    line says ``--mock`` or is a command that opens no bench, ``$TACTILE_RIG_BENCH``."""
+    """The bench file a command line opens devices of, read from the words alone (before parsing):
+    none for a command of :data:`NO_DEVICES`; ``--bench FILE`` (or an abbreviation argparse accepts,
+    ``--ben FILE``, ``--bench=FILE``); else, unless the line says ``--mock``, ``$TACTILE_RIG_BENCH``."""
     env = os.environ if environ is None else environ
     words = list(argv)
+    commands = tuple(w for k, w in enumerate(words)
+                     if not w.startswith("-") and (k == 0 or words[k - 1] != "--log-level"))
+    if any(commands[:len(c)] == c for c in NO_DEVICES):
+        return None
     for i, w in enumerate(words):
         if w == "--":
             break
@@ -130,10 +134,6 @@ def bench_in_argv(argv: Sequence[str], environ: Mapping[str, str] | None = None)
                 return value or None
             return words[i + 1] if i + 1 < len(words) else None
     if "--mock" in words:
-        return None
-    commands = tuple(w for k, w in enumerate(words)
-                     if not w.startswith("-") and (k == 0 or words[k - 1] != "--log-level"))
-    if any(commands[:len(c)] == c for c in _NO_BENCH):
         return None
     return env.get(BENCH_ENV) or None
 

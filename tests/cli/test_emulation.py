@@ -54,6 +54,7 @@ def _console(*argv: str, env: dict[str, str] | None = None, timeout_s: float = 9
     (["camera", "grab", "--mock"], {"TACTILE_RIG_BENCH": "e.toml"}, None),
     (["mock", "serve", "camera", "--v4l2"], {"TACTILE_RIG_BENCH": "e.toml"}, None),
     (["--log-level", "DEBUG", "bench", "rehearse"], {"TACTILE_RIG_BENCH": "e.toml"}, None),
+    (["bench", "env", "--bench", "b.toml"], {}, None),  # reads the file, opens nothing
     (["camera", "grab"], {}, None),
     (["camera", "grab", "--", "--bench", "x"], {}, None),
 ])
@@ -116,9 +117,13 @@ def test_the_console_script_re_executes_itself_with_the_benchs_emulation(tmp_pat
         assert out.splitlines()[0] == f"pid {again.pid}" and cam.port in out
 
 
-def test_main_as_a_function_runs_the_command_in_a_child_started_with_it(tmp_path, capsys) -> None:
+def test_main_as_a_function_runs_the_command_in_a_child_started_with_it(tmp_path, monkeypatch, capsys) -> None:
     with emulated("c310") as cam:
         bench = _bench(tmp_path, cam)
+        with monkeypatch.context() as m:  # bench env opens no device: it runs here
+            m.setattr(cli.emulation, "run_in_child", lambda *a: pytest.fail("bench env ran in a child"))
+            assert main(["bench", "env", "--bench", str(bench), "--json"]) == 0
+            assert json.loads(capsys.readouterr().out) == cam.env
         assert main(["camera", "grab", "--bench", str(bench), "--out", str(tmp_path / "g"), "--json"]) == 0
         files = json.loads(capsys.readouterr().out.splitlines()[-1])["files"]
         assert len(files) == 1 and Path(files[0]).is_file()
