@@ -16,7 +16,6 @@ Usage: ``python benchmarks/bench_dynamixel.py [--quick] [--save | --out PATH]``;
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import statistics
 import subprocess
@@ -27,6 +26,11 @@ from pathlib import Path
 from _output import add_save_args, parse_args, save_json  # noqa: E402  (benchmarks/ is the script's folder)
 
 import dynamixel_sdk as sdk
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from tactile_rig.testing.serve import serve_in_subprocess  # noqa: E402
 
 WIRE_S = 29 * 10 / 1_000_000  # 14-byte read + 15-byte status at 1 Mbps
 
@@ -86,14 +90,6 @@ def _summary(name: str, measured: tuple[list[float], int]) -> dict:
     }
 
 
-def _serve(extra: list[str]) -> tuple[subprocess.Popen, str]:
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "tactile_rig.cli", "mock", "serve", "dynamixel", "--param", "return_delay_us=0", *extra],
-        stdout=subprocess.PIPE, text=True)
-    info = json.loads(proc.stdout.readline())
-    return proc, info["port"]
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer transactions")
@@ -102,12 +98,8 @@ def main() -> int:
     n = 500 if args.quick else 5000
     rows = []
     for name, extra in (("pty timing (1 Mbps, RDT 0)", []), ("pty no-timing", ["--no-timing"])):
-        proc, port = _serve(extra)
-        try:
-            rows.append(_summary(name, _measure(port, n)))
-        finally:
-            proc.terminate()
-            proc.wait()
+        with serve_in_subprocess("dynamixel", "--param", "return_delay_us=0", *extra) as info:
+            rows.append(_summary(name, _measure(info["port"], n)))
     root = str(Path(__file__).resolve().parents[1])
     proc = subprocess.Popen([sys.executable, "-c", _CANNED % {"root": root}], stdout=subprocess.PIPE, text=True)
     try:

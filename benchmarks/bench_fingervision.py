@@ -99,6 +99,12 @@ def bench_real() -> dict | None:
         out["light_gain_sweep"][str(gain)] = row
     out["tracked"]["identity_changes"] = id_changes
     out["tracked"]["markers_with_identity"] = len(id_map)
+    # the measurement noise a tracker sees: each marker's scatter about its mean over the ten frames,
+    # unfiltered (an upper bound: the skin's own motion between the frames is included)
+    raw = track_real(folder, FingerVisionParams(tracker=TrackerParams(use_kalman=False)))
+    pos = np.array([r.marker_positions_px for r in raw.values()])
+    scatter = pos.std(axis=0).ravel()
+    out["tracked"]["centre_scatter_px"] = {"median": float(np.median(scatter)), "mean": float(np.mean(scatter))}
     # every labelled frame (10), three orders, each from a fresh processor: every frame scored
     data = labelled_real_frames()
     out["labelled_sequences"] = {}
@@ -206,8 +212,30 @@ def bench_kalman(quick: bool) -> dict:
         settle = next((i for i in range(n_still + n_ramp, len(est)) if abs(est[i] - truth[i]) <= 0.1), None)
         out["kalman" if use_kalman else "none"] = {
             "jitter_px": jitter, "per_marker_jitter_px": marker_jitter, "ramp_lag_px": lag_px, "ramp_lag_frames": lag_px / 0.3,
-            "settle_frames_after_ramp_end": None if settle is None else settle - (n_still + n_ramp - 1)}
+            "settle_frames_after_ramp_end": None if settle is None else settle - (n_still + n_ramp - 1),
+            **_steady_speeds(use_kalman, quick)}
     return out
+
+
+def _steady_speeds(use_kalman: bool, quick: bool) -> dict:
+    """Fastest steady speed (from rest, 16 frames, 4 directions, a 3 x 3 patch of markers) at which
+    every marker is measured in every frame, and the largest position error up to that speed."""
+    rest = lattice(nx=3, ny=3, x0=110.0, y0=80.0, dx=50.0, dy=40.0)
+    base = MarkerBaseline(rest.copy(), np.full(len(rest), 8.0), np.ones(len(rest), bool))
+    kept, worst = 0.0, 0.0
+    for speed in np.arange(0.5, 6.01, 1.0 if quick else 0.25):
+        errs = []
+        for ang in (0.0, 35.0, 90.0, 200.0):
+            u = np.array([math.cos(math.radians(ang)), math.sin(math.radians(ang))])
+            tr = MarkerTracker(base, TrackerParams(use_kalman=use_kalman))
+            for k in range(1, 17):
+                truth = rest + u * speed * k
+                st_ = tr.update(contrast_map(render(truth, seed=k))[2])
+                errs.append(np.inf if not st_.found.all() else float(np.hypot(*(st_.positions_px - truth).T).max()))
+        if not np.isfinite(errs).all():
+            break
+        kept, worst = float(speed), max(worst, max(errs))
+    return {"fastest_steady_speed_kept_px_per_frame": kept, "max_error_up_to_it_px": worst}
 
 
 def _cycle(fn, frames: list[np.ndarray]):
@@ -375,6 +403,10 @@ def _print_real(real: dict | None) -> None:
             err = s["mean_error_px_vs_hand_label"]
             print(f"{label:<34}{s['tp']:>5}{s['fp']:>5}{s['precision']:>7.3f}{s['recall']:>8.3f}{err if err is None else round(err, 2):>8}")
         print(f"identity changes over the labelled frames: {real['tracked']['identity_changes']}")
+        sc = real["tracked"].get("centre_scatter_px")
+        if sc:
+            print(f"scatter of a marker's measured centre over the frames (x and y, no Kalman): median {sc['median']:.3f} px,"
+                  f" mean {sc['mean']:.3f} px")
         print("Tracking, every labelled frame (10 frames x 3 orders, every frame scored, valid markers):")
         for k, v in real["labelled_sequences"].items():
             if v:
@@ -393,7 +425,9 @@ def _print_rest(res: dict) -> None:
     print("\nKalman vs none (flickering light, 30 markers)")
     for k, v in res["kalman_vs_none"].items():
         print(f"  {k:<7} jitter of mean {v['jitter_px']:.4f} px, per marker {v['per_marker_jitter_px']:.4f} px  ramp lag {v['ramp_lag_px']:.3f} px "
-              f"({v['ramp_lag_frames']:.2f} frames)  settle {v['settle_frames_after_ramp_end']} frames")
+              f"({v['ramp_lag_frames']:.2f} frames)  settle {v['settle_frames_after_ramp_end']} frames  "
+              f"steady speeds kept up to {v['fastest_steady_speed_kept_px_per_frame']} px/frame "
+              f"(error <= {v['max_error_up_to_it_px']:.2f} px)")
     _print_speed(res["speed_320x240_one_core"])
     print(f"\nMock renderer: {json.dumps(res['mock_renderer'], default=float)}")
 

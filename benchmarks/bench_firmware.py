@@ -22,10 +22,8 @@ import json
 import os
 import resource
 import statistics
-import subprocess
 import sys
 import time
-from contextlib import contextmanager
 from pathlib import Path
 
 from _output import add_save_args, parse_args, save_json  # noqa: E402  (benchmarks/ is the script's folder)
@@ -37,19 +35,7 @@ sys.path.insert(0, str(ROOT))
 
 from tactile_rig.drivers.scale import parse_line  # noqa: E402
 from tactile_rig.mocks import scale_firmware as sf  # noqa: E402
-
-
-@contextmanager
-def served(firmware: bool, rate: int):
-    args = ["scale", "--rate", str(rate)] + (["--firmware"] if firmware else [])
-    proc = subprocess.Popen([sys.executable, "-m", "tactile_rig.cli", "mock", "serve", *args],
-                            stdout=subprocess.PIPE, text=True)
-    try:
-        yield json.loads(proc.stdout.readline())
-    finally:
-        proc.terminate()
-        proc.wait(10)
-        proc.stdout.close()
+from tactile_rig.testing.serve import serve_in_subprocess  # noqa: E402
 
 
 def _next_line(ser: serial.Serial) -> tuple[float, object]:
@@ -105,7 +91,8 @@ def measure(port: str, rate: int, seconds: float, repeats: int) -> dict:
 def wall_clock(rate: int, seconds: float, repeats: int) -> dict:
     out = {}
     for name, fw in (("firmware", True), ("mock", False)):
-        with served(fw, rate) as info:
+        options = ("--rate", str(rate), "--firmware") if fw else ("--rate", str(rate))
+        with serve_in_subprocess("scale", *options, stop_timeout_s=10.0) as info:
             time.sleep(0.3)  # the board's first power-on, unwatched
             out[name] = measure(info["port"], rate, seconds, repeats)
     return out

@@ -25,8 +25,7 @@ from __future__ import annotations
 
 import os
 
-for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_v, "1")
+import _single_core  # noqa: E402,F401  (first: one BLAS/OpenMP thread before numpy loads)
 
 import argparse  # noqa: E402
 import contextlib  # noqa: E402
@@ -45,7 +44,8 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from _output import add_save_args, parse_args, save_json  # noqa: E402  (benchmarks/ is the script's folder)
+from _output import add_save_args, parse_args, save_json  # noqa: E402
+from _single_core import pin_one_core  # noqa: E402  (benchmarks/ is the script's folder)
 
 from tactile_rig.cli import main as cli_main  # noqa: E402
 from tactile_rig.cli.gelsight import _npy_writer, _reconstructor  # noqa: E402
@@ -83,15 +83,6 @@ def _child(argv: list[str]) -> int:
     cv2.setNumThreads(1)
     print(json.dumps(baseline_loop(argv[0], argv[2:], Path(argv[1]))))
     return 0
-
-
-def _pin_one_core() -> int | None:
-    """Pin this process (and its children) to the first CPU it may use; that CPU, or None."""
-    if not hasattr(os, "sched_setaffinity"):
-        return None
-    cpu = min(os.sched_getaffinity(0))
-    os.sched_setaffinity(0, {cpu})
-    return cpu
 
 
 def _stages(cal_path: str, pngs: list[str], out: Path, reps: int) -> dict[str, float]:
@@ -144,7 +135,7 @@ def main() -> int:
     args = parse_args(ap)
     if args.dir is not None and not Path(args.dir).is_dir():
         ap.error(f"--dir {args.dir}: no such folder")
-    cpu_pinned = None if args.no_pin else _pin_one_core()
+    cpu_pinned = None if args.no_pin else pin_one_core()
     cv2.setNumThreads(1)
     load0 = os.getloadavg()
     with tempfile.TemporaryDirectory(dir=args.dir) as tmp:

@@ -27,8 +27,7 @@ from __future__ import annotations
 
 import os
 
-for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_v, "1")
+import _single_core  # noqa: E402,F401  (first: one BLAS/OpenMP thread before numpy loads)
 
 import argparse  # noqa: E402
 import sys  # noqa: E402
@@ -44,7 +43,8 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from _output import add_save_args, parse_args, save_json  # noqa: E402  (benchmarks/ is the script's folder)
+from _output import add_save_args, parse_args, save_json  # noqa: E402
+from _single_core import pin_one_core  # noqa: E402  (benchmarks/ is the script's folder)
 
 from tactile_rig.perception.gelsight import load_presses  # noqa: E402
 from tactile_rig.rig.files import deflate, png  # noqa: E402
@@ -142,14 +142,6 @@ def measure(frames: list[tuple[str, bytes]], rows: dict[str, Decoder], rounds: i
     return out
 
 
-def _pin_one_core() -> int | None:
-    if not hasattr(os, "sched_setaffinity"):
-        return None
-    cpu = min(os.sched_getaffinity(0))
-    os.sched_setaffinity(0, {cpu})
-    return cpu
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rounds", type=int, default=7, help="alternating rounds; each frame's best counts (default 7)")
@@ -160,7 +152,7 @@ def main() -> int:
     args = parse_args(ap)
     if args.rounds < 1 or args.rendered < 1:
         ap.error(f"--rounds and --rendered must be >= 1 (got {args.rounds}, {args.rendered})")
-    cpu = None if args.no_pin else _pin_one_core()
+    cpu = None if args.no_pin else pin_one_core()
     cv2.setNumThreads(1)
     rows, missing = decoders()
     load0 = os.getloadavg()

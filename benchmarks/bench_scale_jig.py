@@ -20,19 +20,12 @@ Prints a table; ``--save`` writes ``benchmarks/results/scale_jig.json``.
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import os
-import select
-import subprocess
 import sys
-import termios
 import time
-import tty
-from contextlib import contextmanager
 from pathlib import Path
 
-from _output import add_save_args, parse_args, save_json  # noqa: E402  (benchmarks/ is the script's folder)
+from _output import add_save_args, parse_args, save_json, saved_results  # noqa: E402  (benchmarks/ is the script's folder)
 
 import serial
 
@@ -42,24 +35,12 @@ sys.path.insert(0, str(ROOT))
 from tactile_rig.drivers.grbl import Jig  # noqa: E402
 from tactile_rig.drivers.scale import Scale  # noqa: E402
 from tactile_rig.mocks.grbl import GrblMock  # noqa: E402
-
-BANNER = b"\r\nGrbl 1.1h ['$' for help]\r\n"
-
-
-@contextmanager
-def served(*args: str):
-    proc = subprocess.Popen([sys.executable, "-m", "tactile_rig.cli", "mock", "serve", *args],
-                            stdout=subprocess.PIPE, text=True)
-    try:
-        yield json.loads(proc.stdout.readline())
-    finally:
-        proc.terminate()
-        proc.wait(5)
-        proc.stdout.close()
+from tactile_rig.testing.serve import serve_in_subprocess  # noqa: E402
+from tests._slow_client import GRBL_BANNER, read_banner  # noqa: E402
 
 
 def bench_scale(rate: int, seconds: float) -> dict:
-    with served("scale", "--rate", str(rate), "--param", "boot_s=0.1") as info:
+    with serve_in_subprocess("scale", "--rate", str(rate), "--param", "boot_s=0.1") as info:
         # Baseline: count whole lines with a plain pyserial reader.
         with serial.Serial(info["port"], 57600, timeout=1.0) as ser:
             ser.readline()  # the banner or a partial first line
@@ -87,7 +68,7 @@ def bench_scale(rate: int, seconds: float) -> dict:
 
 
 def bench_jig(seconds: float) -> dict:
-    with served("jig", "--param", "homing=0") as info:
+    with serve_in_subprocess("jig", "--param", "homing=0") as info:
         with serial.Serial(info["port"], 115200, timeout=1.0) as ser:
             time.sleep(0.1)
             ser.reset_input_buffer()
@@ -220,31 +201,12 @@ def bench_jig_timing() -> dict:
     return {"rows": rows, "within_10_percent": all(abs(r["ratio"] - 1.0) <= 0.10 for r in rows)}
 
 
-def _slow_client_banner(port: str, lag_s: float, timeout_s: float = 2.0) -> bytes:
-    fd = os.open(port, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
-    try:
-        time.sleep(lag_s)
-        tty.setraw(fd)
-        attrs = termios.tcgetattr(fd)
-        attrs[4] = attrs[5] = termios.B115200
-        termios.tcsetattr(fd, termios.TCSANOW, attrs)
-        got = b""
-        end = time.monotonic() + timeout_s
-        while time.monotonic() < end and not got.endswith(b"help]\r\n"):
-            if select.select([fd], [], [], 0.05)[0]:
-                got += os.read(fd, 256)
-    finally:
-        os.close(fd)
-    time.sleep(0.02)  # the server sees the close before the next open
-    return got
-
-
 def bench_jig_connects(n: int) -> dict:
-    with served("jig", "--param", "homing=0") as info:
+    with serve_in_subprocess("jig", "--param", "homing=0") as info:
         t0 = time.monotonic()
-        banners = [_slow_client_banner(info["port"], lag_s=0.03 * (i % 4) / 3) for i in range(n)]
+        banners = [read_banner(info["port"], lag_s=0.03 * (i % 4) / 3) for i in range(n)]
         wall = time.monotonic() - t0
-    bad = sum(b != BANNER for b in banners)
+    bad = sum(b != GRBL_BANNER for b in banners)
     return {"connects": n, "garbled_or_missing": bad, "client_lags_s": [0.0, 0.01, 0.02, 0.03], "seconds": wall}
 
 
@@ -256,8 +218,7 @@ def main() -> int:
     add_save_args(ap, "scale_jig.json")
     args = parse_args(ap)
     seconds = 3.0 if args.quick else 10.0
-    out = ROOT / "benchmarks" / "results" / "scale_jig.json"
-    results = json.loads(out.read_text()) if args.jig_only and out.exists() else {}
+    results = (saved_results("scale_jig.json") or {}) if args.jig_only else {}
     if not args.jig_only:
         results["scale"] = [bench_scale(80, seconds), bench_scale(10, seconds)]
     results["jig"] = bench_jig(seconds)
@@ -278,7 +239,6 @@ def main() -> int:
         print(f"{r['what']:<58} mock {r['mock_s']:7.3f} s   GRBL 1.1h {r['grbl_1_1h_s']:7.3f} s   x{r['ratio']:.3f}")
     c = results["jig_connects"]
     print(f"pty connects: {c['connects']}, banners garbled or missing: {c['garbled_or_missing']}")
-    print(f"wrote {out}")
     ok = results["jig_timing"]["within_10_percent"] and c["garbled_or_missing"] == 0
     if "scale" in results and not args.jig_only:
         ok = ok and all(abs(r["driver_readings_per_s"] - r["configured_sps"]) <= 1.0 and r["none_lost"]

@@ -9,6 +9,7 @@ terminal and never when stdin is not one, and writes a versioned calibration fil
     tactile-rig calibrate scale --bench bench.toml --known-mass-g 500 --out calib/scale.json
     tactile-rig calibrate gripper --bench bench.toml --out calib/gripper.json
     tactile-rig calibrate fingervision --mock --frames 10 --out calib/fingervision
+    tactile-rig calibrate gelsight --mock --live     # + what it records, live in Foxglove (ws://127.0.0.1:8765)
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from typing import Any, Callable
 
 from tactile_rig.cli.args import EFFORT, SEED, TIMEOUT_S, any_int, finite_float, float_in, int_in, output_file_or
 from tactile_rig.cli.bench_args import add_bench_arguments, bench_from_args
+from tactile_rig.cli.bench_live import add_live_arguments, live_from_args
 from tactile_rig.cli.common import add_json_flag, print_json
 from tactile_rig.core.clock import VirtualClock
 from tactile_rig.devices.scale import STANDARD_GRAVITY_MPS2
@@ -34,6 +36,7 @@ from tactile_rig.rig.calibration_sessions import (
     scale_session,
 )
 from tactile_rig.rig.jig_accuracy import DeviceJigRig, prepare_jig, sim_camera_connector
+from tactile_rig.rig.recording import camera_topic
 from tactile_rig.sim.scenes import GELSIGHT_BALL_PRESS_SCENE
 
 
@@ -49,6 +52,7 @@ def register_sessions(csub: Any) -> None:
         p.add_argument("--seed", type=SEED, default=0, help="seed of the mock world (default 0)")
         p.add_argument("--yes", action="store_true", help="never prompt, even on a terminal")
         add_json_flag(p)
+        add_live_arguments(p)
 
     g = csub.add_parser("gelsight", help="GelSight colour→gradient calibration from ball presses moved by the jig",
                         description="Press a ball into the gel at a grid of jig positions, fit the colour-to-"
@@ -127,12 +131,41 @@ def _camera_name(args: argparse.Namespace, sensor: str) -> str:
     return name
 
 
-def _run(args: argparse.Namespace, rig: Any, session: Callable[[Any], Any], summary: Callable[[dict], str]) -> int:
-    """Run ``session(rig)``, always close the rig, print the outcome (one line + files, or JSON)."""
+def session_topics(kind: str, camera: str | None = None) -> dict[str, str]:
+    """The topics (-> schema) a calibration session records and, with ``--live``, serves: advertised
+    before the session starts, so a viewer subscribed with ``--live-wait`` sees it from its first message."""
+    log = {"/log": "foxglove.Log"}
+    if kind == "gelsight":
+        return {camera_topic(camera or "camera", compressed=True): "foxglove.CompressedImage",
+                "/tf": "foxglove.FrameTransforms", "/jig/pose": "tactile_rig.JigPose",
+                "/command/jig": "tactile_rig.Command", **log}
+    if kind == "fingervision":
+        name = camera or "camera"
+        return {camera_topic(name, compressed=True): "foxglove.CompressedImage",
+                f"/perception/{name}": "tactile_rig.Perception"}
+    if kind == "scale":
+        return {"/scale/force": "tactile_rig.ScaleReading", "/command/scale": "tactile_rig.Command", **log}
+    if kind == "gripper":
+        return {"/gripper/joint_states": "foxglove.JointStates", "/state/gripper": "tactile_rig.GripperState",
+                "/command/gripper": "tactile_rig.Command", **log}
+    raise ValueError(f"session kind {kind!r}: expected gelsight, fingervision, scale or gripper")
+
+
+def _run(args: argparse.Namespace, rig: Any, session: Callable[[Any, Any], Any], summary: Callable[[dict], str],
+         topics: dict[str, str]) -> int:
+    """Run ``session(rig, live)`` (``live``: the server ``--live`` asks for, advertising ``topics``, or
+    None), always close the rig and the server, print the outcome (one line + files, or JSON)."""
     try:
-        outcome = session(rig)
+        live = live_from_args(args, topics=topics)
+    except BaseException:
+        rig.close()
+        raise
+    try:
+        outcome = session(rig, live)
     finally:
         rig.close()
+        if live is not None:
+            live.close()
     if args.json:
         print_json(outcome.as_dict())
     else:
@@ -152,26 +185,27 @@ def _gelsight(args: argparse.Namespace) -> int:
     rig = connect_session_rig(args, ["jig", cam], scene=GELSIGHT_BALL_PRESS_SCENE,
                               connectors={"camera": sim_camera_connector("gelsight")})
 
-    def session(rig: Any) -> Any:
+    def session(rig: Any, live: Any) -> Any:
         prepare_jig(rig.jig)
         press_rig = DeviceJigRig(rig.jig, rig.devices[cam], rig.clock, world=rig.world, settle_s=0.05)
         return gelsight_session(press_rig, plan, float(rig.bench.devices[cam].mm_per_px_x), args.out,
                                 guide=session_guide(args), force=args.force, bench=rig.bench, clock=rig.clock,
-                                camera=cam)
+                                camera=cam, live=live)
 
     return _run(args, rig, session, lambda r: (
         f"GelSight: {r['presses']} presses, held-out normal error {r['heldout_mean_normal_deg']:.2f} deg, "
-        f"height RMS {r['heldout_mean_height_rms_mm']:.4f} mm"))
+        f"height RMS {r['heldout_mean_height_rms_mm']:.4f} mm"), session_topics("gelsight", cam))
 
 
 def _scale(args: argparse.Namespace) -> int:
     rig = connect_session_rig(args, ["scale"])
     place = _mock_mass_placer(rig) if rig.bench.is_mock else None
-    return _run(args, rig, lambda rig: scale_session(
+    return _run(args, rig, lambda rig, live: scale_session(
         rig.scale, args.known_mass_g, args.out, place_mass=place, guide=session_guide(args), samples=args.samples,
-        wait_timeout_s=args.wait_timeout, force=args.force, bench=rig.bench), lambda r: (
+        wait_timeout_s=args.wait_timeout, force=args.force, bench=rig.bench, live=live), lambda r: (
         f"scale: {r['cal_factor_counts_per_g']:.5g} counts/g; {args.known_mass_g:g} g reads "
-        f"{r['loaded_mean_g']:.3f} g ({r['verify_error_g']:+.3f} g), empty noise {r['empty_noise_g']:.3f} g"))
+        f"{r['loaded_mean_g']:.3f} g ({r['verify_error_g']:+.3f} g), empty noise {r['empty_noise_g']:.3f} g"),
+        session_topics("scale"))
 
 
 def _mock_mass_placer(rig: Any) -> Callable[[float], None]:
@@ -196,19 +230,21 @@ def _gripper(args: argparse.Namespace) -> int:
         return DynamixelGripper(cfg.port, dxl_id=cfg.ids[0], protocol=cfg.protocol, baudrate=cfg.baud)
 
     rig = connect_session_rig(args, ["gripper"], connectors={"gripper": connect_gripper}, bench_too=True)
-    return _run(args, rig, lambda rig: gripper_session(
+    return _run(args, rig, lambda rig, live: gripper_session(
         rig.gripper, args.out, effort=args.effort, max_opening_m=args.max_opening_m,
-        closing_sign=args.closing_sign, guide=session_guide(args), force=args.force, bench=rig.bench), lambda r: (
+        closing_sign=args.closing_sign, guide=session_guide(args), force=args.force, bench=rig.bench,
+        live=live), lambda r: (
         f"gripper: closed {r['closed_ticks']} ticks, open {r['open_ticks']} ticks "
-        f"({r['span_ticks']} ticks for {r['max_opening_m']} m)"))
+        f"({r['span_ticks']} ticks for {r['max_opening_m']} m)"), session_topics("gripper"))
 
 
 def _fingervision(args: argparse.Namespace) -> int:
     cam = _camera_name(args, "fingervision")
     rig = connect_session_rig(args, [cam], scene="fingervision_rest",
                               connectors={"camera": sim_camera_connector("fingervision")})
-    return _run(args, rig, lambda rig: fingervision_session(rig.devices[cam], args.out, frames=args.frames,
-                                                            guide=session_guide(args), force=args.force,
-                                                            bench=rig.bench), lambda r: (
+    return _run(args, rig, lambda rig, live: fingervision_session(rig.devices[cam], args.out, frames=args.frames,
+                                                                  guide=session_guide(args), force=args.force,
+                                                                  bench=rig.bench, live=live), lambda r: (
         f"FingerVision: {r['valid_markers']}/{r['markers']} stable markers, median jitter "
-        f"{'n/a' if r['median_marker_jitter_px'] is None else format(r['median_marker_jitter_px'], '.3f')} px"))
+        f"{'n/a' if r['median_marker_jitter_px'] is None else format(r['median_marker_jitter_px'], '.3f')} px"),
+        session_topics("fingervision", cam))

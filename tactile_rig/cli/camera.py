@@ -1,7 +1,8 @@
 """``tactile-rig camera``: the bench's fingertip cameras.
 
     tactile-rig camera list  [--bench B]                 # the bench's cameras, and this machine's V4L2 nodes
-    tactile-rig camera check --bench B [--camera NAME]   # format and locked controls read back, frames arrive
+    tactile-rig camera check --bench B [--camera NAME]   # configured from its model: format, locked controls
+                                                         # read back, the SDK view, frames arrive
     tactile-rig camera grab  --bench B [--camera NAME] [--count N] [--out DIR]
     tactile-rig camera fps   --bench B [--camera NAME] [--duration S]
 """
@@ -48,8 +49,9 @@ def _list(args: argparse.Namespace) -> int:
     rows = []
     if args.bench or args.mock or os.environ.get("TACTILE_RIG_BENCH"):
         bench = bench_from_args(args)
-        rows = [{"camera": k, "port": c.port, "sensor": c.sensor, "format": f"{c.fourcc} {c.width}x{c.height}",
-                 "fps": c.fps, "calibration": str(c.calibration) if c.calibration else None}
+        rows = [{"camera": k, "port": c.port, "sensor": c.sensor, "model": c.model,
+                 "format": f"{c.fourcc} {c.width}x{c.height}", "fps": c.fps,
+                 "calibration": str(c.calibration) if c.calibration else None}
                 for k, c in bench.cameras.items()]
     nodes = video_devices()
     if args.json:
@@ -59,7 +61,8 @@ def _list(args: argparse.Namespace) -> int:
             print_json({"v4l2": n["device"], "links": n["links"]})
         return 0
     for r in rows:
-        print(f"{r['camera']:<22} {r['sensor']:<13} {r['format']:<15} {r['fps']:>6g} fps  {r['port']}")
+        print(f"{r['camera']:<22} {r['sensor']:<13} {r['model'] or '-':<14} {r['format']:<16} {r['fps']:>6g} fps  "
+              f"{r['port']}")
     if not rows:
         print("(no bench given: pass --bench FILE to list its cameras)")
     for n in nodes:
@@ -76,8 +79,23 @@ def _check(args: argparse.Namespace) -> int:
         print_json(row)
     else:
         print(format_check_table([row]))
-        for k, v in row.details.get("controls", {}).items():
-            print(f"  {k:<28} {v}")
+        d = row.details
+        if d.get("model"):
+            print(f"  {'model':<28} {d['model']} ({d['title']})")
+        if "format" in d:
+            print(f"  {'format':<28} {d['format'][0]} {d['format'][1]}x{d['format'][2]} @ {d['format'][3]:g} fps")
+        for k, v in d.get("controls", {}).items():
+            want = d["locked"][k]
+            if v is None:
+                print(f"  {k:<28} not readable (locked at {want:g})")
+            else:
+                print(f"  {k:<28} {v:g}" + ("" if abs(v - want) <= 0.5 else f"  (locked at {want:g})"))
+        if d.get("mains_hz") is None and "controls" in d:
+            print(f"  {'power_line_frequency':<28} not locked: give mains_hz = 50 or 60 in the bench's camera table")
+        if "frame_shape" in d:
+            view = d.get("view") or "the raw frame"
+            print(f"  {'frames':<28} {d['frame_shape'][1]}x{d['frame_shape'][0]} px ({view}), "
+                  f"{d['measured_fps']:g} fps measured")
     return 0 if row.ok else EXIT_FAILED
 
 

@@ -57,14 +57,15 @@ def run(args: argparse.Namespace) -> int:
     else:
         found = discover(sysfs_root=args.sysfs_root, dev_root=args.dev_root, use_pyusb=not args.sysfs_only)
     if args.json:
-        print_json({"devices": [dict(vars(d), usb_id=d.usb_id) for d in found]})
+        print_json({"devices": [dict(vars(d), usb_id=d.usb_id, model=d.model) for d in found]})
         return 0
     if not found:
         print("no known USB devices found")
         return 0
     for d in found:
         nodes = ", ".join(d.tty + d.video) or "(no node)"
-        print(f"{d.kind:20s} {d.usb_id}  {d.port_path:8s} serial={d.serial or '-'}  {nodes}")
+        model = f"  model={d.model}" if d.model else ""
+        print(f"{d.kind:20s} {d.usb_id}  {d.port_path:8s} serial={d.serial or '-'}  {nodes}{model}")
         for link in stable_links(d):
             print(f"{'':20s} {link}")
     return 0

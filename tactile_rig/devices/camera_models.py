@@ -20,7 +20,7 @@ from fractions import Fraction
 __all__ = [
     "UvcControl", "UvcFrame", "UvcFormat", "SdkView", "CameraModel", "CAMERA_MODELS", "camera_model",
     "C310", "GELSIGHT_MINI", "DIGIT", "C310_CONTROLS", "C310_MODES", "V4L2_CID",
-    "fps_of_interval", "interval_of_fps", "udev_sanitize", "uvc_simplify_fraction",
+    "fps_of_interval", "interval_of_fps", "udev_sanitize", "uvc_simplify_fraction", "camera_model_by_usb_kind",
 ]
 
 # V4L2 control ids (linux/v4l2-controls.h) of the controls these cameras expose.
@@ -215,6 +215,9 @@ class CameraModel:
     inactive_write_errno_legacy: int = errno.EIO
     sources: tuple[str, ...] = ()
     notes: tuple[str, ...] = field(default=())
+    has_serial_number: bool = True
+    product_prefix: str | None = None
+    led_controls: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         names = [c.name for c in self.controls]
@@ -223,9 +226,17 @@ class CameraModel:
         for c in self.controls:
             if c.active_when is not None and c.active_when[0] not in names:
                 raise ValueError(f"camera model {self.key}: {c.name} depends on unknown {c.active_when[0]}")
-        for n in self.format_change_resets:
+        for n in (*self.format_change_resets, *self.led_controls):
             if n not in names:
-                raise ValueError(f"camera model {self.key}: format_change_resets names unknown control {n}")
+                raise ValueError(f"camera model {self.key}: {n} is not one of its controls")
+        if self.product_prefix is not None and not (self.product or "").startswith(self.product_prefix):
+            raise ValueError(f"camera model {self.key}: product {self.product!r} does not start with "
+                             f"product_prefix {self.product_prefix!r}")
+
+    @property
+    def usb_kind(self) -> str:
+        """The kind discovery reports for this camera (``camera_c310``, ``camera_gelsight_mini``)."""
+        return "camera_" + self.key.replace("-", "_")
 
     @property
     def card(self) -> str:
@@ -426,6 +437,7 @@ GELSIGHT_MINI = CameraModel(
     formats=(UvcFormat("MJPG", (UvcFrame(3280, 2464, (400000,)),), compressed=True),),
     controls=GELSIGHT_MINI_CONTROLS,
     background="gsmini",
+    product_prefix="GelSight Mini",
     sdk_views=(
         SdkView("gs_sdk", "joehjhuang/gs_sdk gs_sdk/gs_device.py resize_crop (examples/configs/gsmini.yaml)",
                 border_rows=1 / 7, border_cols=1 / 7, keep_aspect=True, output_px=(320, 240)),
@@ -472,6 +484,7 @@ DIGIT = CameraModel(
     bcd_device=0x0200,
     formats=(UvcFormat("YUYV", (UvcFrame(640, 480, (333333, 666666)), UvcFrame(320, 240, (166666, 333333)))),),
     controls=DIGIT_CONTROLS,
+    led_controls=("zoom_absolute",),
     background="digit",
     sdk_views=(
         SdkView("digit-interface", "facebookresearch/digit-interface digit_interface/digit.py Digit.get_frame",
@@ -495,6 +508,11 @@ DIGIT = CameraModel(
 )
 
 CAMERA_MODELS: dict[str, CameraModel] = {m.key: m for m in (C310, GELSIGHT_MINI, DIGIT)}
+
+
+def camera_model_by_usb_kind(kind: str) -> CameraModel | None:
+    """The model discovery reports as ``kind`` (``camera_digit``), or None."""
+    return next((m for m in CAMERA_MODELS.values() if m.usb_kind == kind), None)
 
 
 def camera_model(key: str) -> CameraModel:

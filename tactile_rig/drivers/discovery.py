@@ -1,7 +1,8 @@
 """Which USB device is which node: pyusb enumeration mapped through sysfs to /dev paths.
 
 :func:`discover` lists the known devices (the serial adapters of :mod:`tactile_rig.devices.usb`,
-Arduinos, the C310, GelSight Mini and DIGIT cameras; the table is a parameter) with their bus
+Arduinos, and the cameras of :mod:`tactile_rig.devices.camera_models`: the C310, GelSight Mini and
+DIGIT, each named by its model key as ``bench.toml`` names it; the table is a parameter) with their bus
 location, serial number and nodes: ``/dev/ttyUSBn`` or ``/dev/ttyACMn``, ``/dev/videoN`` (the
 capture node only, ``index`` 0; a UVC camera's metadata node, ``index`` 1, is left out), and the
 stable ``/dev/serial/by-id`` and ``/dev/v4l/by-id`` links (unique per serial number; two adapters
@@ -31,6 +32,7 @@ import usb.backend.libusb1
 import usb.backend.openusb
 import usb.core
 
+from tactile_rig.devices.camera_models import CAMERA_MODELS, camera_model_by_usb_kind
 from tactile_rig.devices.usb import ARDUINO_VENDOR_ID, SERIAL_ADAPTERS
 
 __all__ = ["KNOWN_DEVICES", "DeviceMatch", "UsbDevice", "backend_name", "discover", "match_kind", "parse_decimal",
@@ -52,10 +54,8 @@ class DeviceMatch(NamedTuple):
 KNOWN_DEVICES: tuple[DeviceMatch, ...] = (
     *(DeviceMatch(a.kind, a.vid, a.pid) for a in SERIAL_ADAPTERS if a.vid != ARDUINO_VENDOR_ID),
     DeviceMatch("arduino", ARDUINO_VENDOR_ID),
-    # Camera ids: their home is to be the camera models of tactile_rig.devices.
-    DeviceMatch("camera_c310", 0x046D, 0x081B),
-    DeviceMatch("camera_gelsight_mini", 0x0C45, 0x636D, "GelSight Mini"),  # Arducam's id, shared with its other cameras
-    DeviceMatch("camera_digit", 0x2833, 0x0209),
+    *(DeviceMatch(m.usb_kind, m.vendor_id, m.product_id, m.product_prefix) for m in CAMERA_MODELS.values()
+      if m.vendor_id is not None),
 )
 
 
@@ -75,6 +75,13 @@ class UsbDevice:
     by_id: list[str] = field(default_factory=list)
     by_path: list[str] = field(default_factory=list)
     enumerated_by: str = "sysfs"  # the pyusb backend that listed it ("libusb1", "fake"), or "sysfs"
+
+    @property
+    def model(self) -> str | None:
+        """The camera model key (``c310``, ``gelsight-mini``, ``digit``: what ``bench.toml``'s
+        ``model =`` takes) of a camera, else None."""
+        m = camera_model_by_usb_kind(self.kind)
+        return m.key if m is not None else None
 
     @property
     def usb_id(self) -> str:

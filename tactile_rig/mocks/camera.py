@@ -1,22 +1,21 @@
-"""A simulated UVC fingertip camera, and a fake ``cv2.VideoCapture`` with the V4L2 backend's quirks.
+"""A simulated UVC fingertip camera, in process and on any clock.
 
-:class:`SimulatedCamera` is a :class:`~tactile_rig.drivers.camera.FrameSource`: a UVC control table
-(Logitech C310 values: ranges, steps, menus, manual controls inactive while their auto switch is on,
-controls reset by a format change), frames paced at the configured fps on a :class:`Clock`,
-exposure/gain/white balance applied to the rendered image, optional auto-exposure and
-white-balance drift (so a test proves the driver locked them), and faults: freeze, stall,
+:class:`SimulatedCamera` is a :class:`~tactile_rig.drivers.camera_source.FrameSource`: a UVC control
+table (Logitech C310 values by default: ranges, steps, menus, manual controls inactive while their
+auto switch is on, power-on values after a replug), frames paced at the configured fps on a
+:class:`Clock`, exposure/gain/white balance applied to the rendered image, optional auto-exposure
+and white-balance drift (so a test proves the driver locked them), and faults: freeze, stall,
 unplug/replug, controls the firmware silently ignores, duplicated frames, RGB channel order.
 
-:class:`FakeVideoCapture` wraps one in the ``cv2.VideoCapture`` API the way the V4L2 backend
-behaves: FOURCC re-initialises the stream, width and height apply as a pair, unsupported props
-return False/-1, ``read()`` has no timeout, and after an unplug ``isOpened()`` stays True while
-``read()`` returns ``(False, None)``.
+What it claims a camera does is what OpenCVSource observes on OpenCV's own V4L2 backend over an
+emulated C310 (:mod:`tactile_rig.mocks.v4l2`): ``tests/drivers/test_camera_source_contract.py`` runs
+the same session, faults included, on both. It serves the driver's tests in virtual time and is the
+sensor of the V4L2 emulation and the rehearsal bench's HTTP cameras.
 """
 
 from __future__ import annotations
 
 import math
-import os
 from typing import Any, Callable
 
 import cv2
@@ -25,11 +24,11 @@ import numpy as np
 from tactile_rig.core.clock import Clock, RealClock
 from tactile_rig.core.errors import NotConnected
 from tactile_rig.core.types import RawFrame
-from tactile_rig.devices.camera import canonical_control, fourcc_text
+from tactile_rig.devices.camera import canonical_control
 from tactile_rig.devices.camera_models import C310_CONTROLS, C310_MODES, UvcControl, uvc_size_distance
 from tactile_rig.sim.render.gelsight import SensorNoise
 
-__all__ = ["UvcControl", "C310_CONTROLS", "C310_MODES", "UvcControlTable", "SimulatedCamera", "FakeVideoCapture"]
+__all__ = ["UvcControl", "C310_CONTROLS", "C310_MODES", "UvcControlTable", "SimulatedCamera"]
 # UvcControl, C310_CONTROLS and C310_MODES live in tactile_rig.devices.camera_models; re-exported here.
 
 
@@ -336,117 +335,3 @@ class SimulatedCamera:
                 self._noise.reseed(self._rng)
             out = cv2.add(out, self._noise.sample(), dtype=cv2.CV_8U)
         return out
-
-
-def _select_timeout_s() -> float:
-    """cap_v4l's select() timeout: ``OPENCV_VIDEOIO_V4L_SELECT_TIMEOUT`` seconds, default 10."""
-    try:
-        return max(0.0, float(os.environ.get("OPENCV_VIDEOIO_V4L_SELECT_TIMEOUT", "10")))
-    except ValueError:
-        return 10.0
-
-
-class FakeVideoCapture:
-    """``cv2.VideoCapture`` over a :class:`SimulatedCamera`, with the V4L2 backend's behaviour.
-
-    Construct with ``FakeVideoCapture.factory({"/dev/v4l/by-id/...": sim})`` and pass that as
-    ``OpenCVSource(capture_factory=...)``.
-    """
-
-    _PROPS = {
-        cv2.CAP_PROP_AUTO_EXPOSURE: "auto_exposure", cv2.CAP_PROP_EXPOSURE: "exposure_time_absolute",
-        cv2.CAP_PROP_AUTO_WB: "white_balance_automatic", cv2.CAP_PROP_WB_TEMPERATURE: "white_balance_temperature",
-        cv2.CAP_PROP_GAIN: "gain", cv2.CAP_PROP_BRIGHTNESS: "brightness", cv2.CAP_PROP_CONTRAST: "contrast",
-        cv2.CAP_PROP_SATURATION: "saturation", cv2.CAP_PROP_SHARPNESS: "sharpness",
-        cv2.CAP_PROP_BACKLIGHT: "backlight_compensation",
-    }
-
-    def __init__(self, sim: SimulatedCamera | None) -> None:
-        self.sim = sim
-        self._pending_width: int | None = None
-        self._released = sim is None
-        self._t_ms = 0.0
-        self.buffersize = 4
-        self.select_timeout_s = _select_timeout_s()
-        if sim is not None:
-            try:
-                sim.open()
-            except NotConnected:
-                self._released = True
-
-    @classmethod
-    def factory(cls, devices: dict[str | int, SimulatedCamera]) -> Callable[..., FakeVideoCapture]:
-        def make(device: str | int, api: int | None = None) -> FakeVideoCapture:
-            if api is not None and api != cv2.CAP_V4L2:
-                raise AssertionError(f"FakeVideoCapture emulates CAP_V4L2 only, got api={api}")
-            return cls(devices.get(device))
-
-        return make
-
-    def isOpened(self) -> bool:  # noqa: N802  (cv2 API)
-        return not self._released  # stays True after an unplug, as the V4L2 backend does
-
-    def release(self) -> None:
-        self._released = True
-        if self.sim is not None:
-            self.sim.close()
-
-    def set(self, prop: int, value: float) -> bool:
-        if self._released or self.sim is None or not self.sim.is_open:
-            return False
-        s = self.sim
-        if prop == cv2.CAP_PROP_FOURCC:
-            s.set_format(fourcc_text(value), s.width, s.height, s.fps)  # re-inits the stream; the camera
-            return True                                                   # decides what its controls do
-        if prop == cv2.CAP_PROP_FRAME_WIDTH:
-            self._pending_width = int(value)  # applied together with the height
-            return True
-        if prop == cv2.CAP_PROP_FRAME_HEIGHT:
-            s.set_format(s.fourcc, self._pending_width or s.width, int(value), s.fps)
-            self._pending_width = None
-            return True
-        if prop == cv2.CAP_PROP_FPS:
-            s.set_format(s.fourcc, s.width, s.height, float(value))
-            return True
-        if prop == cv2.CAP_PROP_BUFFERSIZE:
-            self.buffersize = int(value)
-            return 1 <= value <= 10
-        name = self._PROPS.get(prop)
-        if name is None:
-            return False  # "VIDEOIO ERROR: V4L2: property ... is not supported"
-        return s.set_control(name, value)
-
-    def get(self, prop: int) -> float:
-        if self._released or self.sim is None or not self.sim.is_open:
-            return -1.0 if prop not in (cv2.CAP_PROP_FRAME_WIDTH, cv2.CAP_PROP_FRAME_HEIGHT) else 0.0
-        s = self.sim
-        if prop == cv2.CAP_PROP_FOURCC:
-            return float(int(cv2.VideoWriter.fourcc(*s.fourcc)))
-        if prop == cv2.CAP_PROP_FRAME_WIDTH:
-            return float(s.width)
-        if prop == cv2.CAP_PROP_FRAME_HEIGHT:
-            return float(s.height)
-        if prop == cv2.CAP_PROP_FPS:
-            return float(s.fps)
-        if prop == cv2.CAP_PROP_POS_MSEC:
-            return self._t_ms
-        if prop == cv2.CAP_PROP_BUFFERSIZE:
-            return float(self.buffersize)
-        name = self._PROPS.get(prop)
-        v = None if name is None else s.get_control(name)
-        return -1.0 if v is None else float(v)
-
-    def read(self) -> tuple[bool, np.ndarray | None]:
-        """Blocks until a frame comes, at most ``select_timeout_s`` (cap_v4l's select() timeout,
-        ``OPENCV_VIDEOIO_V4L_SELECT_TIMEOUT``, default 10 s); (False, None) on that timeout or when gone."""
-        if self._released or self.sim is None:
-            return False, None
-        try:
-            raw = self.sim.read(self.select_timeout_s)
-        except NotConnected:
-            return False, None
-        if raw is None:
-            return False, None
-        self._t_ms = (raw.t_device_s or 0.0) * 1000.0
-        img = raw.image[..., ::-1].copy() if self.sim.channel_order == "RGB" else raw.image
-        return True, img

@@ -32,11 +32,11 @@ import random
 import select
 import struct
 import termios
-import threading
 import time
 import tty
 
 from tactile_rig.core.clock import Clock, RealClock
+from tactile_rig.mocks.loop_thread import LoopThread
 from tactile_rig.mocks.serial_device import SerialDevice
 
 log = logging.getLogger("tactile_rig.mocks.pty")
@@ -48,7 +48,7 @@ _BAUD_BY_CONSTANT = {
 }
 
 # Below this much time to the next output we spin instead of sleeping in select(). With the
-# server thread's timer slack at 1 µs (see _tighten_timer_slack) a select() wake-up is only a few
+# server thread's timer slack at 1 µs (see _on_thread_start) a select() wake-up is only a few
 # tens of µs late, so a short spin suffices and the server leaves the CPU to the client.
 _SPIN_S = 0.0001
 _PR_SET_TIMERSLACK = 29  # linux/prctl.h
@@ -60,6 +60,19 @@ SETTLE_S = 0.25  # longest wait after an open for the client to set its line rat
 _IN_OPEN, _IN_CLOSE_WRITE, _IN_CLOSE_NOWRITE = 0x20, 0x08, 0x10
 _IN_NONBLOCK, _IN_CLOEXEC = 0o4000, 0o2000000
 _EVENT_HEADER = struct.Struct("iIII")
+
+
+def read_master(fd: int) -> bytes | None:
+    """What a pty master ``fd`` (non-blocking) has to read now (``b""``: nothing yet), or None while
+    no client holds the slave open (the master reads EIO then)."""
+    try:
+        return os.read(fd, 4096)
+    except BlockingIOError:
+        return b""
+    except OSError as exc:
+        if exc.errno == errno.EIO:
+            return None
+        raise
 
 
 class _OpenCloseWatch:
@@ -106,10 +119,10 @@ class _OpenCloseWatch:
             self.fd = None
 
 
-class PtyServer:
+class PtyServer(LoopThread):
     """Serve ``device`` on a new pty pair; ``port`` is the slave path clients open.
 
-    Use as a context manager or call :meth:`start` / :meth:`stop`.
+    Use as a context manager or call :meth:`start` / :meth:`stop`; ``error`` holds what stopped its thread.
     """
 
     def __init__(self, device: SerialDevice, *, clock: Clock | None = None, name: str | None = None) -> None:
@@ -118,6 +131,7 @@ class PtyServer:
         if self.clock.is_virtual:
             raise ValueError("a pty server runs in real time: pass a RealClock (or no clock)")
         self.name = name or device.kind
+        super().__init__(f"pty-{self.name}", log)
         self._master, slave = pty.openpty()
         tty.setraw(self._master)
         self.port = os.ttyname(slave)
@@ -127,37 +141,18 @@ class PtyServer:
         os.set_blocking(self._master, False)
         self._watch = _OpenCloseWatch(self.port)
         self._handles = 0  # client handles open on the slave, as inotify counts them
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
         self.client_open = False
         self.opens = 0
-        self.error: BaseException | None = None
         self._opened_at = 0.0
         self._rng = random.Random(0x5EED)
 
-    # -- lifecycle ---------------------------------------------------------------------------
-    def start(self) -> "PtyServer":
-        if self._thread is None:
-            self._thread = threading.Thread(target=self._run, name=f"pty-{self.name}", daemon=True)
-            self._thread.start()
-        return self
-
-    def stop(self, timeout_s: float = 2.0) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout_s)
-            self._thread = None
+    # -- lifecycle (start, stop, the context manager: LoopThread) ------------------------------
+    def _after_stop(self) -> None:
         try:
             os.close(self._master)
         except OSError:
             pass
         self._watch.close()
-
-    def __enter__(self) -> "PtyServer":
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     # -- the loop -------------------------------------------------------------------------------
     def _client_baud(self) -> int | None:
@@ -167,33 +162,24 @@ class PtyServer:
             return None
         return _BAUD_BY_CONSTANT.get(attrs[5])  # ospeed: what the client configured
 
-    @staticmethod
-    def _tighten_timer_slack() -> None:
+    def _on_thread_start(self) -> None:
         """Linux: this thread's timer slack 50 µs → 1 µs, so timed waits end on time."""
         try:
-            import ctypes
-
             ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_TIMERSLACK, 1000, 0, 0, 0)
         except (OSError, AttributeError):  # not Linux: keep the default slack
             pass
 
-    def _run(self) -> None:
-        self._tighten_timer_slack()
-        try:
-            while not self._stop.is_set():
-                if self._watch.fd is not None:
-                    self._follow_handles()
-                    if self.client_open:
-                        self._serve_once()
-                    else:
-                        time.sleep(_CLOSED_POLL_S)
-                elif not self.client_open:
-                    self._wait_for_open()
-                else:
-                    self._serve_once()
-        except BaseException as exc:  # surfaced to tests through .error; the thread must not die silently
-            self.error = exc
-            log.exception("pty server for %s stopped", self.name)
+    def _once(self) -> None:
+        if self._watch.fd is not None:
+            self._follow_handles()
+            if self.client_open:
+                self._serve_once()
+            else:
+                time.sleep(_CLOSED_POLL_S)
+        elif not self.client_open:
+            self._wait_for_open()
+        else:
+            self._serve_once()
 
     def _follow_handles(self) -> None:
         """With inotify: the device opens when the first client handle opens and closes when the
@@ -209,15 +195,10 @@ class PtyServer:
 
     def _wait_for_open(self) -> None:
         """Without inotify: the master reads EIO while no client holds the slave."""
-        try:
-            data = os.read(self._master, 4096)
-        except BlockingIOError:
-            data = b""
-        except OSError as exc:
-            if exc.errno == errno.EIO:
-                time.sleep(_CLOSED_POLL_S)
-                return
-            raise
+        data = read_master(self._master)
+        if data is None:
+            time.sleep(_CLOSED_POLL_S)
+            return
         self._open_device()
         if data:
             self._feed(data, self.clock.now_s())
@@ -243,13 +224,8 @@ class PtyServer:
         timeout = wait - _SPIN_S if wait > _SPIN_S else 0.0
         readable, _, _ = select.select([self._master], [], [], timeout)
         if readable:
-            try:
-                data = os.read(self._master, 4096)
-            except BlockingIOError:
-                data = b""
-            except OSError as exc:
-                if exc.errno != errno.EIO:
-                    raise
+            data = read_master(self._master)
+            if data is None:
                 if self._watch.fd is None:
                     self._close_device()
                 else:

@@ -20,7 +20,6 @@ Start it with :meth:`PtyRelay.start` or as a context manager; ``error`` holds wh
 
 from __future__ import annotations
 
-import errno
 import logging
 import os
 import pty
@@ -35,6 +34,8 @@ from pathlib import Path
 import serial
 
 from tactile_rig.mocks.faults import FaultInjector
+from tactile_rig.mocks.loop_thread import LoopThread
+from tactile_rig.mocks.pty_server import read_master
 
 log = logging.getLogger("tactile_rig.mocks.relay")
 
@@ -42,7 +43,7 @@ _POLL_S = 0.002
 _SPLIT_GAP_S = 0.002  # the second half of a split chunk follows this much later (a separate read)
 
 
-class PtyRelay:
+class PtyRelay(LoopThread):
     """Relay ``upstream`` (a device path) to a new pty at :attr:`port`, injecting ``faults``."""
 
     def __init__(self, upstream: str, faults: FaultInjector, *, baudrate: int, link_dir: str | None = None,
@@ -51,45 +52,30 @@ class PtyRelay:
         self.faults = faults
         self.baudrate = int(baudrate)
         self.name = name
+        super().__init__(f"relay-{name}", log)
         self._dir = Path(link_dir or tempfile.mkdtemp(prefix="rigrelay-"))
         self.port = str(self._dir / f"{name}-relay")
         self._lock = threading.Lock()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
         self._master: int | None = None
         self._slave_keep: int | None = None
         self._upstream: serial.Serial | None = None
         self._held: deque[tuple[float, bytes]] = deque()
         self._away_until: float | None = None
-        self.error: BaseException | None = None
         self.unplugs = 0
         self.reboots = 0
 
-    # -- lifecycle -------------------------------------------------------------------------------
-    def start(self) -> "PtyRelay":
+    # -- lifecycle (start, stop, the context manager: LoopThread) ------------------------------------
+    def _before_start(self) -> None:
         self._open_upstream()
         self._open_pty()
-        self._thread = threading.Thread(target=self._run, name=f"relay-{self.name}", daemon=True)
-        self._thread.start()
-        return self
 
-    def stop(self, timeout_s: float = 2.0) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout_s)
-            self._thread = None
+    def _after_stop(self) -> None:
         self._close_pty()
         self._close_upstream()
         try:
             os.rmdir(self._dir)
         except OSError:
             pass
-
-    def __enter__(self) -> "PtyRelay":
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     # -- the two sides ----------------------------------------------------------------------------
     def _open_upstream(self) -> None:
@@ -132,14 +118,6 @@ class PtyRelay:
         self._master = self._slave_keep = None
 
     # -- the loop ------------------------------------------------------------------------------------
-    def _run(self) -> None:
-        try:
-            while not self._stop.is_set():
-                self._once()
-        except BaseException as exc:  # surfaced through .error; the thread must not die silently
-            self.error = exc
-            log.exception("relay %s stopped", self.name)
-
     def _once(self) -> None:
         now = time.monotonic()
         if self._away_until is not None:
@@ -157,14 +135,7 @@ class PtyRelay:
             wait = max(0.0, min(wait, self._held[0][0] - now))
         readable, _, _ = select.select([self._master, self._upstream.fileno()], [], [], wait)
         if self._master in readable:
-            try:
-                data = os.read(self._master, 4096)
-            except BlockingIOError:
-                data = b""
-            except OSError as exc:
-                if exc.errno != errno.EIO:
-                    raise
-                data = b""
+            data = read_master(self._master)  # None: the driver has the port closed for now
             if data:
                 self._upstream.write(data)
         if self._upstream.fileno() in readable:

@@ -36,6 +36,25 @@ def open_camera(bench: Bench, name: str) -> Rig:
     return connect_bench(sub)
 
 
+def describe_camera(cam: Any, cfg: Any, *, frames: int = 10) -> dict[str, Any]:
+    """What an open bench camera is, as configured from its bench table (and model) and as found:
+    the model, the format it runs, each locked control as written and as read back now, the vendor
+    SDK view applied to its frames, and ``frames`` frames read (their shape, the measured rate)."""
+    locked = cam.config.locked_controls()
+    readback = cam.read_controls(list(locked))
+    frame = None
+    for _ in range(int(frames)):
+        frame = cam.read(timeout_s=max(2.0, 4.0 / float(cam.config.fps)))
+    view = cam.config.view
+    model = getattr(cfg, "camera_model", None)
+    return {"model": model.key if model is not None else None, "title": model.title if model is not None else None,
+            "format": list(cam.format), "locked": locked, "controls": readback,
+            "mains_hz": getattr(cfg, "mains_hz", None),
+            "view": (f"{view.name}: {view.source}" if view is not None else None),
+            "frame_shape": list(frame.image.shape) if frame is not None else None,
+            "frames": cam.stats.frames, "measured_fps": round(cam.stats.measured_fps, 2)}
+
+
 def video_devices() -> list[dict[str, Any]]:
     """V4L2 capture nodes of this machine with their stable links (by-id, by-path)."""
     links: dict[str, list[str]] = {}

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from tactile_rig.core.errors import RigError
-from tactile_rig.devices.camera import PHOTOMETRIC_CONTROLS
+from tactile_rig.rig.bench_camera import describe_camera
 from tactile_rig.rig.bench import Bench, connect_bench
 
 GRBL_VERSION_PREFIX = "1.1"
@@ -101,14 +101,13 @@ def _jig(dev: Any, cfg: Any, row: CheckRow) -> None:
 
 
 def _camera(dev: Any, cfg: Any, row: CheckRow) -> None:
-    fmt = dev.format
-    readback = {k: dev.source.get_control(k) for k in PHOTOMETRIC_CONTROLS}
-    bad = {k: v for k, v in readback.items() if v is None or abs(v - PHOTOMETRIC_CONTROLS[k]) > 0.5}
-    for _ in range(CAMERA_CHECK_FRAMES):
-        frame = dev.read(timeout_s=max(2.0, 4.0 / cfg.fps))
-    row.identity = f"{fmt[0]} {fmt[1]}x{fmt[2]} @ {fmt[3]:g} fps, {len(readback) - len(bad)}/{len(readback)} controls"
-    row.details = {"format": list(fmt), "controls": readback, "frames": dev.stats.frames,
-                   "measured_fps": round(dev.stats.measured_fps, 2), "frame_shape": list(frame.image.shape)}
+    found = describe_camera(dev, cfg, frames=CAMERA_CHECK_FRAMES)
+    fmt, readback, locked = found["format"], found["controls"], found["locked"]
+    bad = {k: v for k, v in readback.items() if v is None or abs(v - locked[k]) > 0.5}
+    model = f", {cfg.model}" if getattr(cfg, "model", None) else ""
+    row.identity = (f"{fmt[0]} {fmt[1]}x{fmt[2]} @ {fmt[3]:g} fps, {len(readback) - len(bad)}/{len(readback)} "
+                    f"controls{model}")
+    row.details = found
     if bad:
         row.problem = "controls do not read back: " + ", ".join(f"{k}={v}" for k, v in bad.items())
         return

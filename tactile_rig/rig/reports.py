@@ -11,7 +11,7 @@ sessions all call them the same way:
   (force, gripper opening, effort... as the thesis's Figs. 3.4 and 3.16);
 - :func:`error_stats`, :func:`write_summary` (JSON + CSV) and :class:`Report` (the Markdown page).
 
-matplotlib is the optional extra ``report``; it is imported inside the plotting functions.
+matplotlib is the optional extra ``report``; :func:`pyplot` imports it when a figure is drawn.
 """
 
 from __future__ import annotations
@@ -29,7 +29,9 @@ from tactile_rig.core.geometry import wrap_deg
 from tactile_rig.core.jsonable import to_jsonable
 
 
-def _pyplot() -> Any:
+def pyplot() -> Any:
+    """matplotlib's ``pyplot`` on the Agg backend (files only, no window, no display), or
+    ModuleNotFoundError naming the extra that installs it. Every figure the rig draws goes through here."""
     try:
         import matplotlib
     except ModuleNotFoundError as exc:  # pragma: no cover - depends on the install
@@ -71,7 +73,7 @@ def plot_estimated_vs_true(true: Sequence[float] | np.ndarray, est: Sequence[flo
                            quantity: str = "rotation", unit: str = "deg", title: str | None = None,
                            true_label: str | None = None, est_label: str | None = None) -> Path:
     """Estimated against true (Li 2014 Fig. 7b/c): each commanded value's mean ± std, raw points faint."""
-    plt = _pyplot()
+    plt = pyplot()
     t, e = _finite_pair(true, est)
     fig, ax = plt.subplots(figsize=(4.5, 4.2), dpi=100)
     if t.size:
@@ -94,7 +96,7 @@ def plot_estimated_vs_true(true: Sequence[float] | np.ndarray, est: Sequence[flo
 def plot_error_histogram(errors: Sequence[float], path: str | Path, *, quantity: str = "error",
                          unit: str = "", bins: int = 30, title: str | None = None) -> Path:
     """Histogram of errors with the MAE and std in the title."""
-    plt = _pyplot()
+    plt = pyplot()
     e = np.asarray(errors, float).ravel()
     e = e[np.isfinite(e)]
     fig, ax = plt.subplots(figsize=(4.5, 3.4), dpi=100)
@@ -115,7 +117,7 @@ def plot_tactile_map(image: np.ndarray, path: str | Path, *, mm_per_px: tuple[fl
                      title: str = "tactile map", label: str = "height (mm)",
                      points_mm: np.ndarray | None = None) -> Path:
     """A tactile map image (height map or stitched intensity), axes in mm when ``mm_per_px`` is given."""
-    plt = _pyplot()
+    plt = pyplot()
     img = np.asarray(image)
     if img.ndim not in (2, 3) or img.size == 0:
         raise ValueError(f"tactile map must be a non-empty HxW or HxWx3 image, got shape {img.shape}")
@@ -154,7 +156,7 @@ def plot_trace(trace: Any, path: str | Path, *, channels: Sequence[str | Sequenc
     panel (e.g. ``("force_n", "target_force_n")``). ``events`` (label → time in s) are drawn as
     vertical lines on every panel (e.g. "grasp", "slip").
     """
-    plt = _pyplot()
+    plt = pyplot()
     t, chans = _trace_columns(trace)
     panels = [[c] if isinstance(c, str) else list(c) for c in (channels if channels is not None else list(chans))]
     names = [n for group in panels for n in group]
@@ -203,9 +205,7 @@ def _save(fig: Any, path: str | Path) -> Path:
     p.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
     fig.savefig(p, format="png")
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
+    pyplot().close(fig)
     return p
 
 

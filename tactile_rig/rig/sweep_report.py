@@ -18,6 +18,7 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
+from tactile_rig.rig.reports import pyplot
 from tactile_rig.rig.sweep import SweepSummary
 
 # Result fields that describe the run, not the outcome.
@@ -148,14 +149,7 @@ def table_json(rows: list[SweepRow]) -> list[dict[str, Any]]:
 def plot_table(rows: list[SweepRow], path: str | Path, *, figures: Sequence[str] | None = None) -> Path:
     """Success rate and each figure (median, with the worst as a second marker) against the first
     swept parameter; one line per combination of the others. PNG; needs matplotlib."""
-    try:
-        import matplotlib
-    except ModuleNotFoundError as exc:  # pragma: no cover - depends on the install
-        raise ModuleNotFoundError("--plot needs matplotlib: pip install 'tactile-rig[report]'",
-                                  name=exc.name) from exc
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     axes = _swept(rows)
     x_name = axes[0] if axes else None
     figs = list(figures) if figures else []

@@ -3,15 +3,13 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import pytest
 
 from tactile_rig.cli import main
 from tactile_rig.mocks.dynamixel import make_bus
 from tactile_rig.sim.world.fingers import Fingers
-from tactile_rig.testing import serve_in_process
+from tactile_rig.testing import serve_in_process, serve_in_subprocess
 
 
 def test_gripper_state_go_calibrate_reboot(capsys, tmp_path) -> None:
@@ -47,15 +45,9 @@ def test_gripper_unknown_id_exits_2_with_one_line(capsys) -> None:
 def test_mock_serve_prints_the_port_and_serves_protocol_1() -> None:
     import dynamixel_sdk as sdk
 
-    proc = subprocess.Popen([sys.executable, "-m", "tactile_rig.cli", "mock", "serve", "dynamixel",
-                             "--protocol", "1", "--id", "4"], stdout=subprocess.PIPE, text=True)
-    try:
-        info = json.loads(proc.stdout.readline())
+    with serve_in_subprocess("dynamixel", "--protocol", "1", "--id", "4") as info:
         assert (info["protocol"], info["ids"], info["model"], info["baud"]) == (1, [4], 310, 57600)
         port = sdk.PortHandler(info["port"])
         assert port.openPort() and port.setBaudRate(57600)
         assert sdk.PacketHandler(1.0).ping(port, 4) == (310, sdk.COMM_SUCCESS, 0)
         port.closePort()
-    finally:
-        proc.terminate()
-        proc.wait(5)

@@ -10,15 +10,13 @@ A contract test sees only what a driver sees, so it holds on hardware too.
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
 from dataclasses import dataclass, field
 from typing import Iterator
 
 import pytest
 
 from tactile_rig.rig.bench import load_bench
+from tactile_rig.testing.serve import serve_in_subprocess
 
 BACKENDS = ["inprocess", "pty", pytest.param("hw", marks=pytest.mark.hw)]
 
@@ -31,24 +29,6 @@ class Endpoint:
     port: str
     baud: int
     options: dict[str, object] = field(default_factory=dict)
-
-
-def _served(kind: str, args: list[str]) -> Iterator[dict]:
-    proc = subprocess.Popen([sys.executable, "-m", "tactile_rig.cli", "mock", "serve", kind, *args],
-                            stdout=subprocess.PIPE, text=True)
-    try:
-        line = proc.stdout.readline()
-        if not line:
-            raise RuntimeError(f"tactile-rig mock serve {kind} printed nothing (exit {proc.poll()})")
-        yield json.loads(line)
-    finally:
-        proc.terminate()
-        try:
-            proc.wait(5)
-        except subprocess.TimeoutExpired:  # pragma: no cover - a wedged server
-            proc.kill()
-            proc.wait(5)
-        proc.stdout.close()
 
 
 def _hw(request: pytest.FixtureRequest, table: str) -> Endpoint:
@@ -79,7 +59,7 @@ def servo(request: pytest.FixtureRequest) -> Iterator[Endpoint]:
         yield Endpoint(backend, f"rigsim://dynamixel?protocol={protocol}&ids=1&baud={baud}", baud,
                        {"protocol": protocol})
     elif backend == "pty":
-        for info in _served("dynamixel", ["--protocol", str(protocol), "--id", "1", "--baud", str(baud)]):
+        with serve_in_subprocess("dynamixel", "--protocol", str(protocol), "--id", "1", "--baud", str(baud)) as info:
             yield Endpoint(backend, info["port"], baud, {"protocol": protocol})
     else:
         ep = _hw(request, "gripper")
@@ -94,7 +74,7 @@ def scale_endpoint(request: pytest.FixtureRequest) -> Iterator[Endpoint]:
     if request.param == "inprocess":
         yield Endpoint("inprocess", "rigsim://scale?rate=80", 57600)
     elif request.param == "pty":
-        for info in _served("scale", ["--rate", "80", "--param", "boot_s=0.2"]):
+        with serve_in_subprocess("scale", "--rate", "80", "--param", "boot_s=0.2") as info:
             yield Endpoint("pty", info["port"], 57600)
     else:
         yield _hw(request, "scale")
@@ -107,7 +87,7 @@ def jig_endpoint(request: pytest.FixtureRequest) -> Iterator[Endpoint]:
     elif request.param == "pty":
         # Homing disabled: a homing cycle takes ~20 s of real time on the mock as on a jig; the
         # in-process backend runs the full cycle in virtual time.
-        for info in _served("jig", ["--param", "homing=0"]):
+        with serve_in_subprocess("jig", "--param", "homing=0") as info:
             yield Endpoint("pty", info["port"], 115200)
     else:
         yield _hw(request, "jig")

@@ -118,6 +118,35 @@ def _uvc_streaming_formats(config: Configuration) -> list[tuple[str, list[tuple[
     return out
 
 
+def _class_descriptors(extra: bytes) -> list[bytes]:
+    out = []
+    while extra:
+        out.append(extra[:extra[0]])
+        extra = extra[extra[0]:]
+    return [d for d in out if len(d) >= 3 and d[1] == 0x24]
+
+
+def test_the_c310_models_format_and_uvc_facts_are_the_descriptors() -> None:
+    """The rest of what the model says about the C310 against the same descriptors: the UVC version of
+    the VideoControl header, the formats in order with their compressed flag and default frame, and the
+    device's USB identity."""
+    usb = load_model("logitech_c310")
+    config = usb.parsed_configuration()
+    (control,) = [alts[0] for alts in config.interfaces if (alts[0].bInterfaceClass, alts[0].bInterfaceSubClass)
+                  == (0x0E, 0x01)]
+    header = next(d for d in _class_descriptors(control.extra) if d[2] == 0x01)
+    assert struct.unpack_from("<H", header, 3)[0] == C310.uvc_version
+    (streaming,) = [alts[0] for alts in config.interfaces if (alts[0].bInterfaceClass, alts[0].bInterfaceSubClass)
+                    == (0x0E, 0x02)]
+    formats = [d for d in _class_descriptors(streaming.extra) if d[2] in (0x04, 0x06)]
+    # uncompressed (0x04): bDefaultFrameIndex at byte 22; MJPEG (0x06): at byte 6 (UVC 1.1 3.9.2.x)
+    seen = [("YUYV" if d[2] == 0x04 else "MJPG", d[2] == 0x06, d[22 if d[2] == 0x04 else 6] - 1, d[4])
+            for d in formats]
+    assert seen == [(f.fourcc, f.compressed, f.default_frame, len(f.frames)) for f in C310.formats]
+    assert (usb.vid, usb.pid, usb.device.bcdDevice) == (C310.vendor_id, C310.product_id, C310.bcd_device)
+    assert (usb.manufacturer, usb.product) == (None, None) == (C310.manufacturer, C310.product)
+
+
 def test_the_c310_model_is_the_c310s_usb_descriptors() -> None:
     """Two transcriptions of one real C310 (its frame descriptors, as the USB testbed holds them)
     agree with the model: sizes in order, intervals, default intervals, frame buffer sizes."""

@@ -20,6 +20,9 @@ from tactile_rig.drivers.camera import (
     ReopenPolicy,
 )
 from tactile_rig.core.errors import DeviceTimeout, NotConnected
+from tactile_rig.devices.camera import photometric_lock
+from tactile_rig.devices.camera_models import DIGIT, GELSIGHT_MINI
+from tactile_rig.drivers.reconnect import Reconnect
 from tactile_rig.mocks.camera import C310_CONTROLS, SimulatedCamera, UvcControlTable
 
 
@@ -37,8 +40,22 @@ def make(clock=None, **kw):
     clock = clock or VirtualClock()
     sim = SimulatedCamera(scene, clock=clock, width=64, height=48, fps=30,
                           modes={("MJPG", 64, 48): 30, ("YUYV", 64, 48): 15}, **kw)
-    cfg = CameraConfig(width=64, height=48, fps=30, reopen=ReopenPolicy(max_attempts=4, initial_backoff_s=0.1))
-    return clock, sim, FingertipCamera(sim, cfg, clock=clock)
+    cfg = CameraConfig(width=64, height=48, fps=30)
+    policy = Reconnect(clock, initial_s=0.1, factor=2.0, max_s=0.8)
+    return clock, sim, FingertipCamera(sim, cfg, clock=clock, reconnect_policy=policy)
+
+
+def read_through_faults(cam, clock, until_s, timeout_s=0.5):
+    """Frames read until ``until_s`` (clock time); while the camera is away the reads fail fast with
+    NotConnected and time passes in 50 ms steps."""
+    got, away = [], 0
+    while clock.now_s() < until_s:
+        try:
+            got.append(cam.read(timeout_s=timeout_s))
+        except NotConnected:
+            away += 1
+            clock.advance(0.05)
+    return got, away
 
 
 def test_simulated_camera_is_a_frame_source():
@@ -179,34 +196,75 @@ def test_stall_times_out_then_recovers():
         assert f.t_device_s + sim._t0 >= t0 + 1.0
 
 
-def test_disappearance_reopens_and_relocks():
+def test_disappearance_fails_fast_then_reopens_and_relocks():
     clock, sim, cam = make()
     with cam:
         cam.read()
         t0 = clock.now_s()
         sim.unplug(t0 + 0.1, t0 + 0.5)
-        got = []
-        while clock.now_s() < t0 + 1.5:
-            got.append(cam.read(timeout_s=2.0))
-        assert cam.stats.reopens == 1
-        assert sim.table.get("auto_exposure") == 1  # defaults after replug, locked again
-        assert got[-1].t_device_s is not None
+        got, away = read_through_faults(cam, clock, t0 + 1.5)
+        assert away >= 1 and cam.stats.disconnects == 1 and cam.stats.reconnects == 1
+        assert sim.table.get("auto_exposure") == 1  # power-on values after the replug, locked again
+        assert sim.table.get("exposure_dynamic_framerate") == 0  # powers up at 1
         # frames keep coming after the replug, captured after the camera came back
-        assert got[-1].t_device_s + sim._t0 > t0 + 0.5
+        assert got[-1].t_device_s is not None and got[-1].t_device_s + sim._t0 > t0 + 0.5
 
 
-def test_permanent_disappearance_gives_not_connected_after_backoff():
+def test_while_away_reads_fail_fast_naming_the_port_and_the_next_attempt():
     clock, sim, cam = make()
     with cam:
         cam.read()
         t0 = clock.now_s()
-        sim.unplug(t0)
-        with pytest.raises(NotConnected, match="4 reopen attempts"):
+        sim.unplug(t0)  # for good
+        with pytest.raises(NotConnected):
+            cam.read(timeout_s=10.0)  # the read that finds it gone
+        assert clock.now_s() - t0 < 0.1
+        with pytest.raises(NotConnected, match=r"port 'simcam' is gone .*next reconnect attempt in 0\.1 s"):
             cam.read(timeout_s=10.0)
-        # backoff 0.1 + 0.2 + 0.4 + 0.8 s of (virtual) waiting
-        assert clock.now_s() - t0 == pytest.approx(1.5, abs=0.1)
+        assert clock.now_s() - t0 < 0.1  # fails fast: no waiting for the deadline
+        # attempts follow the backoff: 0.1, then 0.2, 0.4, 0.8, 0.8 ... s after each failed one
+        for _ in range(40):
+            clock.advance(0.1)
+            with pytest.raises(NotConnected):
+                cam.read(timeout_s=1.0)
+        lost_s = cam.reconnect_policy.since_s
+        attempts = [lost_s + 0.1, lost_s + 0.3, lost_s + 0.7, lost_s + 1.5, lost_s + 2.3, lost_s + 3.1, lost_s + 3.9]
+        assert cam.reconnect_policy.attempts == sum(a <= clock.now_s() + 1e-9 for a in attempts) == 7
+        assert cam.stats.reconnects == 0 and cam.stats.disconnects == 1
+
+
+def test_old_names_of_the_reconnect_policy_still_work_with_a_warning():
+    clock = VirtualClock()
+    sim = SimulatedCamera(scene, clock=clock, width=64, height=48, fps=30, modes={("MJPG", 64, 48): 30})
+    with pytest.warns(DeprecationWarning, match=r"CameraConfig\(reopen=ReopenPolicy\(\.\.\.\)\) is deprecated"):
+        cfg = CameraConfig(width=64, height=48, fps=30, reopen=ReopenPolicy(initial_backoff_s=0.3, max_backoff_s=1.0))
+    with FingertipCamera(sim, cfg, clock=clock) as cam:
+        assert (cam.reconnect_policy.initial_s, cam.reconnect_policy.max_s) == (0.3, 1.0)
+        cam.stats.reconnects = 2
+        with pytest.warns(DeprecationWarning, match=r"reopens is deprecated: use \.reconnects"):
+            assert cam.stats.reopens == 2
+
+
+def test_a_replugged_camera_that_refuses_its_controls_is_reported_to_the_reader():
+    clock, sim, cam = make()
+    with cam:
+        cam.read()
+        sim.ignore_controls = {"gain"}  # the replugged unit's firmware ignores gain
+        sim.unplug(clock.now_s(), clock.now_s() + 0.05)
+        cam.config.controls = {"auto_exposure": 1, "gain": 10}
         with pytest.raises(NotConnected):
             cam.read()
+        clock.advance(0.1)
+        with pytest.raises(ControlReadbackError, match="gain=10 reads back as 64"):
+            cam.read()  # the reopen: the camera is back and ignores the lock
+        assert not sim.is_open  # not left half-configured
+        clock.advance(0.05)
+        with pytest.raises(ControlReadbackError, match="gain=10"):
+            cam.read()  # until the next attempt, the reader is told why it is away
+        assert cam.stats.reconnects == 0 and cam.reconnect_policy.away
+        sim.ignore_controls = set()  # swapped for a good unit
+        clock.advance(1.0)
+        assert cam.read().image.shape == (48, 64, 3) and cam.stats.reconnects == 1
 
 
 def test_rgb_source_is_converted_to_bgr_once():
@@ -303,18 +361,17 @@ def test_any_fault_schedule_gives_frames_or_typed_errors(faults):
     t0 = clock.now_s()
     for kind, start, length in faults:
         getattr(sim, kind)(t0 + start, t0 + start + length)
-    last_seq, last_dev, gave_up = -1, -1.0, False
+    last_seq, last_dev = -1, -1.0
     while clock.now_s() < t0 + 6.0:
         before = clock.now_s()
         try:
             f = cam.read(timeout_s=0.5)
-        except NotConnected:
-            gave_up = True
-            with pytest.raises(NotConnected):  # once given up, the error sticks
-                cam.read(timeout_s=0.5)
-            break
+        except NotConnected:  # found gone within the read's deadline; while away, fails at once
+            assert clock.now_s() - before <= 0.5 + 1e-6
+            clock.advance(0.05)
+            continue
         except DeviceTimeout:  # includes FrozenStream
-            assert clock.now_s() - before <= 0.5 + 1.6 + 1e-6  # timeout (+ a reopen's backoff)
+            assert clock.now_s() - before <= 0.5 + 1e-6  # the deadline holds
             if clock.now_s() == before:
                 clock.advance(0.1)  # a frozen stream raises at once; let time pass
             continue
@@ -322,9 +379,29 @@ def test_any_fault_schedule_gives_frames_or_typed_errors(faults):
         if not f.duplicate:
             assert f.t_device_s + sim._t0 > last_dev
         last_seq, last_dev = f.seq, f.t_device_s + sim._t0
-    unplugged = any(k == "unplug" for k, _, _ in faults)
-    if not unplugged:
-        assert not gave_up and cam.stats.reopens == 0
-    if not gave_up:  # whatever happened, the camera is back and streaming
-        assert cam.read(timeout_s=1.0).t_device_s + sim._t0 >= t0 + 5.0
-        assert cam.stats.reopens >= int(unplugged)
+    unplugs = sum(1 for k, _, _ in faults if k == "unplug")
+    assert cam.stats.disconnects <= unplugs and cam.stats.reconnects == cam.stats.disconnects
+    if not unplugs:
+        assert cam.stats.disconnects == 0
+    # whatever happened, the camera is back and streaming
+    assert cam.read(timeout_s=1.0).t_device_s + sim._t0 >= t0 + 5.0
+
+
+def test_the_lock_adds_the_power_line_frequency_of_the_mains():
+    clock, sim, cam = make()
+    cam.config.mains_hz = 50
+    with cam:
+        assert sim.table.get("power_line_frequency") == 1 and cam.readback["power_line_frequency"] == 1
+        assert list(cam.config.locked_controls())[:3] == ["auto_exposure", "white_balance_automatic",
+                                                          "exposure_dynamic_framerate"]
+        assert cam.read_controls(["power_line_frequency", "gain"]) == {"power_line_frequency": 1.0, "gain": 64.0}
+    with pytest.raises(ValueError, match="mains_hz=55 must be 50 or 60"):
+        CameraConfig(mains_hz=55)
+
+
+def test_the_lock_of_a_model_holds_the_controls_it_has_at_its_own_defaults():
+    assert photometric_lock(GELSIGHT_MINI, 60) == {
+        "auto_exposure": 1, "exposure_time_absolute": 157, "white_balance_automatic": 0,
+        "white_balance_temperature": 4600, "gain": 0, "exposure_dynamic_framerate": 0, "power_line_frequency": 2}
+    assert photometric_lock(DIGIT, 50) == {"zoom_absolute": 0xFFF}  # its LEDs; it has no power line control
+    assert photometric_lock(None, 50) == {**PHOTOMETRIC_CONTROLS, "power_line_frequency": 1}

@@ -44,6 +44,8 @@ def test_devices_finds_the_bench_through_libusb():
         "/dev/v4l/by-id/usb-Arducam_Technology_Co.__Ltd._GelSight_Mini_R0B_2MOK-7C1A_2MOK7C1A-video-index0"]
     assert k["camera_digit"]["video"] == ["/dev/video4"]
     assert k["camera_digit"]["by_id"] == ["/dev/v4l/by-id/usb-Facebook_DIGIT_D20001-video-index0"]
+    # each camera named by its model, as bench.toml's model = takes it
+    assert [d["model"] for d in found] == [None, None, None, "c310", "gelsight-mini", "digit"]
 
 
 def test_the_real_stack_and_the_mock_agree():
@@ -52,7 +54,7 @@ def test_the_real_stack_and_the_mock_agree():
     real = devices_json()
     with tempfile.TemporaryDirectory() as tmp:
         sysfs, dev = build_fake_tree(tmp)
-        mock = [dict(vars(d), usb_id=d.usb_id) for d in discover(backend=FakeUsbBackend(), sysfs_root=sysfs,
+        mock = [dict(vars(d), usb_id=d.usb_id, model=d.model) for d in discover(backend=FakeUsbBackend(), sysfs_root=sysfs,
                                                                  dev_root=dev)]
         mock = json.loads(json.dumps(mock).replace(str(dev), "/dev"))
     for d in real + mock:

@@ -81,7 +81,7 @@ def test_a_rate_the_hx711_cannot_run_is_a_usage_error(capsys) -> None:
 
 
 def test_a_missing_toolchain_is_one_line_naming_the_packages(monkeypatch, capsys) -> None:
-    monkeypatch.setattr(sf, "missing_toolchain", lambda: ["avr-gcc", "libsimavr headers (/usr/include/simavr)"])
+    monkeypatch.setattr(sf.toolchain, "missing_toolchain", lambda: ["avr-gcc", "libsimavr headers (/usr/include/simavr)"])
     assert main(["mock", "serve", "scale", "--firmware"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "avr-gcc" in err and sf.INSTALL_HINT in err

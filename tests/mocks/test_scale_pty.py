@@ -2,24 +2,19 @@
 
 from __future__ import annotations
 
-import json
 import re
-import subprocess
-import sys
 
 import pytest
 import serial
 
 from tactile_rig.drivers.scale import Scale, parse_line
+from tactile_rig.testing.serve import serve_in_subprocess
 from tactile_rig.testing.strategies_scale import crc8_reference
 
 
 @pytest.mark.pty
 def test_a_plain_pyserial_reader_and_the_driver_read_the_served_scale() -> None:
-    proc = subprocess.Popen([sys.executable, "-m", "tactile_rig.cli", "mock", "serve", "scale", "--rate", "80",
-                             "--param", "boot_s=0.1"], stdout=subprocess.PIPE, text=True)
-    try:
-        info = json.loads(proc.stdout.readline())
+    with serve_in_subprocess("scale", "--rate", "80", "--param", "boot_s=0.1") as info:
         assert info["device"] == "scale" and info["rate_sps"] == 80 and info["boot_s"] == 0.1
         with serial.Serial(info["port"], 57600, timeout=1.0) as ser:
             lines = [ser.readline() for _ in range(12)]
@@ -45,7 +40,3 @@ def test_a_plain_pyserial_reader_and_the_driver_read_the_served_scale() -> None:
             seqs = [r.seq for r in got]
             assert scale.info.rate_sps == 80 and seqs == list(range(seqs[0], seqs[0] + 20))
             assert scale.stats.dropped == 0 and scale.stats.bad_checksum == 0
-    finally:
-        proc.terminate()
-        proc.wait(5)
-        proc.stdout.close()

@@ -10,6 +10,7 @@ import pytest
 
 from tactile_rig.core.errors import BadFile
 from tactile_rig.devices import usb as usb_ids
+from tactile_rig.devices.camera_models import CAMERA_MODELS
 from tactile_rig.drivers.discovery import match_kind
 from tactile_rig.mocks.usb.descriptors import parse_device_descriptor, split_configurations
 from tactile_rig.mocks.usb.models import MODELS_DIR, load_model, model_names
@@ -73,11 +74,31 @@ def test_serial_adapters_take_ids_and_strings_from_their_one_home(name, adapter)
     assert match_kind(m.vid, m.pid, m.product) == adapter.kind
 
 
-@pytest.mark.parametrize("name, kind", [("logitech_c310", "camera_c310"), ("gelsight_mini", "camera_gelsight_mini"),
-                                        ("digit", "camera_digit")])
-def test_camera_models_are_recognised_as_their_kinds(name, kind):
-    m = load_model(name)
-    assert match_kind(m.vid, m.pid, m.product) == kind
+@pytest.mark.parametrize("name, key, kind", [("logitech_c310", "c310", "camera_c310"),
+                                             ("gelsight_mini", "gelsight-mini", "camera_gelsight_mini"),
+                                             ("digit", "digit", "camera_digit")])
+def test_cameras_take_ids_strings_and_bcd_device_from_their_camera_model(name, key, kind):
+    raw = tomllib.loads((MODELS_DIR / f"{name}.toml").read_text())
+    assert raw["camera"] == key
+    assert not {"vendor_id", "product_id", "manufacturer", "product", "has_serial_number"} & set(raw)
+    assert "bcdDevice" not in raw["device"]
+    cam, m = CAMERA_MODELS[key], load_model(name)
+    assert (m.vid, m.pid, m.device.bcdDevice, m.manufacturer, m.product, m.has_serial_number) == (
+        cam.vendor_id, cam.product_id, cam.bcd_device, cam.manufacturer, cam.product, cam.has_serial_number)
+    assert match_kind(m.vid, m.pid, m.product) == kind == cam.usb_kind
+
+
+@pytest.mark.parametrize("edit, problem", [
+    (lambda t: t.replace('camera = "c310"', 'camera = "c920"'), "unknown camera model 'c920'"),
+    (lambda t: t.replace('camera = "c310"', 'camera = "c310"\nvendor_id = 0x046d'), "vendor_id"),
+    (lambda t: t.replace("bMaxPacketSize0 = 64", "bMaxPacketSize0 = 64\nbcdDevice = 0x0010"), "bcdDevice"),
+])
+def test_a_camera_file_restating_its_models_facts_is_refused(tmp_path, edit, problem):
+    path = tmp_path / "cam.toml"
+    path.write_text(edit((MODELS_DIR / "logitech_c310.toml").read_text()))
+    load_model.cache_clear()
+    with pytest.raises(BadFile, match=problem):
+        load_model(str(path))
 
 
 def test_u2d2_device_descriptor_is_the_published_one():

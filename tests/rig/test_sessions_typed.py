@@ -1,4 +1,4 @@
-"""The sessions end to end: ``record``, a calibration session, a jig accuracy run and
+"""The sessions end to end: ``record``, a calibration session (``--live`` too), a jig accuracy run and
 ``fingervision track --bench --live --record`` write (and serve) Foxglove's types, which the field's
 reader (``mcap`` + ``mcap-protobuf-support``) decodes, and ``export ros2`` turns each into a bag that
 rosbags reads with the standard types."""
@@ -11,8 +11,10 @@ import threading
 from pathlib import Path
 
 import pytest
+from mcap.reader import make_reader
 
 from tactile_rig.cli import main
+from tactile_rig.cli.calibrate_sessions import session_topics
 from tactile_rig.rig.rehearsal import RehearsalBench, RehearsalOptions
 from tests._foxglove_client import LiveClient
 from tests._typed import bag_messages, full_names, typed_messages
@@ -43,14 +45,29 @@ def test_record_on_the_mock_bench(tmp_path: Path, capsys) -> None:
                      "/jig/pose": "geometry_msgs/msg/PoseStamped", "/scale/force": "geometry_msgs/msg/WrenchStamped"}
 
 
-def test_a_gelsight_calibration_session(tmp_path: Path, capsys) -> None:
-    assert main(["calibrate", "gelsight", "--mock", "--out", str(tmp_path / "gel"), "--json"]) == 0
+def test_a_gelsight_calibration_session_records_and_serves_the_same_messages(tmp_path: Path, capsys) -> None:
+    port = _free_port()
+    client = LiveClient(f"ws://127.0.0.1:{port}")
+    rc: list[int] = []
+    run = threading.Thread(target=lambda: rc.append(main([
+        "calibrate", "gelsight", "--mock", "--out", str(tmp_path / "gel"), "--json",
+        "--live", "--live-port", str(port), "--live-wait", "30"])))
+    run.start()
+    client.start()
+    run.join(120)
+    client.stop()
+    assert rc == [0]
     capsys.readouterr()
-    rec = tmp_path / "gel.mcap"
+    rec = tmp_path / "gel-v1.mcap"
     msgs = typed_messages(rec)
     assert full_names(msgs) == {"/camera/image/compressed": "foxglove.CompressedImage",
                                 "/tf": "foxglove.FrameTransforms", "/log": "foxglove.Log"}
     assert all(m.format == "png" for _, m, _ in msgs["/camera/image/compressed"])
+    # Live: the same topics in the same types, and the very bytes recorded (subscribed before the start).
+    for topic in ("/camera/image/compressed", "/tf"):
+        assert client.advertised[topic] == full_names(msgs)[topic]
+        got = client.on(topic)
+        assert got and [m.raw for m in got] == [m[1].SerializeToString() for m in msgs[topic]][: len(got)]
     types = _export(rec, tmp_path / "bag", capsys)
     assert types["/camera/image/compressed"] == "sensor_msgs/msg/CompressedImage"
     assert types["/rosout"] == "rcl_interfaces/msg/Log" and types["/tf"] == "tf2_msgs/msg/TFMessage"
@@ -120,3 +137,16 @@ def test_fingervision_track_live_serves_and_records_the_marker_field(tmp_path: P
     assert len(got) >= 35 and got[-1].message.entities[0].frame_id == "camera_fingervision"
     types = _export(out, tmp_path / "bag", capsys)
     assert types["/camera_fingervision/marker_arrows"] == "visualization_msgs/msg/MarkerArray"
+
+
+@pytest.mark.parametrize("kind,args,camera", [
+    ("gelsight", [], "camera"), ("scale", ["--known-mass-g", "500"], None), ("gripper", [], None),
+    ("fingervision", ["--frames", "3"], "camera")])
+def test_a_calibration_session_advertises_what_it_records(tmp_path: Path, capsys, kind: str, args: list[str],
+                                                          camera: str | None) -> None:
+    """What ``--live`` advertises before a session starts is exactly what the session records."""
+    assert main(["calibrate", kind, "--mock", "--out", str(tmp_path / "c"), "--json", *args]) == 0
+    recording = Path(json.loads(capsys.readouterr().out)["files"]["recording"])
+    with open(recording, "rb") as fh:
+        recorded = {ch.topic: schema.name for schema, ch, _ in make_reader(fh).iter_messages()}
+    assert recorded == session_topics(kind, camera)

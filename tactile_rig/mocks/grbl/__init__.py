@@ -4,7 +4,8 @@ The package splits the firmware along its own seams: :mod:`.gcode` (the parser, 
 :mod:`.report` (everything GRBL prints, pure), :mod:`.planner` and :mod:`.homing` (motion
 planning, pure numerics), :mod:`.system` (``$`` commands), :mod:`.motion_control` (G-code
 execution, homing and probing as jobs of the protocol loop), :mod:`.stepper` (the executing block
-in time) and :mod:`.firmware` (bytes, the protocol loop, alarms, resets, reports, time).
+in time), :mod:`.machine` (the jig's settings, machine and stage coordinates, switches, probe) and
+:mod:`.firmware` (bytes, the protocol loop, alarms, resets, reports, time).
 ``rigsim://jig?...`` builds a :class:`GrblMock`.
 """
 

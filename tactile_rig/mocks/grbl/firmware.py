@@ -24,9 +24,9 @@ homing) stores in the EEPROM's G54 the machine position of the stage's zero, as 
 jig once (jog there, ``G10 L20 P1 X0 Y0 Z0``): work coordinates are then the stage pose. The switch
 positions sit on whole motor steps from the stage's zero, so that zero is a reachable position.
 
-The module is over 500 lines because it is one job, the firmware's protocol loop (main.c,
-protocol.c, serial.c): the receive ring, the line buffer, the realtime flags and the alarm and reset
-states are one state machine; parsing, ``$`` commands, reports, planning and homing live beside it.
+This module is the protocol loop (main.c, protocol.c, serial.c): the receive ring, the line buffer,
+the realtime flags, the alarm and reset states. Parsing, ``$`` commands, reports, planning, motion,
+homing and the machine's settings and geometry are the modules beside it.
 """
 
 from __future__ import annotations
@@ -42,8 +42,9 @@ import tactile_rig.mocks.grbl.system as system
 from tactile_rig.core.clock import Clock
 from tactile_rig.devices import grbl as gp
 from tactile_rig.mocks.grbl.homing import HomingLeg
+from tactile_rig.mocks.grbl.machine import Machine, default_settings
 from tactile_rig.mocks.grbl.motion_control import OK, Job, MotionControl, Wait
-from tactile_rig.mocks.grbl.planner import Limits, Planner, Profile, round_half_away
+from tactile_rig.mocks.grbl.planner import Planner, Profile
 from tactile_rig.mocks.grbl.stepper import Stepper
 from tactile_rig.mocks.serial_device import SerialDevice
 from tactile_rig.sim.world.stage import Stage
@@ -55,23 +56,7 @@ LINE_BUFFER_SIZE = 80  # protocol.h: 79 characters and the terminator
 RT_JOG_CANCEL, RT_SAFETY_DOOR = 0x85, 0x84
 
 
-def default_settings(axes: int = 3, theta_axis: str = "Z") -> dict[int, float]:
-    """The jig's settings: ±20 mm in x/y on 2 mm leadscrews, θ ±180° on a 4:1 belt."""
-    s: dict[int, float] = {0: 10, 1: 25, 2: 0, 3: 0, 4: 0, 5: 0, 6: 0, 10: 1, 11: 0.010, 12: 0.002, 13: 0,
-                           20: 1, 21: 1, 22: 1, 23: 0, 24: 100.0, 25: 1200.0, 26: 250, 27: 1.0,
-                           30: 1000.0, 31: 0.0, 32: 0}
-    xy = (1600.0, 1200.0, 100.0, 40.0)  # steps/mm (200×16 / 2 mm), mm/min, mm/s², travel mm
-    theta = (35.556, 3600.0, 360.0, 360.0)  # steps/deg (200×16×4/360), deg/min, deg/s², deg
-    lift = (400.0, 300.0, 10.0, 20.0)  # an unused Z on grblHAL
-    per_axis = [xy, xy, theta if theta_axis == "Z" else lift]
-    if axes == 4:
-        per_axis.append(theta)
-    for i, (steps, rate, acc, travel) in enumerate(per_axis):
-        s[100 + i], s[110 + i], s[120 + i], s[130 + i] = steps, rate, acc, travel
-    return s
-
-
-class GrblMock(MotionControl, Stepper, SerialDevice):
+class GrblMock(MotionControl, Stepper, Machine, SerialDevice):
     """GRBL 1.1h on a serial line; see the module docstring. The stage pose is physical truth."""
 
     kind = "jig"
@@ -130,59 +115,6 @@ class GrblMock(MotionControl, Stepper, SerialDevice):
         self._active: Profile | None = None
         self._home_leg: HomingLeg | None = None
         self._power_up(self._t_now, emit=False)
-
-    # == geometry ==================================================================================
-    def _travel(self) -> np.ndarray:
-        return np.array([self.settings[130 + i] for i in range(self.n_axes)], float)
-
-    def _limits(self) -> Limits:
-        return Limits(np.array([self.settings[100 + i] for i in range(self.n_axes)], float),
-                      np.array([self.settings[110 + i] for i in range(self.n_axes)], float),
-                      np.array([self.settings[120 + i] for i in range(self.n_axes)], float),
-                      float(self.settings[11]))
-
-    def _switch_positions(self) -> tuple[np.ndarray, np.ndarray]:
-        lo, hi = -self._travel() / 2.0, self._travel() / 2.0
-        ranges = (self.stage.x_range_mm, self.stage.y_range_mm, self.stage.theta_range_deg)
-        for axis, k in self._stage_axes.items():
-            lo[axis], hi[axis] = ranges[k]
-        steps = self._steps()
-        return np.round(lo * steps) / steps, np.round(hi * steps) / steps
-
-    def _phys_from_stage(self) -> np.ndarray:
-        p = np.zeros(self.n_axes)
-        pose = self.stage.pose()
-        for axis, k in self._stage_axes.items():
-            p[axis] = pose[k]
-        return p
-
-    def phys(self, pos: np.ndarray | None = None) -> np.ndarray:
-        """Physical position (the stage's frame) of a machine position (default: the current one)."""
-        return self.origin + (self.pos if pos is None else pos)
-
-    def _steps(self) -> np.ndarray:
-        return np.array([self.settings[100 + i] for i in range(self.n_axes)], float)
-
-    def _quantize(self, p: np.ndarray) -> np.ndarray:
-        s = self._steps()
-        return np.array([round_half_away(v * k) for v, k in zip(p, s)]) / s
-
-    def _pressed(self, pos: np.ndarray | None = None) -> list[int]:
-        ph = self.phys(pos)
-        return [i for i in range(self.n_axes) if ph[i] > self.phys_hi[i] + 1e-9 or ph[i] < self.phys_lo[i] - 1e-9]
-
-    def _probe_closed(self, pos: np.ndarray | None = None, *, away: bool = False) -> bool:
-        ph = self.phys(pos)
-        touching = self.stage.probe_touching(float(ph[0]), float(ph[1]), float(ph[self.theta_index]))
-        return (touching != bool(self.settings[6])) != away
-
-    def _write_stage(self, t_s: float) -> None:
-        ph = self.phys()
-        self.stage.set_pose(float(ph[0]), float(ph[1]), float(ph[self.theta_index]), t_s)
-
-    @property
-    def wco(self) -> np.ndarray:
-        return self.gc.wco(2)
 
     # == power-up, resets, banner =================================================================
     def _power_up(self, t_s: float, *, emit: bool = True) -> None:

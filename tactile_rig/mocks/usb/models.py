@@ -5,8 +5,10 @@ A model file is TOML: ``[device]`` holds the device descriptor's fields, ``[desc
 configuration`` the configuration in the text form of :mod:`.descriptors`, ``[interfaces.N]`` the
 driver of interface N and the nodes it creates (``tty``, ``video``, ``video-metadata``). A serial
 adapter names its ``adapter`` kind and takes its ids and strings from
-:mod:`tactile_rig.devices.usb`; any other device states ``vendor_id``, ``product_id``,
-``manufacturer``, ``product`` and ``has_serial_number`` itself. Every file cites where its facts
+:mod:`tactile_rig.devices.usb`; a camera names its ``camera`` model and takes its ids, strings,
+serial-number presence and ``bcdDevice`` from :mod:`tactile_rig.devices.camera_models` (the file
+must not restate them); any other device states ``vendor_id``, ``product_id``, ``manufacturer``,
+``product`` and ``has_serial_number`` itself. Every file cites where its facts
 come from. Loading checks the descriptors as a host would (lengths, counts, ``wTotalLength``) and
 that the strings the descriptor points at exist, so a model that loads is one libusb can read.
 """
@@ -20,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from tactile_rig.core.errors import BadFile, LinkCorrupt
+from tactile_rig.devices.camera_models import camera_model
 from tactile_rig.devices.usb import serial_adapter
 from tactile_rig.mocks.usb.descriptors import (Configuration, DeviceDescriptor, assemble, parse_configuration)
 
@@ -111,8 +114,26 @@ def _parse(path: Path, data: dict[str, Any]) -> UsbModel:
     fields = data.get("device")
     if not isinstance(fields, dict):
         raise BadFile(where, "no [device] table", "the device descriptor's fields")
+    camera = None
+    if "camera" in data:
+        try:
+            camera = camera_model(str(data["camera"]))
+        except ValueError as e:
+            raise BadFile(where, str(e), "a key of tactile_rig.devices.camera_models.CAMERA_MODELS") from None
+        restated = sorted({"vendor_id", "product_id", "manufacturer", "product", "has_serial_number"} & set(data)
+                          | ({"bcdDevice"} & set(fields)))
+        if restated:
+            raise BadFile(where, f"camera = {camera.key!r} and {', '.join(restated)}",
+                          "no ids, strings or bcdDevice beside camera = (they come from its camera model)")
+        if camera.vendor_id is None or camera.product_id is None or camera.bcd_device is None:
+            raise BadFile(where, f"camera model {camera.key!r} has no USB ids or bcdDevice", "a USB camera model")
+        fields = {**fields, "bcdDevice": camera.bcd_device}
     values = {k: _int(fields, k, where, 0, 0xFFFF if k.startswith(("bcd", "id")) else 0xFF) for k in _DEVICE_FIELDS}
-    if "adapter" in data:
+    if camera is not None:
+        assert camera.vendor_id is not None and camera.product_id is not None
+        vid, pid = camera.vendor_id, camera.product_id
+        manufacturer, product, has_serial = camera.manufacturer, camera.product, camera.has_serial_number
+    elif "adapter" in data:
         try:
             adapter = serial_adapter(str(data["adapter"]))
         except KeyError as e:

@@ -10,6 +10,7 @@ number), so a mismatch is caught rather than served.
 from __future__ import annotations
 
 import ctypes as C
+from typing import TypeVar
 
 # -- ioctl encoding (asm-generic/ioctl.h) -------------------------------------------------------------
 _IOC_NRBITS, _IOC_TYPEBITS, _IOC_SIZEBITS = 8, 8, 14
@@ -401,3 +402,19 @@ def fourcc_str(code: int) -> str:
 # Format descriptions the V4L2 core fills in for ENUM_FMT (v4l2-ioctl.c, v4l_fill_fmtdesc).
 FORMAT_DESCRIPTIONS = {"YUYV": "YUYV 4:2:2", "MJPG": "Motion-JPEG"}
 
+
+
+_S = TypeVar("_S", bound=C.Structure)
+
+
+def parse_struct(cls: type[_S], payload: bytes) -> _S:
+    """An ioctl argument of type ``cls`` from the bytes the client sent (short input zero-padded)."""
+    size = C.sizeof(cls)
+    return cls.from_buffer_copy(payload[:size].ljust(size, b"\0"))
+
+
+def clear_after(s: C.Structure, name: str) -> None:
+    """Zero every byte after field ``name`` (the V4L2 core's INFO_FL_CLEAR / memset_after)."""
+    f = getattr(type(s), name)
+    end = f.offset + f.size
+    C.memset(C.addressof(s) + end, 0, C.sizeof(s) - end)

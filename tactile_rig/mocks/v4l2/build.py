@@ -1,6 +1,7 @@
 """Build the preload library (``preload.c``, shipped with the package) with the system C compiler,
-once per source version, into the cache (``$TACTILE_RIG_CACHE``, else ``$XDG_CACHE_HOME/tactile-rig``,
-else ``~/.cache/tactile-rig``), under a key hashing the source, the flags and the compiler's version.
+once per source version, into the native build cache (:mod:`tactile_rig.mocks.native_build`:
+``$TACTILE_RIG_CACHE``, else ``$XDG_CACHE_HOME/tactile-rig``, else ``~/.cache/tactile-rig``), under a
+key hashing the source, the flags and the compiler's version.
 
 Needs ``apt-get install gcc libc6-dev`` (``cc``, the C library's headers and ``linux/videodev2.h``);
 :func:`toolchain_problem` says what is missing in one line.
@@ -8,16 +9,11 @@ Needs ``apt-get install gcc libc6-dev`` (``cc``, the C library's headers and ``l
 
 from __future__ import annotations
 
-import hashlib
-import os
 import shutil
-import subprocess
-import tempfile
-import threading
 from pathlib import Path
 
+import tactile_rig.mocks.native_build as native_build
 from tactile_rig.core.errors import RigError
-from tactile_rig.mocks.scale_firmware import cache_root
 
 SOURCE = Path(__file__).resolve().parent / "preload.c"
 LIBRARY_NAME = "libtactile_rig_v4l2.so"
@@ -60,22 +56,14 @@ def toolchain_problem() -> str | None:
     return f"the V4L2 camera emulation needs {', '.join(missing)}: {INSTALL_HINT}"
 
 
-def _compiler_version() -> str:
-    try:
-        return subprocess.run(["cc", "--version"], capture_output=True, text=True, timeout=30).stdout.split("\n")[0]
-    except (OSError, subprocess.SubprocessError):
-        return "?"
-
-
 def build_key() -> str:
-    h = hashlib.sha256()
-    h.update(SOURCE.read_bytes())
-    h.update(" ".join(CFLAGS + LIBS).encode())
-    h.update(_compiler_version().encode())
-    return h.hexdigest()[:16]
+    """The cache key: the source, the flags and the compiler's version."""
+    return native_build.build_key([SOURCE], [" ".join(CFLAGS + LIBS), native_build.tool_version("cc")])
 
 
-_lock = threading.Lock()
+def _compile(out: Path) -> None:
+    native_build.run_build_command(["cc", *CFLAGS, "-o", str(out / LIBRARY_NAME), str(SOURCE), *LIBS],
+                                   timeout_s=300, error=PreloadBuildError, device="v4l2 preload")
 
 
 def build(*, force: bool = False) -> Path:
@@ -83,29 +71,4 @@ def build(*, force: bool = False) -> Path:
     problem = toolchain_problem()
     if problem is not None:
         raise PreloadUnavailable(problem, device="v4l2 preload")
-    with _lock:
-        out = cache_root() / "v4l2" / build_key()
-        lib = out / LIBRARY_NAME
-        if force and out.exists():
-            shutil.rmtree(out)
-        if lib.is_file():
-            return lib
-        out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=".build-", dir=out.parent))
-        try:
-            cmd = ["cc", *CFLAGS, "-o", str(tmp / LIBRARY_NAME), str(SOURCE), *LIBS]
-            try:
-                done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
-            except subprocess.TimeoutExpired:
-                raise PreloadBuildError(f"'{' '.join(cmd)}' took over 300 s", device="v4l2 preload") from None
-            if done.returncode != 0:
-                tail = "\n".join((done.stdout + done.stderr).strip().splitlines()[-15:])
-                raise PreloadBuildError(f"'{' '.join(cmd)}' failed:\n{tail}", device="v4l2 preload")
-            try:
-                os.rename(tmp, out)  # atomic: a concurrent build of the same key loses the race cleanly
-            except OSError:
-                shutil.rmtree(tmp, ignore_errors=True)
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
-        return lib
+    return native_build.cached_build("v4l2", build_key(), _compile, complete=LIBRARY_NAME, force=force) / LIBRARY_NAME

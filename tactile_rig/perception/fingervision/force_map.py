@@ -14,23 +14,19 @@ first. Either way :meth:`ForceMapModel.from_saved` refuses arrays whose shapes d
 
 from __future__ import annotations
 
-import json
 import warnings
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from tactile_rig.core.envelope import FileFormat
-from tactile_rig.core.jsonable import to_jsonable
 from tactile_rig.perception.fingervision.learned import (
+    SavedModel,
     check_features,
     checked_envelope,
     feature_names,
-    model_paths,
     one_blas_thread,
-    read_saved,
     require_sklearn,
     saved_array,
 )
@@ -46,8 +42,11 @@ _PREDICT_BLOCK = 2048  # rows per kernel block: bounded memory for long recordin
 
 
 @dataclass
-class ForceMapModel:
+class ForceMapModel(SavedModel):
     """Marker features (px) -> force (N) by RBF kernel ridge regression; numpy-only prediction."""
+
+    FILE = FORCE_MAP_FILE
+    DEVICE = "force-map"
 
     center: np.ndarray
     scale: np.ndarray
@@ -94,20 +93,6 @@ class ForceMapModel:
         return {**FORCE_MAP_FILE.header(), "kernel": "rbf", "gamma": self.gamma, "alpha": self.alpha,
                 "features": list(self.feature_names), "n_train": int(self.x_fit.shape[0]), "arrays": arrays_name,
                 **self.meta}
-
-    def save(self, path: str | Path) -> tuple[Path, Path]:
-        """Write ``<stem>.npz`` (arrays) and ``<stem>.json`` (metadata); no pickle anywhere."""
-        npz, js = model_paths(path)
-        npz.parent.mkdir(parents=True, exist_ok=True)
-        np.savez(npz, **self.to_arrays())
-        js.write_text(json.dumps(to_jsonable(self.metadata(npz.name)), indent=1) + "\n", encoding="utf-8")
-        return npz, js
-
-    @classmethod
-    def load(cls, path: str | Path) -> "ForceMapModel":
-        """The model saved at ``path`` (stem, ``.npz`` or ``.json``); CalibrationError naming the file."""
-        meta, arrays, npz = read_saved(path, FORCE_MAP_FILE, "force-map")
-        return cls.from_saved(meta, arrays, str(npz))
 
     @classmethod
     def from_saved(cls, meta: Mapping[str, Any], arrays: Mapping[str, np.ndarray],

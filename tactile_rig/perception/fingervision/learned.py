@@ -11,15 +11,18 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, ClassVar, Mapping, TypeVar
 
 import numpy as np
 
 from tactile_rig.core.envelope import FileFormat
 from tactile_rig.core.errors import BadFile, CalibrationError
+from tactile_rig.core.jsonable import to_jsonable
 
-__all__ = ["check_features", "checked_envelope", "feature_names", "model_paths", "one_blas_thread", "read_saved",
-           "require_sklearn", "saved_array"]
+__all__ = ["SavedModel", "check_features", "checked_envelope", "feature_names", "model_paths", "one_blas_thread",
+           "read_saved", "require_sklearn", "saved_array"]
+
+M = TypeVar("M", bound="SavedModel")
 
 
 def require_sklearn() -> None:
@@ -114,3 +117,40 @@ def feature_names(meta: Mapping[str, Any], default: tuple[str, ...], source: str
         raise CalibrationError(f"{source}: 'features' is {names!r}; {len(default)} names ({', '.join(default)}) "
                                "are needed", device=device)
     return tuple(names)
+
+
+class SavedModel:
+    """What every learned model does with its files: :meth:`save` writes ``<stem>.npz`` (its arrays, no
+    pickle) and ``<stem>.json`` (its envelope and metadata); :meth:`load` reads them back as written
+    and hands them to the model's own checks. A model sets ``FILE`` (its envelope), ``DEVICE`` (the
+    name its errors carry) and provides :meth:`to_arrays`, :meth:`metadata` and :meth:`from_saved`."""
+
+    FILE: ClassVar[FileFormat]
+    DEVICE: ClassVar[str]
+
+    def to_arrays(self) -> dict[str, Any]:
+        """What ``<stem>.npz`` holds."""
+        raise NotImplementedError
+
+    def metadata(self, arrays_name: str) -> dict[str, Any]:
+        """What ``<stem>.json`` holds (``arrays_name``: the ``.npz`` beside it)."""
+        raise NotImplementedError
+
+    @classmethod
+    def from_saved(cls: type[M], meta: Mapping[str, Any], arrays: Mapping[str, np.ndarray], source: str = "") -> M:
+        """The model from its metadata and arrays, every one checked; CalibrationError naming ``source``."""
+        raise NotImplementedError
+
+    def save(self, path: str | Path) -> tuple[Path, Path]:
+        """Write ``<stem>.npz`` (arrays) and ``<stem>.json`` (metadata); no pickle anywhere."""
+        npz, js = model_paths(path)
+        npz.parent.mkdir(parents=True, exist_ok=True)
+        np.savez(npz, **self.to_arrays())
+        js.write_text(json.dumps(to_jsonable(self.metadata(npz.name)), indent=1) + "\n", encoding="utf-8")
+        return npz, js
+
+    @classmethod
+    def load(cls: type[M], path: str | Path) -> M:
+        """The model saved at ``path`` (stem, ``.npz`` or ``.json``); CalibrationError naming the file."""
+        meta, arrays, npz = read_saved(path, cls.FILE, cls.DEVICE)
+        return cls.from_saved(meta, arrays, str(npz))

@@ -243,7 +243,8 @@ class FingerVision:
             self._late_ids(value, bg, contrast)
         tracker = self.tracker
         assert tracker is not None
-        st = tracker.update(contrast, t_s)
+        # the refinement frames are still by definition: markers are measured around their rest positions
+        st = tracker.update(contrast, t_s, at_rest=self._refine_left > 0)
         if self._refine_left > 0:
             if len(self._bg_frames) < self.params.n_background_frames:
                 self._bg_frames.append(frame)

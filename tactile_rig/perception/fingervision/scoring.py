@@ -25,15 +25,12 @@ import numpy as np
 __all__ = ["FrameScore", "SequenceScore", "match_frame", "score_sequence"]
 
 
-@dataclass(frozen=True)
-class FrameScore:
-    """One frame: counts, the matches (predicted index -> true index) and the matched centre errors."""
+class _Rates:
+    """Precision and recall of a score's counts (true positives, false positives, false negatives)."""
 
     tp: int
     fp: int
     fn: int
-    matches: dict[int, int]
-    errors_px: list[float] = field(default_factory=list)
 
     @property
     def precision(self) -> float:
@@ -47,7 +44,18 @@ class FrameScore:
 
 
 @dataclass(frozen=True)
-class SequenceScore:
+class FrameScore(_Rates):
+    """One frame: counts, the matches (predicted index -> true index) and the matched centre errors."""
+
+    tp: int
+    fp: int
+    fn: int
+    matches: dict[int, int]
+    errors_px: list[float] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class SequenceScore(_Rates):
     """A sequence: summed counts, id switches, mean centre error (px) and the per-frame scores."""
 
     tp: int
@@ -56,14 +64,6 @@ class SequenceScore:
     id_switches: int
     mean_error_px: float
     frames: list[FrameScore]
-
-    @property
-    def precision(self) -> float:
-        return self.tp / (self.tp + self.fp) if self.tp + self.fp else 1.0
-
-    @property
-    def recall(self) -> float:
-        return self.tp / (self.tp + self.fn) if self.tp + self.fn else 1.0
 
     def to_dict(self) -> dict[str, float | int]:
         return {"precision": self.precision, "recall": self.recall, "tp": self.tp, "fp": self.fp,

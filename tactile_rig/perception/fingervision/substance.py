@@ -11,24 +11,20 @@ the envelope :data:`SUBSTANCE_FILE`.
 
 from __future__ import annotations
 
-import json
 import warnings
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from tactile_rig.core.envelope import FileFormat
 from tactile_rig.core.errors import CalibrationError
-from tactile_rig.core.jsonable import to_jsonable
 from tactile_rig.perception.fingervision.learned import (
+    SavedModel,
     check_features,
     checked_envelope,
     feature_names,
-    model_paths,
     one_blas_thread,
-    read_saved,
     require_sklearn,
     saved_array,
 )
@@ -71,8 +67,11 @@ def stirring_features(series: np.ndarray, rate_hz: float, *, window_s: float = 2
 
 
 @dataclass
-class SubstanceModel:
+class SubstanceModel(SavedModel):
     """Stirring features → substance, an MLP with logistic units; numpy-only prediction."""
+
+    FILE = SUBSTANCE_FILE
+    DEVICE = "substance"
 
     center: np.ndarray
     scale: np.ndarray
@@ -113,20 +112,6 @@ class SubstanceModel:
         return {**SUBSTANCE_FILE.header(), "classes": self.classes, "layers": len(self.weights),
                 "activation": "logistic", "out_activation": self.out_activation,
                 "features": list(self.feature_names), "arrays": arrays_name, **self.meta}
-
-    def save(self, path: str | Path) -> tuple[Path, Path]:
-        """Write ``<stem>.npz`` (arrays) and ``<stem>.json`` (metadata); no pickle anywhere."""
-        npz, js = model_paths(path)
-        npz.parent.mkdir(parents=True, exist_ok=True)
-        np.savez(npz, **self.to_arrays())
-        js.write_text(json.dumps(to_jsonable(self.metadata(npz.name)), indent=1) + "\n", encoding="utf-8")
-        return npz, js
-
-    @classmethod
-    def load(cls, path: str | Path) -> "SubstanceModel":
-        """The model saved at ``path`` (stem, ``.npz`` or ``.json``); CalibrationError naming the file."""
-        meta, arrays, npz = read_saved(path, SUBSTANCE_FILE, "substance")
-        return cls.from_saved(meta, arrays, str(npz))
 
     @classmethod
     def from_saved(cls, meta: Mapping[str, Any], arrays: Mapping[str, np.ndarray],

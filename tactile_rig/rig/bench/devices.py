@@ -16,6 +16,8 @@ from typing import Any, Callable, ClassVar
 
 from tactile_rig.core.errors import CalibrationError, LimitError
 from tactile_rig.rig.files import load_json
+from tactile_rig.devices.camera import POWER_LINE_INDEX, photometric_lock
+from tactile_rig.devices.camera_models import CAMERA_MODELS, CameraModel, SdkView, fps_of_interval
 from tactile_rig.drivers.camera import FingertipCamera
 from tactile_rig.drivers.dynamixel.bus import DEFAULT_LATENCY_TIMER_MS
 from tactile_rig.drivers.dynamixel.gripper import DynamixelGripper, GripperCalibration
@@ -230,22 +232,70 @@ class JigConfig(DeviceConfig):
 
 @dataclass
 class CameraConfig(DeviceConfig):
-    """Fingertip camera and the tactile sensor it images (mm/px in x and y)."""
+    """Fingertip camera and the tactile sensor it images (mm/px in x and y, of the frames the driver
+    gives: the vendor SDK's view when the camera has one).
+
+    ``model`` names the camera (``c310``, ``gelsight-mini``, ``digit``: :data:`CAMERA_MODELS`); it gives
+    the stream when ``fourcc``/``width``/``height``/``fps`` are not set (its default one), checks them
+    when they are (a mode the camera does not offer is a problem naming the ones it does), chooses the
+    controls the photometric lock holds (the ones the camera has, at its own defaults:
+    :func:`~tactile_rig.devices.camera.photometric_lock`) and the SDK view the perception expects
+    (``sdk_view``: one of the model's, default its first; ``"none"`` for the raw frame). ``mains_hz``
+    (50 or 60) locks the power line frequency. Without a model: MJPG 320x240 at 25 fps and the C310's lock.
+    """
 
     baud: int = 0  # cameras have no baud; kept so every device has the same fields
     sensor: str = "gelsight"
     mm_per_px_x: float = 0.0634
     mm_per_px_y: float = 0.0634
-    width: int = 320
-    height: int = 240
-    fps: float = 25.0
-    fourcc: str = "MJPG"
+    width: int = 0  # 0: the model's default stream (320 without a model)
+    height: int = 0  # 0: as width (240 without a model)
+    fps: float = 0.0  # 0: as width (25 without a model)
+    fourcc: str = ""  # "": as width ("MJPG" without a model)
+    model: str | None = None
+    mains_hz: float | None = None
+    sdk_view: str | None = None
     force_map: Path | None = None  # marker forces → newtons (tactile-rig calibrate force-map)
     substance_model: Path | None = None  # stirring features → substance (tactile-rig calibrate substance)
 
     kind: ClassVar[str] = "camera"
     example_port: ClassVar[str] = "/dev/video0"
     serial: ClassVar[bool] = False
+
+    def __post_init__(self) -> None:
+        m = self.camera_model
+        if m is not None:
+            fmt = m.formats[0]
+            frame = fmt.frames[fmt.default_frame]
+            defaults = (fmt.fourcc, frame.width_px, frame.height_px,
+                        m.modes()[(fmt.fourcc, frame.width_px, frame.height_px)])
+        else:
+            defaults = ("MJPG", 320, 240, 25.0)
+        self.fourcc = self.fourcc or defaults[0]
+        self.width = self.width or defaults[1]
+        self.height = self.height or defaults[2]
+        if not self.fps:  # the mode's fastest rate, where the model offers the mode
+            self.fps = (m.modes().get((self.fourcc, self.width, self.height)) if m is not None else None) or defaults[3]
+
+    @property
+    def camera_model(self) -> CameraModel | None:
+        """The :class:`CameraModel` named by ``model`` (None without one, or for an unknown name)."""
+        return CAMERA_MODELS.get(self.model) if isinstance(self.model, str) else None
+
+    @property
+    def view(self) -> SdkView | None:
+        """The SDK view applied to the frames (None: the raw frame)."""
+        m = self.camera_model
+        if m is None or self.sdk_view == "none" or not m.sdk_views:
+            return None
+        if self.sdk_view is None:
+            return m.sdk_views[0]
+        return next((v for v in m.sdk_views if v.name == self.sdk_view), None)
+
+    def locked_controls(self) -> dict[str, float]:
+        """The controls the driver locks and verifies on this camera."""
+        mains = self.mains_hz if self.mains_hz in POWER_LINE_INDEX else None
+        return photometric_lock(self.camera_model, mains)
 
     @property
     def calibration_kind(self) -> str:
@@ -269,22 +319,54 @@ class CameraConfig(DeviceConfig):
             problem("fps", f"= {self.fps} must be in (0, 1000] frames per second")
         if len(self.fourcc) != 4 or not self.fourcc.isascii():
             problem("fourcc", f"= {self.fourcc!r} must be four ASCII characters such as \"MJPG\" or \"YUYV\"")
+        if self.mains_hz is not None and self.mains_hz not in POWER_LINE_INDEX:
+            problem("mains_hz", f"= {self.mains_hz!r} must be 50 or 60 (the lab's mains frequency, Hz)")
+        if self.model is not None:
+            self._check_model(problem)
+        elif self.sdk_view is not None:
+            problem("sdk_view", "needs a model (the vendor SDK views are the camera model's)")
+
+    def _check_model(self, problem: Problem) -> None:
+        m = self.camera_model
+        if m is None:
+            close = difflib.get_close_matches(str(self.model), list(CAMERA_MODELS), n=1, cutoff=0.4)
+            hint = f"; did you mean '{close[0]}'?" if close else ""
+            problem("model", f"= {self.model!r} must be one of {', '.join(CAMERA_MODELS)}{hint}")
+            return
+        modes = m.modes()
+        key = (self.fourcc, int(self.width), int(self.height))
+        if key not in modes:
+            offered = ", ".join(f"{f} {w}x{h}" for f, w, h in modes)
+            problem("width", f"= {self.width}, height = {self.height}, fourcc = {self.fourcc!r}: the {m.title} offers "
+                             f"{offered}")
+        else:
+            frame = next(fr for f in m.formats if f.fourcc == self.fourcc for fr in f.frames
+                         if (fr.width_px, fr.height_px) == key[1:])
+            rates = sorted({fps_of_interval(i) for i in frame.intervals_100ns}, reverse=True)
+            if not any(abs(self.fps - r) < 0.01 for r in rates):
+                problem("fps", f"= {self.fps:g}: the {m.title} offers {', '.join(f'{r:g}' for r in rates)} fps at "
+                               f"{self.fourcc} {self.width}x{self.height}")
+        names = [v.name for v in m.sdk_views]
+        if self.sdk_view is not None and self.sdk_view != "none" and self.sdk_view not in names:
+            problem("sdk_view", f"= {self.sdk_view!r} must be one of {', '.join(names + ['none'])} for the {m.title}")
 
     def connect(self, ctx: ConnectContext) -> Any:
-        """A V4L2 camera; a recording ``run.mcap[#/topic]`` served as the camera; or for
-        ``rigsim://camera?model=NAME`` a camera rendering the bench's world."""
-        fourcc, width, height, fps = self.fourcc, self.width, self.height, self.fps
+        """A V4L2 camera (or an ``http://`` MJPEG stream) configured from the bench and its model; a
+        recording ``run.mcap[#/topic]`` served as the camera; or for ``rigsim://camera?model=NAME`` a
+        camera rendering the bench's world, with the model's modes and controls."""
+        fmt: dict[str, Any] = dict(fourcc=self.fourcc, width=self.width, height=self.height, fps=self.fps)
         path, _, topic = self.port.partition("#")
         if path.endswith(".mcap"):
             src = RecordedFrameSource(path, topic=topic or None, clock=ctx.clock)
-            return FingertipCamera(src, clock=ctx.clock, name=self.name, fourcc=fourcc, width=width, height=height,
-                                   fps=fps).open()
+            return FingertipCamera(src, clock=ctx.clock, name=self.name, **fmt).open()
+        lock = self.locked_controls()
         if self.port.startswith("rigsim://"):
+            m = self.camera_model
+            extra: dict[str, Any] = {} if m is None else {"modes": m.modes(), "controls": m.controls}
             sim = SimulatedCamera(self.port, clock=ctx.clock, name=self.name, world=ctx.world, seed=ctx.bench.seed,
-                                  fourcc=fourcc, width=width, height=height, fps=fps)
-            return FingertipCamera(sim, clock=ctx.clock, name=self.name, fourcc=fourcc, width=width, height=height,
-                                   fps=fps).open()
-        return FingertipCamera(self.port, name=self.name, fourcc=fourcc, width=width, height=height, fps=fps).open()
+                                  **fmt, **extra)
+            return FingertipCamera(sim, clock=ctx.clock, name=self.name, controls=lock, view=self.view, **fmt).open()
+        return FingertipCamera(self.port, name=self.name, controls=lock, view=self.view, **fmt).open()
 
 
 DEVICE_CLASSES = DeviceConfig.KINDS

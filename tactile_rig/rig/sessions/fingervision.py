@@ -22,7 +22,8 @@ __all__ = ["fingervision_session"]
 
 
 def fingervision_session(camera: Any, out: str | Path, *, frames: int = 10, guide: Guide | None = None,
-                         params: Any = None, force: bool = False, bench: Any = None) -> SessionOutcome:
+                         params: Any = None, force: bool = False, bench: Any = None,
+                         live: Any = None) -> SessionOutcome:
     """Average ``frames`` no-contact frames into the marker baseline (rest positions, sizes, valid
     flags) and the proximity-vision background histogram; write ``<out>-vN.npz`` (arrays),
     ``<out>-vN.json`` (with the report) and ``<out>-vN.mcap`` (the frames), linked from ``<out>.*``."""
@@ -32,7 +33,7 @@ def fingervision_session(camera: Any, out: str | Path, *, frames: int = 10, guid
     ver = session_version(out, (".npz", *JSON_SUFFIXES), force)
     name = str(getattr(camera, "name", "camera"))
     guide.step("nothing in contact with the skin and nothing behind it")
-    rec = SessionRecording(ver.path(".mcap"), getattr(camera, "clock", None), kind="fingervision", bench=bench,
+    rec = SessionRecording(ver.path(".mcap"), getattr(camera, "clock", None), kind="fingervision", bench=bench, live=live,
                            camera=name)
     imgs = []
     try:

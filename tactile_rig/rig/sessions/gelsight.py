@@ -168,7 +168,8 @@ def collect_ball_presses(rig: PressRig, plan: BallPressPlan, mm_per_px: float, o
 
 def gelsight_session(rig: PressRig, plan: BallPressPlan, mm_per_px: float, out: str | Path, *,
                      sensor: str = "gelsight", guide: Guide | None = None, force: bool = False,
-                     bench: Any = None, clock: Any = None, camera: str = "gelsight") -> SessionOutcome:
+                     bench: Any = None, clock: Any = None, camera: str = "gelsight",
+                     live: Any = None) -> SessionOutcome:
     """Collect ball presses with the jig, fit the GelSight calibration, write it with its report.
 
     ``out`` is the calibration's stable base path: version N writes ``<out>-vN.npz`` + ``.json``,
@@ -182,7 +183,7 @@ def gelsight_session(rig: PressRig, plan: BallPressPlan, mm_per_px: float, out: 
     guide.step(f"mount the {2 * plan.ball_radius_mm:g} mm ball on the jig and set the press depth to "
                f"{plan.press_depth_mm:g} mm")
     rec = SessionRecording(ver.path(".mcap"), clock if clock is not None else getattr(rig, "clock", None),
-                           kind="gelsight", bench=bench, camera=camera)
+                           kind="gelsight", bench=bench, live=live, camera=camera)
     try:
         presses = collect_ball_presses(rig, plan, mm_per_px, base.parent / f"{base.name}_presses", guide=guide,
                                        recording=rec, camera=camera)

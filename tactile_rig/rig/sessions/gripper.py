@@ -15,14 +15,14 @@ __all__ = ["gripper_session"]
 
 def gripper_session(gripper: Any, out: str | Path, *, effort: float = 0.2, max_opening_m: float | None = None,
                     closing_sign: int = -1, guide: Guide | None = None, force: bool = False,
-                    bench: Any = None) -> SessionOutcome:
+                    bench: Any = None, live: Any = None) -> SessionOutcome:
     """Find the gripper's closed and open stops at a low effort and write them (``GripperCalibration``
     fields at the top level, so ``tactile-rig gripper --calibration`` reads the file as it is); the
     recording holds the commands and the servo's state before and after."""
     guide = guide or Guide(False, quiet=True)
     ver = session_version(out, JSON_SUFFIXES, force)
     guide.step("clear the fingers: the gripper will close and open fully")
-    rec = SessionRecording(ver.path(".mcap"), getattr(gripper, "clock", None), kind="gripper", bench=bench)
+    rec = SessionRecording(ver.path(".mcap"), getattr(gripper, "clock", None), kind="gripper", bench=bench, live=live)
     try:
         rec.state("gripper", _state_or_none(gripper))
         rec.command("gripper", "calibrate", effort=float(effort), closing_sign=int(closing_sign))

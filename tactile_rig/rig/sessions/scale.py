@@ -45,7 +45,7 @@ def wait_for_load(scale: Any, empty_g: float, noise_g: float, *, timeout_s: floa
 
 def scale_session(scale: Any, known_mass_g: float, out: str | Path, *, place_mass: Callable[[float], None] | None = None,
                   guide: Guide | None = None, samples: int = 20, wait_timeout_s: float = 60.0,
-                  force: bool = False, bench: Any = None) -> SessionOutcome:
+                  force: bool = False, bench: Any = None, live: Any = None) -> SessionOutcome:
     """Tare the empty scale, calibrate it with ``known_mass_g``, verify, write the calibration and report.
 
     ``place_mass(grams)`` puts a mass on the scale (mocks: the world's load cell; 0 removes it);
@@ -56,7 +56,7 @@ def scale_session(scale: Any, known_mass_g: float, out: str | Path, *, place_mas
     check_range("known_mass_g", float(known_mass_g), 1e-3, 1e6, "g")
     check_range("samples", float(samples), 3, 10000)
     ver = session_version(out, JSON_SUFFIXES, force)
-    rec = SessionRecording(ver.path(".mcap"), getattr(scale, "clock", None), kind="scale", bench=bench,
+    rec = SessionRecording(ver.path(".mcap"), getattr(scale, "clock", None), kind="scale", bench=bench, live=live,
                            known_mass_g=float(known_mass_g))
 
     def read_many(phase: str) -> list[Any]:

@@ -1,7 +1,8 @@
 """The MCAP of what a calibration session measured: readings, frames, jig poses, commands, its files.
 
-Written with the recorder of :mod:`tactile_rig.rig.recording` (its topics); a no-op when the ``record``
-extra (mcap) is missing, so a calibration never fails for want of its recording.
+Written with the recorder of :mod:`tactile_rig.rig.recording` (its topics) and, with a live server,
+published on it too, message for message (one encoding, two sinks); the recording is a no-op when the
+``record`` extra (mcap) is missing, so a calibration never fails for want of its recording.
 """
 
 from __future__ import annotations
@@ -12,29 +13,38 @@ from typing import Any
 import numpy as np
 
 from tactile_rig.devices.scale import STANDARD_GRAVITY_MPS2
+from tactile_rig.rig.live import Tee
 from tactile_rig.rig.recording import Recorder
 
 __all__ = ["SessionRecording"]
 
 
 class SessionRecording:
-    """The MCAP of what a calibration session measured, at ``path`` on the session's ``clock``.
+    """The MCAP of what a calibration session measured, at ``path`` on the session's ``clock``, and
+    the same messages on ``live`` (a :class:`~tactile_rig.rig.live.LiveServer`) when given.
 
-    A no-op (``path`` None) when the optional ``mcap`` package is missing: a calibration must not
-    fail for want of its recording. Topics are those of :mod:`tactile_rig.rig.recording`.
+    Without a live server it is a no-op (``path`` None, or the optional ``mcap`` package missing): a
+    calibration must not fail for want of its recording. Topics are those of
+    :mod:`tactile_rig.rig.recording`.
     """
 
     def __init__(self, path: str | Path | None, clock: Any, *, kind: str, bench: Any = None,
-                 **meta: Any) -> None:
-        self.rec: Recorder | None = None
+                 live: Any = None, **meta: Any) -> None:
+        self.rec: Any = None
         self.path: Path | None = None
-        if path is None:
+        recorder: Recorder | None = None
+        if path is not None:
+            try:
+                recorder = Recorder(path, clock=clock)
+                self.path = Path(path)
+            except ModuleNotFoundError:
+                recorder = None
+        if live is not None and clock is not None:
+            live.use_clock(clock)
+        sinks = [s for s in (recorder, live) if s is not None]
+        if not sinks:
             return
-        try:
-            self.rec = Recorder(path, clock=clock)
-        except ModuleNotFoundError:
-            return
-        self.path = Path(path)
+        self.rec = sinks[0] if len(sinks) == 1 else Tee(*sinks)
         self.rec.add_metadata("session", {"kind": kind, **meta})
         if bench is not None:
             self.rec.add_bench(bench)

@@ -276,7 +276,8 @@ def explain_default(table: TradeTable) -> str:
     they are still not the default (from the table's own figures)."""
     why = ("kernel 15 px disc (9 and 21 px lose markers); lattice ids from the first frame with 10 refinement "
            "frames (fewer tie on tracking error but leave a noisier rest force, rest_force_px); Kalman on (half "
-           "the rest force noise, at ~1.5 frames of lag while the skin moves: rendered_centre_px); proximity "
+           "the rest force noise; its lag behind the measurements stays inside its innovation gate: "
+           "rendered_centre_px); proximity "
            "grid 2 (4 biases slip speed, 1 is the slowest)")
     if not table.default_on_front():
         d = table.rows[table.default_index]

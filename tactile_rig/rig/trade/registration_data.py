@@ -80,16 +80,8 @@ def mini_calibration(seed: int = 0) -> GelSightCalibration:
 
 def _sensor_to_object(obj: objects.HeightField, pose: tuple[float, float, float]) -> np.ndarray:
     # The affine map view_in_sensor samples with (sensor px -> object px), as a 3x3.
-    x, y, th = pose
-    rows, cols = MINI_SHAPE
-    t = math.radians(th)
-    c, s = math.cos(t), math.sin(t)
-    k = MINI_MM_PER_PX / obj.mm_per_px
-    orows, ocols = obj.height_mm.shape
-    px0 = -(cols - 1) / 2 * MINI_MM_PER_PX - x
-    py0 = -(rows - 1) / 2 * MINI_MM_PER_PX - y
-    return np.array([[c * k, s * k, (c * px0 + s * py0) / obj.mm_per_px + (ocols - 1) / 2],
-                     [-s * k, c * k, (-s * px0 + c * py0) / obj.mm_per_px + (orows - 1) / 2], [0, 0, 1]])
+    m = objects.sensor_to_object_px(obj, MINI_SHAPE, MINI_MM_PER_PX, *pose)
+    return np.vstack([m, [0.0, 0.0, 1.0]])
 
 
 PARTS = {

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
+from tactile_rig.rig.reports import pyplot
 from tactile_rig.rig.trade.conditions import conditions_text
 
 
@@ -258,14 +259,7 @@ class TradeTable:
 
     def plot(self, path: str | Path) -> Path:
         """Draw error against speed (log speed axis), the front as a line, the default ringed; PNG."""
-        try:
-            import matplotlib
-        except ModuleNotFoundError as exc:  # pragma: no cover - depends on the install
-            raise ModuleNotFoundError("plots need matplotlib: pip install 'tactile-rig[report]'",
-                                      name=exc.name) from exc
-        matplotlib.use("Agg", force=True)
-        import matplotlib.pyplot as plt
-
+        plt = pyplot()
         path = Path(path)
         ok = [i for i, r in enumerate(self.rows) if math.isfinite(r.speed) and math.isfinite(r.error)
               and r.speed > 0]

@@ -32,7 +32,7 @@ import numpy as np
 
 from tactile_rig.core.errors import check_range
 from tactile_rig.sim.base import register_model
-from tactile_rig.sim.render.gelsight import SensorNoise
+from tactile_rig.sim.render.noise import SensorNoise
 
 __all__ = ["FvObject", "FvCard", "FingerVisionRenderer", "contact_shear_field", "FingerVisionRendererModel"]
 

@@ -35,6 +35,7 @@ __all__ = [
     "cone",
     "plate_with_features",
     "usb_connector_part",
+    "sensor_to_object_px",
     "view_in_sensor",
     "pressed_indentation_mm",
     "make_primitive",
@@ -214,6 +215,23 @@ def make_primitive(primitive: str, mm_per_px: float = 0.05, **size_mm: float) ->
     return fn(mm_per_px=mm_per_px, **size_mm)
 
 
+def sensor_to_object_px(obj: HeightField, shape_px: tuple[int, int], sensor_mm_per_px: float,
+                        x_mm: float = 0.0, y_mm: float = 0.0, theta_deg: float = 0.0) -> np.ndarray:
+    """The affine map (2x3) from a sensor pixel ``(u, v)`` to the object pixel it sees, for a sensor
+    grid of ``shape_px`` (rows, cols) at ``sensor_mm_per_px`` and the pose of :func:`view_in_sensor`."""
+    rows, cols = int(shape_px[0]), int(shape_px[1])
+    t = math.radians(theta_deg)
+    c, sn = math.cos(t), math.sin(t)
+    k = sensor_mm_per_px / obj.mm_per_px
+    orows, ocols = obj.height_mm.shape
+    px0 = -(cols - 1) / 2.0 * sensor_mm_per_px - x_mm
+    py0 = -(rows - 1) / 2.0 * sensor_mm_per_px - y_mm
+    return np.array([
+        [c * k, sn * k, (c * px0 + sn * py0) / obj.mm_per_px + (ocols - 1) / 2.0],
+        [-sn * k, c * k, (-sn * px0 + c * py0) / obj.mm_per_px + (orows - 1) / 2.0],
+    ], dtype=np.float64)
+
+
 def view_in_sensor(obj: HeightField, shape_px: tuple[int, int], sensor_mm_per_px: float,
                    x_mm: float = 0.0, y_mm: float = 0.0, theta_deg: float = 0.0) -> np.ndarray:
     """Sample ``obj`` on a sensor grid of ``shape_px`` (rows, cols) at the given pose (see module doc).
@@ -227,17 +245,8 @@ def view_in_sensor(obj: HeightField, shape_px: tuple[int, int], sensor_mm_per_px
     for name, v in (("x_mm", x_mm), ("y_mm", y_mm), ("theta_deg", theta_deg)):
         if not math.isfinite(v):
             raise ValueError(f"{name}={v!r} must be finite")
-    t = math.radians(theta_deg)
-    c, sn = math.cos(t), math.sin(t)
-    k = sensor_mm_per_px / obj.mm_per_px
-    orows, ocols = obj.height_mm.shape
     # Sensor pixel (u, v) -> object pixel: an affine map, so one warpAffine does the sampling.
-    px0 = -(cols - 1) / 2.0 * sensor_mm_per_px - x_mm
-    py0 = -(rows - 1) / 2.0 * sensor_mm_per_px - y_mm
-    m = np.array([
-        [c * k, sn * k, (c * px0 + sn * py0) / obj.mm_per_px + (ocols - 1) / 2.0],
-        [-sn * k, c * k, (-sn * px0 + c * py0) / obj.mm_per_px + (orows - 1) / 2.0],
-    ], dtype=np.float64)
+    m = sensor_to_object_px(obj, (rows, cols), sensor_mm_per_px, x_mm, y_mm, theta_deg)
     if not np.all(np.abs(m) < 1e9):
         return np.zeros((rows, cols), np.float32)  # the object is astronomically far away
     return cv2.warpAffine(obj.height_mm, m, (cols, rows), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,

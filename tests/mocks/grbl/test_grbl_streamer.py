@@ -2,15 +2,8 @@
 
 from __future__ import annotations
 
-import json
-import os
-import select
-import subprocess
-import sys
-import termios
 import threading
 import time
-import tty
 
 import pytest
 
@@ -19,6 +12,8 @@ import grbl_streamer  # noqa: E402  (the independent real client is a test depen
 from tactile_rig.core.clock import RealClock
 from tactile_rig.mocks.grbl import GrblMock
 from tactile_rig.mocks.pty_server import PtyServer
+from tactile_rig.testing.serve import serve_in_subprocess
+from tests._slow_client import GRBL_BANNER, read_banner
 
 GCODE = """(a zig-zag with theta on Z; more than 128 bytes, so character counting matters)
 G21 G90
@@ -45,8 +40,6 @@ FINAL = (2.0, -0.5, -10.0)
 def test_grbl_streamer_streams_a_file_and_sees_every_ok_and_the_final_position(tmp_path) -> None:
     path = tmp_path / "zigzag.nc"
     path.write_text(GCODE)
-    proc = subprocess.Popen([sys.executable, "-m", "tactile_rig.cli", "mock", "serve", "jig",
-                             "--param", "homing=0"], stdout=subprocess.PIPE, text=True)
     events: list[tuple[str, tuple]] = []
     lock = threading.Lock()
 
@@ -66,8 +59,7 @@ def test_grbl_streamer_streams_a_file_and_sees_every_ok_and_the_final_position(t
             time.sleep(0.02)
         return False
 
-    try:
-        info = json.loads(proc.stdout.readline())
+    with serve_in_subprocess("jig", "--param", "homing=0") as info:
         assert info["device"] == "jig" and info["port"].startswith("/dev/")
         grbl = grbl_streamer.GrblStreamer(callback, name="pty-jig")
         grbl.cnect(info["port"], 115200)
@@ -104,30 +96,6 @@ def test_grbl_streamer_streams_a_file_and_sees_every_ok_and_the_final_position(t
             assert not seen("on_error", start) and not seen("on_alarm", start)
         finally:
             grbl.disconnect()
-    finally:
-        proc.terminate()
-        proc.wait(5)
-        proc.stdout.close()
-
-
-def read_banner(port: str, lag_s: float, timeout_s: float = 2.0) -> bytes:
-    """Open ``port`` as a slow client does: at the pty's default rate, setting 115200 ``lag_s`` later."""
-    fd = os.open(port, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
-    try:
-        time.sleep(lag_s)
-        tty.setraw(fd)
-        attrs = termios.tcgetattr(fd)
-        attrs[4] = attrs[5] = termios.B115200
-        termios.tcsetattr(fd, termios.TCSANOW, attrs)
-        got = b""
-        end = time.monotonic() + timeout_s
-        while time.monotonic() < end and not got.endswith(b"help]\r\n"):
-            if select.select([fd], [], [], 0.05)[0]:
-                got += os.read(fd, 256)
-    finally:
-        os.close(fd)
-    time.sleep(0.02)  # let the server see the close, so the next open is a new DTR reset
-    return got
 
 
 @pytest.mark.pty
@@ -139,4 +107,4 @@ def test_every_connect_over_a_pty_gets_a_clean_banner() -> None:
     with PtyServer(mock) as server:
         banners = [read_banner(server.port, lag_s=0.03 * (i % 3) / 2) for i in range(12)]
     assert server.error is None and server.opens == 12
-    assert banners == [b"\r\nGrbl 1.1h ['$' for help]\r\n"] * 12
+    assert banners == [GRBL_BANNER] * 12

@@ -11,6 +11,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+import tactile_rig.rig.jig_accuracy as jig_accuracy
+from tactile_rig.sim.scenes import GELSIGHT_BALL_PRESS_SCENE
 from tactile_rig.sim.world.objects import usb_connector_part, view_in_sensor
 from tactile_rig.rig.jig_accuracy import (
     JigAccuracyConfig,
@@ -250,3 +252,10 @@ def test_reduced_run_on_a_real_bench(request, tmp_path):
     s = out.summary
     assert s["complete"] and s["n_refused"] <= 1
     assert s["rotation_mae_deg"] < 2.0 and s["translation_mae_mm"] < 0.3
+
+
+def test_the_old_press_scene_name_warns_and_names_the_ball_presses() -> None:
+    with pytest.warns(DeprecationWarning, match=r"MOCK_PRESS_SCENE is tactile_rig\.sim\.scenes\.GELSIGHT_BALL_PRESS_SCENE"):
+        assert jig_accuracy.MOCK_PRESS_SCENE == GELSIGHT_BALL_PRESS_SCENE
+    with pytest.raises(AttributeError, match="no attribute 'NO_SUCH_SCENE'"):
+        jig_accuracy.NO_SUCH_SCENE  # noqa: B018

@@ -195,13 +195,3 @@ def _messages_any(path: Path) -> list[tuple]:
     """Like _messages, but a recording cut off by the kill is fine (read up to its last flush)."""
     rec = read_recording(path)
     return [(m.topic, json.dumps(_timeless(m.data), sort_keys=True)) for m in rec.messages]
-
-
-def _timeless(value: Any) -> Any:
-    """A decoded message without its times, at any depth (typed messages stamp their frames and
-    transforms); bytes (image payloads) as hex."""
-    if isinstance(value, dict):
-        return {k: _timeless(v) for k, v in value.items() if k not in VOLATILE}
-    if isinstance(value, list):
-        return [_timeless(v) for v in value]
-    return value.hex() if isinstance(value, bytes) else value

@@ -1,36 +1,9 @@
-"""The Arduino HX711 scale, emulated: ``firmware/arduino_scale`` (or the stock HX711_ADC example).
+"""The scale sketch's event loop: :class:`ScaleMock`, the Arduino on a serial line, event by event.
 
-This is the compiled sketch's behaviour retold in Python, held against the real thing: the
-differential test (``tests/mocks/test_scale_firmware_differential.py``) plays the same sessions against this
-mock and against the sketch compiled for the ATmega328P running on the simulated board
-(``firmware/sim``), and requires the same lines, byte for byte. What the host sees, and why:
-
-* Opening the port (or a DTR edge) resets the Arduino: the bootloader keeps it silent for
-  ``boot_s`` (1.53 s: the Uno's optiboot), a glitch byte or two may arrive (``boot_junk``), bytes
-  the host sends meanwhile are lost. Then the sketch resets the HX711, whose first conversion comes
-  4 periods later; it discards 2 conversions, fills its smoothing window with 18 for the start-up
-  tare and prints its banner: 0.29 s of start-up at 80 samples/s, 2.3 s at 10.
-* The HX711 (:mod:`tactile_rig.mocks.hx711`) converts at 10 or 80 samples/s what the world's
-  ``load_cell`` model presses on it: offset + counts per gram x grams + warm-up drift, through its
-  sinc4 filter, plus noise and rare glitches, clamped to 24 bits.
-* One framed line per conversion: smoothed like HX711_ADC (16 samples after dropping the highest
-  and the lowest), grams and the smoothed ABSOLUTE raw counts, in the sketch's integer arithmetic
-  (milligrams and milli-counts per gram, rounded half away from zero). ``t`` tares and ``c,<g>``
-  calibrates once the window has refilled (a repeat restarts the wait and is answered once); the
-  factor is kept in "EEPROM" across resets; ``?`` answers at once; anything else is ``E,1``.
-* Host bytes wait in the Arduino core's 64-byte receive ring (63 usable) while the sketch is busy
-  (its start-up, or a Serial.write that blocks on a full transmit ring); what does not fit is lost.
-  Lines longer than 32 bytes, or with a NUL, are answered ``E,1``. Bytes reach the sketch at the
-  host's baud; the sketch's UART runs at 58824 baud for "57600" (the Arduino core's exception for
-  57600 at 16 MHz: UBRR 16 without U2X, +2.1 %, within what a UART tolerates).
-* Each answer starts as long after its cause as the compiled sketch takes to compute and format it
-  (measured on the simulated board, cycle-exact): a sample 0.9-1.2 ms after its conversion (more
-  digits, more time), ``E,1`` 0.13 ms after the newline, ``I`` 0.41 ms after it, and so on.
-* An unplugged HX711 (``inject("hx711_disconnect")``) is reported as ``E,4`` once a second.
-
-``firmware=stock`` emulates the unmodified ``Read_1x_load_cell`` example instead (not compiled here:
-it needs the HX711_ADC library). Faults: :meth:`ScaleMock.inject` ``hang`` (the sketch stops),
-``reset`` (reboot now), ``hx711_disconnect`` and ``hx711_connect``.
+What the host sees, and why, is told in :mod:`tactile_rig.mocks.scale`; the sketch's numbers (its
+arithmetic, framing, buffer sizes and measured timings) are :mod:`.sketch`. Here the bootloader, the
+receive ring, the start-up tare, the commands, the conversions and the stock example share one state
+and one clock.
 """
 
 from __future__ import annotations
@@ -44,98 +17,44 @@ import numpy as np
 from tactile_rig.core.clock import Clock
 from tactile_rig.devices import scale as sp
 from tactile_rig.mocks.hx711 import Hx711
-from tactile_rig.mocks.registry import Params, register_kind
+from tactile_rig.mocks.scale.sketch import (
+    BOOTLOADER_S,
+    CAL_MILLI_MAX,
+    CAL_MILLI_MIN,
+    DEFAULT_CAL_MILLI,
+    HX711_TIMEOUT_S,
+    LINE_MAX,
+    MIN_CAL_COUNTS,
+    RX_RING_BYTES,
+    SETTLE_CONVERSIONS,
+    T_BANNER_S,
+    T_CAL_ERROR_S,
+    T_CAL_S,
+    T_E4_S,
+    T_ERROR_S,
+    T_HX_RESET_S,
+    T_ID_S,
+    T_MASS_ERROR_S,
+    T_RESET_HX_AGAIN_S,
+    T_TARE_S,
+    TX_IN_FLIGHT_BYTES,
+    UART_BAUD_ACTUAL,
+    WINDOW,
+    div_round,
+    frame,
+    milli_str,
+    parse_mass_mg,
+    sample_latency_s,
+    smoothed_counts,
+)
 from tactile_rig.mocks.serial_device import BITS_PER_BYTE, SerialDevice
 from tactile_rig.sim.world.load_cell import LoadCell
 
-BOOTLOADER_S = 1.529  # the Uno's optiboot after an external reset (see firmware/sim/scale_board.c)
-WINDOW = sp.SMOOTHING_SAMPLES + 2  # the sketch's smoothing window: 16 averaged + highest + lowest
-SETTLE_CONVERSIONS = 2  # discarded after the sketch resets the HX711
-RX_RING_BYTES = 63  # HardwareSerial's 64-byte receive ring holds 63
-TX_IN_FLIGHT_BYTES = 65  # 63 in the transmit ring + UDR + the shift register; more and write() blocks
-LINE_MAX = 32  # longest command line the sketch accepts
-HX711_TIMEOUT_S = 1.0  # no conversion for this long: E,4
-UART_BAUD_ACTUAL = 16_000_000 / (16 * (16 + 1))  # 58824: the core's UBRR0 = 16 without U2X for 57600 (+2.1 %)
-DEFAULT_CAL_MILLI = round(sp.DEFAULT_CAL_FACTOR * 1000)
-CAL_MILLI_MIN = 100  # 0.1 counts per gram
-CAL_MILLI_MAX = 100_000_000  # 100000 counts per gram
-MIN_CAL_COUNTS = 100  # a calibration mass must move the reading at least this much
-MASS_G_MAX = 1_000_000
-
-# From an event to the first byte of the sketch's answer starting on the wire, measured on the
-# compiled sketch on the simulated board (cycle-exact at 16 MHz).
-T_HX_RESET_S = 366e-6  # sketch start -> the HX711 leaves reset (C runtime, Serial.begin, EEPROM, pins)
-T_BANNER_S = 913e-6  # last start-up conversion -> B line
-T_TARE_S = 574e-6  # conversion ready -> T,ok
-T_CAL_S = 989e-6  # conversion ready -> K
-T_CAL_ERROR_S = 899e-6  # conversion ready -> E,3 / E,5
-T_ID_S = 407e-6  # newline received -> I line
-T_ERROR_S = 133e-6  # newline received -> E,1
-T_MASS_ERROR_S = 294e-6  # newline received -> E,2
-T_E4_S = 0.0  # HX711 time-out -> E,4 (millis() granularity: +-1 ms on the board)
-T_RESET_HX_AGAIN_S = 240e-6  # E,4 at start-up -> the next HX711 reset
-# Conversion ready -> S line: shifting 25 bits, smoothing and 64-bit maths take 0.5 ms, each printed
-# digit some 30-50 us more (least squares over 718 lines, residual under 35 us).
-_T_SAMPLE_FIT_S = (497.7e-6, 30.2e-6, 50.2e-6, 27.1e-6, -42.5e-6, -37.1e-6)
-
-
-def sample_latency_s(seq: str, grams: str, raw: str) -> float:
-    """Conversion ready -> the S line's first byte on the wire, for the fields it prints."""
-    c = _T_SAMPLE_FIT_S
-    return (c[0] + c[1] * len(seq) + c[2] * len(grams) + c[3] * len(raw)
-            + c[4] * grams.startswith("-") + c[5] * raw.startswith("-"))
-
-
-def _crc8(body: bytes) -> int:
-    # Bitwise, as the sketch computes it on the AVR (the driver uses a table: separate codecs).
-    crc = 0
-    for byte in body:
-        crc ^= byte
-        for _ in range(8):
-            crc = ((crc << 1) ^ sp.CRC8_POLY) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
-    return crc
-
-
-def frame(body: str) -> bytes:
-    """``body*CC\\r\\n`` as the sketch prints it."""
-    raw = body.encode("ascii")
-    return raw + b"*%02X\r\n" % _crc8(raw)
-
-
-def div_round(n: int, d: int) -> int:
-    """``n / d`` rounded half away from zero, the sketch's integer rounding (``d != 0``)."""
-    if d < 0:
-        n, d = -n, -d
-    return (n + d // 2) // d if n >= 0 else -((-n + d // 2) // d)
-
-
-def milli_str(v: int) -> str:
-    """A value in thousandths with 3 decimals, as the sketch's ``putMilli`` prints it."""
-    sign = "-" if v < 0 else ""
-    a = abs(v)
-    return f"{sign}{a // 1000}.{a % 1000:03d}"
-
-
-def parse_mass_mg(text: str) -> int | None:
-    """The sketch's ``c,<g>`` grammar: ``<1-7 digits>[.<1-3 digits>]``, 0 < g <= 1e6; milligrams or None."""
-    whole, dot, frac = text.partition(".")
-    if not (1 <= len(whole) <= 7 and whole.isascii() and whole.isdigit()):
-        return None
-    if dot and not (1 <= len(frac) <= 3 and frac.isascii() and frac.isdigit()):
-        return None
-    if int(whole) > MASS_G_MAX:
-        return None
-    mg = int(whole) * 1000 + (int(frac.ljust(3, "0")) if dot else 0)
-    return mg if 0 < mg <= MASS_G_MAX * 1000 else None
-
-
-def smoothed_counts(window: list[int]) -> int:
-    """Mean of the window without its highest and lowest value, rounded like the sketch."""
-    return div_round(sum(window) - min(window) - max(window), len(window) - 2)
+__all__ = ["ScaleMock"]
 
 
 class ScaleMock(SerialDevice):
-    """The scale's Arduino on a serial line (see the module docstring)."""
+    """The scale's Arduino on a serial line (see :mod:`tactile_rig.mocks.scale`)."""
 
     kind = "scale"
 
@@ -557,41 +476,3 @@ class ScaleMock(SerialDevice):
     def describe(self) -> dict[str, Any]:
         return {"rate_sps": self.rate_sps, "boot_s": self.boot_s, "firmware": self.firmware,
                 "counts_per_g": self.counts_per_g}
-
-
-def _factory(params: Params, *, clock: Clock, world: Any = None) -> ScaleMock:
-    baud = params.integer("baud", sp.BAUD)
-    if baud != sp.BAUD:
-        # The sketch's Serial.begin(57600) is compiled in: a mock that took another rate would hide
-        # the mismatch a real scale shows as garbage. Set the client's rate instead.
-        raise ValueError(f"{params.source}: baud={baud}: the scale sketch talks at {sp.BAUD} baud only "
-                         f"(set the host's baud to {sp.BAUD}; a bench's [scale] baud = {sp.BAUD})")
-    cell_name = params.text("load_cell", "load_cell") or "load_cell"
-    cell = world.require(cell_name, who="the scale mock") if world is not None else None
-    force_n = params.number("force_n")
-    if cell is None:
-        cell = LoadCell(applied_force_n=force_n or 0.0)
-    elif force_n is not None:
-        cell.applied_force_n = force_n
-    return ScaleMock(
-        clock=clock,
-        load_cell=cell,
-        rate_sps=params.integer("rate", 80),
-        boot_s=params.number("boot_s", BOOTLOADER_S),
-        baud=baud,
-        firmware=params.text("firmware", "tactile") or "tactile",
-        timing=params.flag("timing", True),
-        seed=params.integer("seed", 0),
-        counts_per_g=params.number("counts_per_g", sp.DEFAULT_CAL_FACTOR),
-        offset_counts=params.number("offset_counts", 84_000.0),
-        noise_counts=params.number("noise_counts"),
-        drift_counts=params.number("drift_counts", 1500.0),
-        drift_tau_s=params.number("drift_tau_s", 180.0),
-        spike_prob=params.number("spike_prob", 0.002),
-        boot_junk=params.flag("boot_junk", True),
-        stock_settle_s=params.number("stock_settle_s", 2.0),
-    )
-
-
-register_kind("scale", _factory, default_baud=sp.BAUD,
-              description="Arduino + HX711 load-cell scale (firmware/arduino_scale, or the stock HX711_ADC example)")
