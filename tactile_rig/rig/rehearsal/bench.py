@@ -31,7 +31,6 @@ marker baseline made earlier in ``OUT/calib/`` (``force_map/``, ``fingervision.j
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import os
@@ -46,7 +45,6 @@ from tactile_rig.devices.camera_models import camera_model
 from tactile_rig.mocks.v4l2 import PreloadUnavailable, preload_env
 from tactile_rig.mocks.v4l2 import build as v4l2_build
 from tactile_rig.mocks.v4l2.server import FIRST_NODE, MAX_SOCKET_PATH
-from tactile_rig.rig.bench.devices import CameraConfig
 from tactile_rig.rig.jig_accuracy import mock_gelsight_calibration
 from tactile_rig.rig.rehearsal.cameras import (DEFAULT_MODEL, DEFAULT_TRANSPORT, FOURCCS, TRANSPORTS,
                                                check_mode)
@@ -229,12 +227,8 @@ class RehearsalBench:
         return out
 
     def _camera_keys(self, info: dict[str, Any], sensor: str) -> dict[str, Any]:
-        keys: dict[str, Any] = {"port": info["port"], "sensor": sensor}
-        if "model" in _CAMERA_FIELDS:  # a bench that records its camera's model
-            keys["model"] = info["model"]
-        keys.update({"width": info["width"], "height": info["height"], "fps": float(info["fps"]),
-                     "fourcc": info["fourcc"]})
-        return keys
+        return {"port": info["port"], "sensor": sensor, "model": info["model"], "width": info["width"],
+                "height": info["height"], "fps": float(info["fps"]), "fourcc": info["fourcc"]}
 
     @staticmethod
     def _camera_comment(info: dict[str, Any], what: str, pid: int | None) -> str:
@@ -327,7 +321,6 @@ class RehearsalBench:
         self.stop()
 
 
-_CAMERA_FIELDS = {f.name for f in dataclasses.fields(CameraConfig)}
 _PROCESS_OF = {"jig": "stage", "camera_gelsight": "stage", "camera_fingervision": "press"}  # else its own name
 _NODE_SUFFIX = "/root/dev/video" + "9" * 4  # the longest socket path below a registry
 

@@ -37,12 +37,13 @@ def offered_rates(model: CameraModel, fourcc: str, width: int, height: int) -> l
 def check_mode(model: CameraModel, fourcc: str, width: int, height: int, fps: float, *, what: str) -> None:
     """ValueError naming ``what`` when ``model`` does not offer ``fourcc`` ``width``x``height`` at ``fps``
     (a driver configuring it would have its format refused, as by the real camera)."""
-    if model.format(fourcc) is None:
+    fmt = model.format(fourcc)
+    if fmt is None:
         raise ValueError(f"{what}: a {model.title} offers {', '.join(f.fourcc for f in model.formats)}, "
                          f"not {fourcc}")
     rates = offered_rates(model, fourcc, width, height)
     if not rates:
-        sizes = ", ".join(f"{f.width_px}x{f.height_px}" for f in model.format(fourcc).frames)  # type: ignore[union-attr]
+        sizes = ", ".join(f"{f.width_px}x{f.height_px}" for f in fmt.frames)
         raise ValueError(f"{what}: a {model.title} offers {fourcc} at {sizes}, not {width}x{height}")
     if not any(abs(r - fps) < 1e-6 for r in rates):
         raise ValueError(f"{what}: a {model.title} offers {fourcc} {width}x{height} at "

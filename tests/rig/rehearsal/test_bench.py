@@ -98,8 +98,9 @@ def test_bench_check_from_the_console_script_verifies_every_device(rehearsal) ->
     assert rows["scale"]["details"]["firmware"] == "hx711-scale" and rows["scale"]["details"]["rate_sps"] == 80
     assert rows["jig"]["details"]["version"] == "1.1h"
     cam = rows["camera_gelsight"]["details"]
+    # OpenCV's CAP_PROP_* controls, and exposure_dynamic_framerate by its V4L2 id (no CAP_PROP for it).
     assert cam["controls"] == {"auto_exposure": 1.0, "exposure_time_absolute": 166.0, "white_balance_automatic": 0.0,
-                               "white_balance_temperature": 4000.0, "gain": 64.0}
+                               "white_balance_temperature": 4000.0, "gain": 64.0, "exposure_dynamic_framerate": 0.0}
     assert cam["format"][:3] == ["MJPG", 320, 240] and cam["frame_shape"] == [240, 320, 3]
 
 
