@@ -5,6 +5,11 @@ Each command group lives in its own module under :mod:`tactile_rig.cli` and expo
 Errors from the rig (:class:`~tactile_rig.core.errors.RigError`) and bad arguments (``ValueError``)
 become one line on stderr and exit 2; a device fault exits 3; an unexpected exception (a bug) exits
 70 with one line (:func:`tactile_rig.cli.common.run_handler`; the table: :data:`~tactile_rig.cli.common.EXIT_CODES`).
+
+The console script is :func:`console_main`; :func:`main` is the same command line as a function. A
+bench whose cameras are emulated V4L2 devices (the rehearsal bench) needs a preload library in the
+process: the console script re-executes itself with it, ``main`` runs the command in a child process
+started with it (:mod:`tactile_rig.cli.emulation`).
 """
 
 from __future__ import annotations
@@ -12,6 +17,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import sys
 from typing import Sequence
 
@@ -28,6 +34,7 @@ from tactile_rig.cli.common import (
     missing_action,
     run_handler,
 )
+from tactile_rig.cli import emulation
 
 # Command groups, in the order they appear in --help.
 COMMAND_MODULES: tuple[str, ...] = (
@@ -51,7 +58,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "trade",
 )
 
-__all__ = ["EXIT_CODES", "EXIT_OK", "EXIT_FAILED", "EXIT_ERROR", "EXIT_FAULT", "EXIT_INTERNAL", "build_parser", "main"]
+__all__ = ["EXIT_CODES", "EXIT_OK", "EXIT_FAILED", "EXIT_ERROR", "EXIT_FAULT", "EXIT_INTERNAL", "build_parser", "main",
+           "console_main"]
 
 
 def _command_of(argv: Sequence[str]) -> str | None:
@@ -92,16 +100,55 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``tactile-rig`` console script; returns the exit code."""
-    words = sys.argv[1:] if argv is None else list(argv)
+def _bench_of(args: argparse.Namespace) -> str | None:
+    """The bench file a parsed command uses (as :func:`~tactile_rig.cli.bench_args.bench_from_args`
+    chooses it), or None for a command without ``--bench``."""
+    if not hasattr(args, "bench") or getattr(args, "mock", False) or not getattr(args, "opens_devices", True):
+        return None
+    return args.bench or os.environ.get(emulation.BENCH_ENV) or None
+
+
+def _run(words: list[str], *, console: bool) -> int:
+    if console:
+        try:
+            emu = emulation.needed(emulation.bench_in_argv(words))
+            if emu is not None:
+                emulation.reexec(words, emu)  # does not return
+        except emulation.EmulationError as exc:
+            print(f"tactile-rig: error: {exc}", file=sys.stderr)
+            return EXIT_ERROR
     parser = build_parser(_command_of(words))
     args = parser.parse_args(words)
     logging.basicConfig(
         level=getattr(logging, args.log_level), format="%(asctime)s %(name)s %(levelname)s %(message)s"
     )
+    try:
+        # After parsing, the bench the command really uses (an abbreviation or an environment the
+        # word scan above did not see; every call of main as a function).
+        emu = emulation.needed(_bench_of(args))
+        if emu is not None:
+            if console:
+                emulation.reexec(words, emu)
+            return emulation.run_in_child(words, emu)
+    except emulation.EmulationError as exc:
+        print(f"tactile-rig: error: {exc}", file=sys.stderr)
+        return EXIT_ERROR
     return run_handler(args.func, args)
 
 
+def main(argv: Sequence[str] | None = None) -> int:
+    """The ``tactile-rig`` command line as a function (``argv`` default: ``sys.argv[1:]``); returns the
+    exit code. It never replaces the calling process: a command on a bench with emulated cameras
+    runs in a child process started with their library (its output relayed to ours)."""
+    return _run(sys.argv[1:] if argv is None else list(argv), console=False)
+
+
+def console_main() -> int:
+    """Entry point of the ``tactile-rig`` console script (and ``python -m tactile_rig.cli``): as
+    :func:`main`, except that on a bench with emulated cameras the process re-executes itself once
+    with their library, before anything is opened."""
+    return _run(sys.argv[1:], console=True)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    sys.exit(console_main())

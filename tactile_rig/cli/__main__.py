@@ -1,5 +1,5 @@
 import sys
 
-from tactile_rig.cli import main
+from tactile_rig.cli import console_main
 
-sys.exit(main())
+sys.exit(console_main())

@@ -1,5 +1,5 @@
-"""A camera served as MJPEG over HTTP (the rehearsal bench's cameras, or any network camera that speaks
-the same small protocol), as a :class:`~tactile_rig.drivers.camera.FrameSource`.
+"""A camera served as MJPEG over HTTP (the rehearsal bench's cameras with ``--camera-transport http``, or
+any network camera that speaks the same small protocol), as a :class:`~tactile_rig.drivers.camera.FrameSource`.
 
 The port of such a camera in a bench file is its stream URL, ``http://127.0.0.1:PORT/stream.mjpg``.
 The protocol (served by :mod:`tactile_rig.rig.rehearsal.camera_server`) mirrors what the V4L2 path

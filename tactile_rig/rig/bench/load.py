@@ -38,6 +38,10 @@ class Bench:
     scene: str | None = None
     seed: int = 0
     force_map: Path | None = None  # learned marker-force → newton model (tactile-rig calibrate force-map)
+    # Emulated V4L2 cameras (a rehearsal bench): the registry and the preload library a process
+    # opening them is started with (tactile_rig.cli.emulation); None on a bench of real cameras.
+    v4l2_registry: Path | None = None
+    v4l2_preload: Path | None = None
 
     def device(self, name: str) -> DeviceConfig:
         try:
@@ -141,6 +145,7 @@ def load_bench(
         head = {}
     _read_head(bench, head, base, src, problems, check_files=check_files)
 
+    emulated = "v4l2_registry" in head
     for table, values in data.items():
         kind = device_kind(table)
         if kind is None:
@@ -152,7 +157,7 @@ def load_bench(
                              f"'{table}' must be a table: [{table}] with its keys below it"))
             continue
         cfg = _build_device(table, DEVICE_CLASSES[kind], values, base, src, problems,
-                            check_ports=check_ports, check_files=check_files, source=source)
+                            check_ports=check_ports, check_files=check_files, source=source, emulated=emulated)
         if cfg is not None:
             bench.devices[table] = cfg
     if not problems and not bench.devices:
@@ -167,7 +172,8 @@ def load_bench(
 
 def _read_head(bench: Bench, head: dict[str, Any], base: Path, src: _Sources,
                problems: list[tuple[int | None, str]], *, check_files: bool) -> None:
-    head_keys: dict[str, type] = {"name": str, "scene": str, "seed": int, "force_map": str}
+    head_keys: dict[str, type] = {"name": str, "scene": str, "seed": int, "force_map": str, "v4l2_registry": str,
+                                  "v4l2_preload": str}
     for key, value in head.items():
         if key not in head_keys:
             problems.append((src.line("bench", key), _unknown_key("bench", key, list(head_keys))
@@ -182,6 +188,14 @@ def _read_head(bench: Bench, head: dict[str, Any], base: Path, src: _Sources,
         problems.append((src.line("bench", "seed"), f"[bench] seed = {head['seed']}{src.origin('bench', 'seed')} "
                          f"must be in 0 .. 2**63 - 1 (a NumPy seed)"))
         bench.seed = 0
+    emulation = [k for k in ("v4l2_registry", "v4l2_preload") if isinstance(head.get(k), str)]
+    if len(emulation) == 1:
+        other = "v4l2_preload" if emulation[0] == "v4l2_registry" else "v4l2_registry"
+        problems.append((src.line("bench", emulation[0]), f"[bench] {emulation[0]} needs {other} too (emulated "
+                         "cameras need both their registry and their library)"))
+    elif emulation:
+        bench.v4l2_registry = _resolve(base, head["v4l2_registry"])
+        bench.v4l2_preload = _resolve(base, head["v4l2_preload"])
     if isinstance(head.get("force_map"), str):
         fm = _resolve(base, head["force_map"])
         bench.force_map = fm
@@ -266,7 +280,7 @@ def _check_value(hint: str, value: Any) -> tuple[Any, str | None]:
 
 def _build_device(table: str, cls: type[DeviceConfig], values: dict[str, Any], base: Path, src: _Sources,
                   problems: list[tuple[int | None, str]], *, check_ports: bool, check_files: bool,
-                  source: str) -> DeviceConfig | None:
+                  source: str, emulated: bool = False) -> DeviceConfig | None:
     spec = {f.name: f for f in fields(cls) if f.name not in ("name", "line")}
     kwargs: dict[str, Any] = {"name": table, "line": src.line(table)}
     for key, value in values.items():
@@ -297,7 +311,8 @@ def _build_device(table: str, cls: type[DeviceConfig], values: dict[str, Any], b
         problems.append((src.line(table, key), f"[{table}] {key}{src.origin(table, key)} {message}"))
 
     cfg.check(problem)
-    _check_presence(cfg, src, problems, check_ports=check_ports, check_files=check_files, source=source)
+    _check_presence(cfg, src, problems, check_ports=check_ports, check_files=check_files, source=source,
+                    emulated=emulated)
     return cfg
 
 
@@ -310,10 +325,17 @@ _FILE_COMMANDS = {"force_map": FORCE_MAP_COMMAND, "substance_model": "tactile-ri
 
 
 def _check_presence(cfg: DeviceConfig, src: _Sources, problems: list[tuple[int | None, str]], *,
-                    check_ports: bool, check_files: bool, source: str) -> None:
+                    check_ports: bool, check_files: bool, source: str, emulated: bool = False) -> None:
     """The port and the calibration file exist (checks of the machine, not of the values)."""
     t = cfg.name
-    if check_ports and cfg.port.strip() and "://" not in cfg.port and not Path(cfg.port.partition("#")[0]).exists():
+    missing = cfg.port.strip() and "://" not in cfg.port and not Path(cfg.port.partition("#")[0]).exists()
+    if check_ports and missing and emulated and isinstance(cfg, CameraConfig):
+        problems.append((src.line(t, "port"),
+                         f"{t}: port '{cfg.port}' is an emulated camera ([bench] v4l2_registry) that this process "
+                         f"does not see: start the process with the environment 'tactile-rig bench env --bench "
+                         f"{source}' prints (the tactile-rig command does so by itself), and keep the rehearsal "
+                         f"serving it running"))
+    elif check_ports and missing:
         avail = _available_cameras() if isinstance(cfg, CameraConfig) else _available_ports()
         listing = f"ports present: {', '.join(avail)}" if avail else "no such ports are present"
         problems.append((src.line(t, "port"),

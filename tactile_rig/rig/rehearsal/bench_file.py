@@ -27,10 +27,13 @@ def _value(v: Any) -> str:
     return json.dumps(v)
 
 
-def bench_toml(name: str, devices: list[RehearsalDevice], *, header: str = "") -> str:
-    """The text of a bench file naming ``devices``."""
+def bench_toml(name: str, devices: list[RehearsalDevice], *, header: str = "",
+               head: dict[str, Any] | None = None) -> str:
+    """The text of a bench file naming ``devices``; ``head`` holds further ``[bench]`` keys."""
     lines = [f"# {line}" if line else "#" for line in header.splitlines()]
-    lines += ["", "[bench]", f"name = {_value(name)}", ""]
+    lines += ["", "[bench]", f"name = {_value(name)}"]
+    lines += [f"{k} = {_value(v)}" for k, v in (head or {}).items()]
+    lines.append("")
     for dev in devices:
         if dev.comment:
             lines.append(f"# {dev.comment}")

@@ -10,9 +10,11 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 from tactile_rig.core.errors import NotConnected
+from tactile_rig.mocks.v4l2 import build as v4l2_build
+from tactile_rig.mocks.v4l2.server import ENV_DIR
 
 START_TIMEOUT_S = 60.0  # a cold start imports numpy, OpenCV and the scene under a loaded machine
 
@@ -44,7 +46,7 @@ class DeviceProcess:
     def start(self, log_dir: str | Path | None = None) -> "DeviceProcess":
         """Launch the process (does not wait for it: see :meth:`wait_ready`); its stderr goes to
         ``log_dir/<name>.log`` (default: discarded)."""
-        env = dict(os.environ)
+        env = without_camera_emulation(os.environ)
         # The child must import the same tactile_rig as this process (a worktree run with PYTHONPATH).
         here = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
         env["PYTHONPATH"] = os.pathsep.join([here, *filter(None, [env.get("PYTHONPATH")])])
@@ -118,6 +120,20 @@ class DeviceProcess:
                 p.wait(timeout_s)
         if p.stdout is not None:
             p.stdout.close()
+
+
+def without_camera_emulation(environ: Mapping[str, str]) -> dict[str, str]:
+    """``environ`` without the emulated cameras' library and registry (a shell that exported another
+    rehearsal's): a device process serves cameras, it does not open another bench's."""
+    env = dict(environ)
+    env.pop(ENV_DIR, None)
+    kept = [p for p in env.get("LD_PRELOAD", "").replace(":", " ").split()
+            if Path(p).name != v4l2_build.LIBRARY_NAME]
+    if kept:
+        env["LD_PRELOAD"] = " ".join(kept)
+    else:
+        env.pop("LD_PRELOAD", None)
+    return env
 
 
 def mock_serve_argv(kind: str, options: Sequence[str]) -> list[str]:

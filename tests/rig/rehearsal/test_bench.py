@@ -1,11 +1,18 @@
 """End to end on the rehearsal bench: every device a mock in its own process (ptys for the serial
-devices, MJPEG over HTTP for the cameras), in real time, reached only through ``--bench bench.toml``
-as a lab bench is. Each workflow's MCAP is opened with the independent ``mcap`` reader."""
+devices, emulated V4L2 devices for the cameras), in real time, reached only through ``--bench
+bench.toml`` as a lab bench is. Every command runs in a process of its own started with the cameras'
+emulation (the console script re-executes itself; ``main`` as a function runs a child), so the
+cameras are opened by OpenCV's V4L2 backend as on hardware. Each workflow's MCAP is opened with the
+independent ``mcap`` reader."""
 
 from __future__ import annotations
 
 import json
+import os
+import shutil
 import socket
+import subprocess
+import sys
 import threading
 from pathlib import Path
 
@@ -18,11 +25,16 @@ import sklearn  # noqa: F401  (the learn extra fits the force map)
 import websockets  # noqa: F401  (the live view's test client)
 
 from tactile_rig.cli import main
+from tactile_rig.cli.emulation import bench_emulation
+from tactile_rig.core.errors import BenchError
+from tactile_rig.mocks.v4l2.child import run_in_child
 from tactile_rig.rig.bench import connect_bench, load_bench
 from tactile_rig.rig.jig_accuracy import JigAccuracyConfig, execute_jig_accuracy
 from tactile_rig.rig.learning import fit_force_map
 from tactile_rig.rig.rehearsal import RehearsalBench, RehearsalOptions
 from tests._foxglove_client import LiveClient
+from tests._rehearsal_bodies import bench_ports
+from tests._v4l2 import require
 
 pytestmark = pytest.mark.pty
 
@@ -31,6 +43,7 @@ DEVICES = ["gripper", "scale", "jig", "camera_gelsight", "camera_fingervision"]
 
 @pytest.fixture(scope="module")
 def rehearsal(tmp_path_factory: pytest.TempPathFactory):
+    require()
     out = tmp_path_factory.mktemp("rehearsal")
     with RehearsalBench(out, RehearsalOptions(cameras={"fingervision": "rendered"})) as rb:
         yield rb
@@ -47,27 +60,60 @@ def _mcap_counts(path: Path) -> dict[str, int]:
     return counts
 
 
-def test_the_bench_file_names_device_paths_not_mock_urls(rehearsal) -> None:
-    bench = load_bench(rehearsal.bench_path)
+def _tactile_rig(*argv: str, timeout_s: float = 120.0) -> subprocess.CompletedProcess[str]:
+    """The console script a lab runs (the virtualenv's ``tactile-rig``), in a process of its own."""
+    script = shutil.which("tactile-rig", path=os.path.dirname(sys.executable)) or "tactile-rig"
+    return subprocess.run([script, *argv], capture_output=True, text=True, timeout=timeout_s)
+
+
+def test_the_bench_file_names_video_nodes_and_their_emulation(rehearsal) -> None:
+    bench = load_bench(rehearsal.bench_path, check_ports=False)
     assert list(bench.devices) == DEVICES
     assert not bench.is_mock
     for name in ("gripper", "scale", "jig"):
         port = Path(bench.devices[name].port)
         assert port.is_symlink() and str(port.resolve()).startswith("/dev/pts/")
-    assert all(c.port.startswith("http://127.0.0.1:") for c in bench.cameras.values())
+    assert [c.port for c in bench.cameras.values()] == ["/dev/video42", "/dev/video43"]
+    assert bench.v4l2_registry == rehearsal.registry == rehearsal.out / "v4l2"
+    assert bench.v4l2_preload == rehearsal.library and rehearsal.library.is_file()
+    emu = bench_emulation(rehearsal.bench_path)
+    assert emu is not None and emu.env() == rehearsal.env  # what the CLI loads is what the rehearsal serves
     pids = {p.pid for p in rehearsal.processes.values()}
     assert len(pids) == 4  # gripper, scale, stage (jig + its camera), footage camera
+    # This process was not started with the emulation: its cameras do not exist here, and the loader says why.
+    with pytest.raises(BenchError, match="emulated camera .*'tactile-rig bench env"):
+        load_bench(rehearsal.bench_path)
+    # A process started with it sees every device path (the nodes are character devices 81:N there).
+    ports = run_in_child(bench_ports, str(rehearsal.bench_path), env=rehearsal.env)
+    assert ports["camera_gelsight"] == "/dev/video42" and ports["gripper"].startswith("/dev/pts/")
 
 
-def test_bench_check_verifies_every_device(rehearsal, capsys) -> None:
-    assert main(["bench", "check", "--bench", str(rehearsal.bench_path), "--json"]) == 0
-    rows = {r["device"]: r for r in map(json.loads, capsys.readouterr().out.splitlines())}
+def test_bench_check_from_the_console_script_verifies_every_device(rehearsal) -> None:
+    done = _tactile_rig("bench", "check", "--bench", str(rehearsal.bench_path), "--json")
+    assert done.returncode == 0, done.stderr
+    assert done.stderr == ""  # no warning: the cameras open, stream and close cleanly
+    rows = {r["device"]: r for r in map(json.loads, done.stdout.splitlines())}
     assert list(rows) == DEVICES and all(r["ok"] for r in rows.values())
     assert rows["gripper"]["details"]["model_number"] == 311
     assert rows["scale"]["details"]["firmware"] == "hx711-scale" and rows["scale"]["details"]["rate_sps"] == 80
     assert rows["jig"]["details"]["version"] == "1.1h"
-    assert rows["camera_gelsight"]["details"]["controls"]["auto_exposure"] == 1.0
-    assert rows["camera_gelsight"]["details"]["format"][:3] == ["MJPG", 320, 240]
+    cam = rows["camera_gelsight"]["details"]
+    # OpenCV's CAP_PROP_* controls, and exposure_dynamic_framerate by its V4L2 id (no CAP_PROP for it).
+    assert cam["controls"] == {"auto_exposure": 1.0, "exposure_time_absolute": 166.0, "white_balance_automatic": 0.0,
+                               "white_balance_temperature": 4000.0, "gain": 64.0, "exposure_dynamic_framerate": 0.0}
+    assert cam["format"][:3] == ["MJPG", 320, 240] and cam["frame_shape"] == [240, 320, 3]
+
+
+def test_bench_env_is_what_other_programs_need(rehearsal) -> None:
+    require("v4l2-ctl")
+    done = _tactile_rig("bench", "env", "--bench", str(rehearsal.bench_path), "--json")
+    assert done.returncode == 0, done.stderr
+    env = json.loads(done.stdout)
+    assert env == rehearsal.env
+    info = subprocess.run(["v4l2-ctl", "-d", "/dev/video42", "--info"], capture_output=True, text=True, timeout=30,
+                          env={**os.environ, **env})
+    assert info.returncode == 0, info.stderr
+    assert "uvcvideo" in info.stdout and "UVC Camera (046d:081b)" in info.stdout
 
 
 def test_bench_check_fails_a_device_that_is_not_what_the_bench_says(rehearsal, capsys) -> None:
@@ -83,13 +129,23 @@ def test_bench_check_fails_a_device_that_is_not_what_the_bench_says(rehearsal, c
     assert rows["jig"]["ok"] and rows["camera_gelsight"]["ok"]
 
 
-def test_camera_check_and_grab(rehearsal, tmp_path, capsys) -> None:
+def test_camera_list_check_grab_and_fps(rehearsal, tmp_path, capsys) -> None:
     b = str(rehearsal.bench_path)
+    assert main(["camera", "list", "--bench", b, "--json"]) == 0
+    rows = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert [r["port"] for r in rows if "camera" in r] == ["/dev/video42", "/dev/video43"]
+    nodes = {r["v4l2"]: r["links"] for r in rows if "v4l2" in r}  # what the process saw in /dev
+    assert {"/dev/video42", "/dev/video43"} <= set(nodes)
+    assert any(link.startswith("/dev/v4l/by-id/usb-046d_081b_") for link in nodes["/dev/video42"])
     assert main(["camera", "check", "--bench", b, "--camera", "camera_fingervision"]) == 0
     assert main(["camera", "grab", "--bench", b, "--count", "2", "--out", str(tmp_path), "--json"]) == 0
     files = json.loads(capsys.readouterr().out.splitlines()[-1])["files"]
     assert len(files) == 2 and files[0] != files[1]
     assert cv2.imread(files[0]).shape == (240, 320, 3)
+    assert main(["camera", "fps", "--bench", b, "--camera", "camera_fingervision", "--duration", "2", "--json"]) == 0
+    fps = json.loads(capsys.readouterr().out.splitlines()[-1])
+    # The rate on the device's clock is the buffers' timestamps (CAP_PROP_POS_MSEC), the emulation's 25 fps.
+    assert fps["device_fps"] == pytest.approx(25.0, abs=0.5) and fps["host_fps"] > 20.0
     assert main(["camera", "grab", "--bench", b, "--camera", "nope"]) == 2
 
 
@@ -102,7 +158,7 @@ def test_jig_accuracy_on_the_rehearsal_bench_matches_the_mock_run(rehearsal, tmp
     assert summary["n_points"] == 6 and summary["n_refused"] == 0
     cfg = JigAccuracyConfig(rotations_deg=(-20.0, 20.0, 20.0), shifts_mm=(-2.0, 2.0, 2.0))
     mock = execute_jig_accuracy(cfg, tmp_path / "mock-run", report=False).summary
-    # Same localization on real-time devices over ptys and HTTP as in virtual time in process: the
+    # Same localization on real-time devices over ptys and V4L2 as in virtual time in process: the
     # differences are the camera's JPEG and read noise (docs/your_bench.md has the full sweep).
     assert summary["rotation_mae_deg"] <= mock["rotation_mae_deg"] + 0.3
     assert summary["translation_mae_mm"] <= mock["translation_mae_mm"] + 0.05
@@ -213,7 +269,7 @@ def test_gelsight_height_live_saves_the_last_map(rehearsal, tmp_path, capsys) ->
 
 def test_gelsight_localize_live_follows_the_jig(rehearsal, tmp_path, capsys) -> None:
     b = str(rehearsal.bench_path)
-    bench = load_bench(b)
+    bench = load_bench(b, check_ports=False)  # only the jig is opened here
     # One connection for the whole test: GRBL resets when its port is opened (an Uno's DTR reset) and,
     # without homing, takes wherever the stage stands as its new zero.
     jig = connect_bench(load_bench(text=f'[jig]\nport = "{bench.devices["jig"].port}"\n')).jig

@@ -1,5 +1,6 @@
-"""The rehearsal bench's parts on their own: the MJPEG-over-HTTP camera (server and driver), recorded
-footage at its recorded rate, the bench file, and the command line's checks of its input."""
+"""The rehearsal bench's parts on their own: the MJPEG-over-HTTP camera (server and driver, and a
+rehearsal serving its cameras that way), the camera modes a rehearsal asks of its camera model,
+recorded footage at its recorded rate, the bench file, and the command line's checks of its input."""
 
 from __future__ import annotations
 
@@ -10,8 +11,9 @@ import mcap  # noqa: F401  (the record extra writes the recording)
 import numpy as np
 import pytest
 
+import tactile_rig.cli as cli
 from tactile_rig.cli import main
-from tactile_rig.cli.bench import parse_camera_option
+from tactile_rig.cli.bench import parse_camera_option, parse_model_option
 from tactile_rig.core.clock import RealClock, VirtualClock
 from tactile_rig.core.errors import ControlReadbackError, NotConnected
 from tactile_rig.drivers.camera import FingertipCamera
@@ -20,8 +22,10 @@ from tactile_rig.mocks.camera import SimulatedCamera
 from tactile_rig.rig.bench import load_bench
 from tactile_rig.rig.bench_check import check_bench
 from tactile_rig.rig.recording import Recorder, read_recording
-from tactile_rig.rig.rehearsal import CameraServer, RehearsalOptions, load_footage
+from tactile_rig.devices.camera_models import C310, DIGIT, GELSIGHT_MINI
+from tactile_rig.rig.rehearsal import CameraServer, RehearsalBench, RehearsalOptions, load_footage
 from tactile_rig.rig.rehearsal.bench_file import RehearsalDevice, bench_toml
+from tactile_rig.rig.rehearsal.cameras import check_mode, footage_mode
 
 MODE = ("MJPG", 160, 120)
 
@@ -147,8 +151,57 @@ def test_bad_rehearsal_options_are_refused(capsys) -> None:
         RehearsalOptions(camera_sensors={"a": "digit"})
     with pytest.raises(ValueError, match="not 'gelsight'"):
         RehearsalOptions(cameras={"gelsight": "x.mp4"})
+    with pytest.raises(ValueError, match="MJPG only"):
+        RehearsalOptions(camera_transport="http", gelsight_fourcc="YUYV")
+    with pytest.raises(ValueError, match="camera_transport='usb' must be one of v4l2, http"):
+        RehearsalOptions(camera_transport="usb")
+    with pytest.raises(ValueError, match="offers MJPG 320x240 at 30, 25, 20, 15, 10, 5 frames/s, not 24"):
+        RehearsalOptions(gelsight_fps=24.0)
+    with pytest.raises(ValueError, match="GelSight Mini offers MJPG at 3280x2464, not 320x240"):
+        RehearsalOptions(camera_models={"gelsight": "gelsight-mini"})
+    with pytest.raises(ValueError, match="'left', which is not a camera of this rehearsal"):
+        RehearsalOptions(camera_models={"left": "c310"})
+    with pytest.raises(ValueError, match="unknown camera model 'c920'"):
+        RehearsalOptions(cameras={"left": "x.mp4"}, camera_models={"left": "c920"})
     assert main(["bench", "rehearse", "--camera", "nonsense"]) == 2
     assert "NAME=SOURCE" in capsys.readouterr().err
+    assert main(["bench", "rehearse", "--camera-model", "digit"]) == 2
+    assert "NAME=MODEL" in capsys.readouterr().err
+    assert parse_model_option("fingervision=digit") == ("fingervision", "digit")
+
+
+def test_a_camera_model_offers_the_modes_the_rehearsal_asks_for() -> None:
+    check_mode(C310, "YUYV", 320, 240, 25.0, what="cam")  # the GelSight camera, uncompressed
+    check_mode(DIGIT, "YUYV", 320, 240, 60.0, what="cam")
+    with pytest.raises(ValueError, match="cam: a DIGIT .* offers YUYV, not MJPG"):
+        check_mode(DIGIT, "MJPG", 320, 240, 30.0, what="cam")
+    # Footage keeps its size where the camera offers it, else takes the size uvcvideo would pick; the
+    # rate is the offered one nearest the footage's (it plays at its own rate, sampled at the camera's).
+    assert footage_mode(C310, "MJPG", 320, 240, 25.0) == (320, 240, 25.0)
+    assert footage_mode(C310, "MJPG", 640, 480, 24.0) == (640, 480, 25.0)
+    assert footage_mode(C310, "MJPG", 1920, 1080, 29.97) == (1280, 960, 30.0)
+    assert footage_mode(DIGIT, "YUYV", 240, 320, 60.0) == (320, 240, 60.0)
+    assert footage_mode(GELSIGHT_MINI, "MJPG", 320, 240, 25.0) == (3280, 2464, 25.0)
+
+
+@pytest.mark.pty
+def test_a_rehearsal_with_http_cameras_is_read_in_this_process(tmp_path, monkeypatch, capsys) -> None:
+    opts = RehearsalOptions(camera_transport="http", calibration=False)
+    with RehearsalBench(tmp_path / "r", opts) as rb:
+        assert rb.env == {} and rb.registry is None
+        text = rb.bench_path.read_text()
+        assert "v4l2_registry" not in text and "v4l2_preload" not in text
+        bench = load_bench(rb.bench_path)  # every port exists in this very process
+        assert bench.v4l2_registry is None and bench.cameras["camera_gelsight"].port.startswith("http://127.0.0.1:")
+
+        def no_child(argv, emu):
+            raise AssertionError(f"a bench of HTTP cameras ran {argv} in a child process")
+
+        monkeypatch.setattr(cli.emulation, "run_in_child", no_child)
+        assert main(["camera", "grab", "--bench", str(rb.bench_path), "--out", str(tmp_path / "g"), "--json"]) == 0
+        files = json.loads(capsys.readouterr().out.splitlines()[-1])["files"]
+        assert cv2.imread(files[0]).shape == (240, 320, 3)
+        assert rb.problems() == []
 
 
 def test_record_on_the_mock_bench_in_virtual_time(tmp_path, capsys) -> None:

@@ -2,13 +2,12 @@
 gelsight_ball_presses``): the GelSight ball-press session moving the jig, and the force map, where
 the gripper presses the FingerVision fingertip on the scale, the guided collection records it and
 fits the map, then live tracking reports newtons that agree with the scale. Real time, ptys and
-HTTP, separate processes; each session's MCAP read by the mcap package's own reader."""
+emulated V4L2 cameras, separate processes (each command, and the live tracking, in a process started
+with the cameras' emulation); each session's MCAP read by the mcap package's own reader."""
 
 from __future__ import annotations
 
 import json
-import threading
-import time
 
 import mcap.reader as mcap_reader
 import numpy as np
@@ -16,16 +15,17 @@ import pytest
 import sklearn  # noqa: F401  (the learn extra fits the force map)
 
 from tactile_rig.cli import main
-from tactile_rig.rig.bench import connect_bench, load_bench
-from tactile_rig.rig.camera_calibrations import camera_calibrations
-from tactile_rig.rig.live_perception import FingerVisionStep, run_live
+from tactile_rig.mocks.v4l2.child import run_in_child
 from tactile_rig.rig.rehearsal import RehearsalBench, RehearsalOptions
+from tests._rehearsal_bodies import press_while_tracking
+from tests._v4l2 import require
 
 pytestmark = [pytest.mark.pty, pytest.mark.slow]
 
 
 @pytest.fixture(scope="module")
 def press_bench(tmp_path_factory: pytest.TempPathFactory):
+    require()
     out = tmp_path_factory.mktemp("press")
     opts = RehearsalOptions(press=True, calibration=False, stage_scene="gelsight_ball_presses")
     with RehearsalBench(out, opts) as rb:
@@ -60,32 +60,7 @@ def test_force_map_collected_on_the_rehearsal_gives_newtons_in_live_tracking(pre
     recording = next(v for d in out for k, v in d.items() if k in ("recording", "mcap") and str(v).endswith(".mcap"))
     assert {"/scale/force", "/camera_fingervision/image/compressed"} <= _topics(recording)
 
-    bench = load_bench(bench_path)
-    cal = camera_calibrations(bench, "camera_fingervision", force_map=model, defaults=False, load=("force_map",))
-    assert cal.force_map is not None
-    rig = connect_bench(load_bench(text=f'[gripper]\nport = "{bench.devices["gripper"].port}"\nbaud = 57600\n'
-                                        f'[scale]\nport = "{bench.devices["scale"].port}"\nrate_hz = 80.0\n'))
-    rows: list[dict] = []
-    scale_n: list[float] = []
-
-    def press() -> None:  # close on the platform once tracking has started at rest, then let go
-        deadline = time.monotonic() + 60.0
-        while len(rows) < 20 and time.monotonic() < deadline:  # frames, not seconds: a loaded machine
-            time.sleep(0.02)
-        rig.gripper.activate(0.02)  # the collection's probe measured ~260 N per unit effort: ~5 N
-        rig.gripper.gripper_go(0.0, 0.02, blocking=False)
-        while len(rows) < 70 and time.monotonic() < deadline:
-            scale_n.extend(r.newtons for r in rig.scale.poll())
-            time.sleep(0.02)
-        rig.gripper.gripper_go(0.06, 0.1, blocking=False)
-
-    presser = threading.Thread(target=press)
-    presser.start()
-    try:
-        run_live(bench, "camera_fingervision", FingerVisionStep(calibrations=cal), max_frames=100, on_frame=rows.append)
-    finally:
-        presser.join(30)
-        rig.close()
+    rows, scale_n = run_in_child(press_while_tracking, bench_path, str(model), env=press_bench.env, timeout_s=110.0)
     tracked = [r for r in rows if not r["calibrating"]]
     assert all("force_map_n" in r for r in tracked)
     at_rest = [r["force_map_n"] for r in rows[:20] if not r["calibrating"]]
