@@ -16,7 +16,9 @@
  *     first data comes 4 periods later), 24-bit two's complement saturating at 0x7FFFFF/0x800000,
  *     channel and gain picked by 25/26/27 pulses, power-down when PD_SCK stays high 60 us, and a
  *     count of every timing rule the sketch breaks (PD_SCK high > 50 us or < 0.2 us, low < 0.2 us,
- *     clocking while DOUT is high, a wrong pulse count); the bridge's offset, counts per gram,
+ *     clocking while DOUT is high, a wrong pulse count), conversions nobody read counted apart from
+ *     those lost between an MCU reset and the sketch powering the chip down (a reset that cuts a
+ *     read short leaves the HX711 shifting with PD_SCK floating low); the bridge's offset, counts per gram,
  *     warm-up drift, output noise and rare glitches as the Python mock has them;
  *   - the load, set by the host through a control FIFO (lines "force_n <newtons>", "hx711
  *     connect|disconnect", "reset", "stats <path>", "quit");
@@ -139,11 +141,13 @@ typedef struct {
 typedef struct {
 	/* HX711 */
 	int connected, powered, sck, reading, pulses, gain, settle_left, ready, dout, busy_rise;
+	int orphaned;                 /* the MCU reset since it last powered the chip down: nobody reads it */
 	avr_cycle_count_t period, next_conv, pd_at, sck_rise, sck_fall;
 	int64_t hist[HX_SETTLE_PERIODS];
 	int nhist;
 	int32_t data;
 	uint64_t conversions, reads, missed, powerdowns;
+	uint64_t missed_after_reset, reads_cut_by_reset; /* the reset's doing, not the sketch's */
 	uint64_t v_high_long, v_high_short, v_low_short, v_busy, v_pulses;
 } hx711_t;
 
@@ -266,6 +270,7 @@ static void hx_power_down(void) {
 	hx711_t *h = &B.hx;
 	if (h->powered) h->powerdowns++;
 	h->powered = 0;
+	h->orphaned = 0;                        /* a sketch that powers it down is the one reading it next */
 	h->ready = h->reading = h->pulses = 0;
 	h->next_conv = 0;
 	hx_drive_dout(1);                       /* DOUT high; an unplugged one reads high through the pull-up */
@@ -273,7 +278,10 @@ static void hx_power_down(void) {
 
 static void hx_present(int32_t value) {
 	hx711_t *h = &B.hx;
-	if (h->ready && !B.boot_until) h->missed++;  /* the sketch never read the one before */
+	if (h->ready) {                         /* the one before was never read */
+		if (B.boot_until || h->orphaned) h->missed_after_reset++;
+		else h->missed++;
+	}
 	hx_trace("data", now_cycle(), value);
 	h->data = value;
 	h->ready = 1;
@@ -288,7 +296,7 @@ static void hx_convert(avr_cycle_count_t t) {
 	if (h->pulses) {
 		int g = h->pulses == 25 ? 128 : h->pulses == 26 ? 32 : h->pulses == 27 ? 64 : 0;
 		if (!g) {
-			h->v_pulses++;
+			if (!h->orphaned) h->v_pulses++;        /* a read cut by a reset is not the sketch's count */
 		} else if (g != h->gain) {
 			h->gain = g;
 			h->nhist = 0;
@@ -311,7 +319,10 @@ static void hx_convert(avr_cycle_count_t t) {
 	if (out < HX_MIN_COUNTS) out = HX_MIN_COUNTS;
 	if (out > HX_MAX_COUNTS) out = HX_MAX_COUNTS;
 	if (h->reading) {
-		h->missed++;                        /* the output register is being shifted out: lost */
+		/* The output register is being shifted out: lost. A read a reset cut short stays "being
+		 * shifted out" with PD_SCK floating low until the sketch powers the chip down. */
+		if (B.boot_until || h->orphaned) h->missed_after_reset++;
+		else h->missed++;
 		hx_trace("lost", t, out);
 	} else {
 		hx_present((int32_t)out);
@@ -560,6 +571,8 @@ static void board_reset(void) {
 	B.resets++;
 	B.inq_len = 0;                          /* bytes on the wire at the reset are lost */
 	B.feed_at = 0;
+	if (B.hx.reading) B.hx.reads_cut_by_reset++;
+	B.hx.orphaned = 1;
 	B.hx.sck = 0;                           /* PD_SCK floats low while the pin is an input */
 	B.hx.pd_at = 0;
 	avr_raise_irq(B.dout_irq, B.hx.dout ? 0 : 1);
@@ -610,7 +623,8 @@ static void write_stats(FILE *f) {
 	fprintf(f,
 		"{\"sim_s\": %.6f, \"resets\": %llu, \"rate_sps\": %d, \"force_n\": %.9g, "
 		"\"hx711\": {\"connected\": %d, \"powered\": %d, \"gain\": %d, \"conversions\": %llu, \"reads\": %llu, "
-		"\"missed\": %llu, \"powerdowns\": %llu, \"violations\": {\"sck_high_over_50us\": %llu, "
+		"\"missed\": %llu, \"missed_after_reset\": %llu, \"reads_cut_by_reset\": %llu, "
+		"\"powerdowns\": %llu, \"violations\": {\"sck_high_over_50us\": %llu, "
 		"\"sck_high_under_0_2us\": %llu, \"sck_low_under_0_2us\": %llu, \"clocked_while_busy\": %llu, "
 		"\"wrong_pulse_count\": %llu}}, "
 		"\"uart\": {\"to_avr\": %llu, \"from_avr\": %llu, \"dropped_towards_host\": %llu, \"garbled\": %llu, \"tx_overruns\": %llu}, "
@@ -618,6 +632,7 @@ static void write_stats(FILE *f) {
 		cycles_to_s(now_cycle()), (unsigned long long)B.resets, B.opt.rate_sps, B.opt.force_n,
 		h->connected, h->powered, h->gain, (unsigned long long)h->conversions,
 		(unsigned long long)h->reads, (unsigned long long)h->missed,
+		(unsigned long long)h->missed_after_reset, (unsigned long long)h->reads_cut_by_reset,
 		(unsigned long long)h->powerdowns, (unsigned long long)h->v_high_long,
 		(unsigned long long)h->v_high_short, (unsigned long long)h->v_low_short,
 		(unsigned long long)h->v_busy, (unsigned long long)h->v_pulses,
