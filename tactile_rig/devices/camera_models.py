@@ -6,6 +6,9 @@ One home per fact: the simulated camera (:mod:`tactile_rig.mocks.camera`), the V
 docstring (and ``docs/emulated_cameras.md``) says where every fact comes from and which are
 modelled rather than read from a published capture of the device.
 
+The module is a little over 500 lines because it is one table: three models' descriptors and
+controls, each with its source, beside the few helpers that read them the way uvcvideo does.
+
 Units: frame intervals in 100 ns (the UVC descriptors' own unit, ``dwFrameInterval``), sizes in
 pixels, exposure in 100 µs (the UVC/V4L2 ``exposure_time_absolute`` unit).
 """
