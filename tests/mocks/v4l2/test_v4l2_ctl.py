@@ -150,8 +150,8 @@ def _check_stream(rows: list[tuple[int, float, int, str]], count: int, fps: floa
 
 
 @pytest.mark.parametrize(("model", "fmt", "count", "fps", "size"), [
-    ("c310", "width=320,height=240,pixelformat=YUYV", 120, 30.0, 320 * 240 * 2),
-    ("digit", "width=320,height=240,pixelformat=YUYV", 120, 60.0, 320 * 240 * 2),
+    ("c310", "width=320,height=240,pixelformat=YUYV", 300, 30.0, 320 * 240 * 2),
+    ("digit", "width=320,height=240,pixelformat=YUYV", 300, 60.0, 320 * 240 * 2),
 ])
 def test_stream_mmap_sequence_and_timestamps(model: str, fmt: str, count: int, fps: float, size: int) -> None:
     with emulated(model) as cam:
