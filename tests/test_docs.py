@@ -14,13 +14,15 @@ ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
 
 # Markers of a story told in the docs rather than what is: "round N", an ordinal round, "this round",
-# "issue N", "#16's table". The word "round" alone (rounding, round trips, a timing round) is fine.
+# "issue N", "#16's table", a sentence opening "Was:". The word "round" alone (rounding, round trips,
+# a timing round) is fine.
 HISTORY = re.compile(
     r"\b(?:first|second|third|fourth|fifth|sixth|seventh|eighth|ninth|tenth|\d+(?:st|nd|rd|th))[ -]rounds?\b"
     r"|\b(?:this|that|previous|earlier)[ -]round\b"
     r"|(?<![-\w])rounds? #?\d+\b"
     r"|\bissues? #?\d+"
-    r"|#\d+'s\b",
+    r"|#\d+'s\b"
+    r"|(?:^|[#.])\s*was:\s",
     re.IGNORECASE,
 )
 
@@ -38,7 +40,7 @@ def _scanned() -> list[Path]:
     ("as issue #11 found it", True), ("#16's table", True), ("round 2 of the fix", True),
     ("the 3rd round", True), ("round-robin over the settings", False), ("a round trip of 0.3 ms", False),
     ("round dots the size of a marker", False), ("each round starts one setting further on", False),
-    ("--rounds 5", False), ("values drawn around 1", False), ("issue the command twice", False),
+    ("# Was: two T,ok, one per 't'.", True), ("what the camera said it was: MJPG", False), ("--rounds 5", False), ("values drawn around 1", False), ("issue the command twice", False),
 ])
 def test_the_history_pattern_finds_markers_and_not_rounding(text: str, found: bool) -> None:
     assert bool(HISTORY.search(text)) is found, text

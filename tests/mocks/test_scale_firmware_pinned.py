@@ -39,8 +39,8 @@ def _kinds(lines) -> list[str]:
 
 @pytest.mark.parametrize("rate", [10, 80])
 def test_the_banner_follows_the_bootloader_then_the_hx711_settling_and_20_conversions(rate: int) -> None:
-    # Was: the banner at exactly boot_s with the window filled instantly. The sketch resets the
-    # HX711 (first data 4 periods later), drops 2 conversions and fills 18 for the start-up tare.
+    # Not at the bootloader's end with the window already full: the sketch resets the HX711 (first
+    # data 4 periods later), drops 2 conversions and fills 18 for the start-up tare.
     cfg = BoardConfig(rate_sps=rate, noise_counts=0.0, drift_counts=0.0, spike_prob=0.0, boot_junk=0)
     s = Script().at(0.0, "open")
     s.end_s = cfg.bootloader_s + 24.5 / rate
@@ -54,8 +54,8 @@ def test_the_banner_follows_the_bootloader_then_the_hx711_settling_and_20_conver
 
 
 def test_bytes_in_the_bootloader_are_lost_and_in_setup_wait_in_a_63_byte_ring() -> None:
-    # Was: everything sent before the banner ignored. The sketch's Serial.begin() runs first thing:
-    # bytes then wait in HardwareSerial's 64-byte ring (63 usable) and run after the banner.
+    # Bytes sent before the banner are not all lost: the sketch's Serial.begin() runs first thing,
+    # so they wait in HardwareSerial's 64-byte ring (63 usable) and run after the banner.
     boot = QUIET.bootloader_s
     s = Script().at(0.0, "open")
     s.at(0.5, "send", b"?\n" * 5)  # the bootloader's: gone
@@ -90,14 +90,14 @@ def _session(*sends: bytes, gap_s: float = 0.1, cfg: BoardConfig = QUIET):
 
 
 def test_long_lines_and_nul_bytes_are_unknown_commands_and_blank_lines_nothing() -> None:
-    # Was: a line over 64 bytes silently cleared, and its tail taken as a new command.
+    # A line over the buffer is one unknown command; its tail is not taken as a new one.
     got = _session(b"a" * 32 + b"\n", b"?" * 33 + b"\n", b"t\x00\n", b"\r\n", b"\n", b"?\r\n")
     assert [p.kind for p in got[1:]] == ["error", "error", "error", "id"]
     assert [p.code for p in got[1:4]] == [1, 1, 1]
 
 
 def test_a_repeated_tare_restarts_the_wait_and_is_answered_once() -> None:
-    # Was: two T,ok, one per 't'.
+    # One T,ok, not one per 't'.
     s = Script().at(0.0, "open")
     t0 = QUIET.bootloader_s + 0.6
     s.at(t0, "send", b"t\n").at(t0 + 0.05, "send", b"t\n")
@@ -115,7 +115,7 @@ def test_a_repeated_tare_restarts_the_wait_and_is_answered_once() -> None:
     (b"c,0", 2), (b"c,0.000", 2), (b"c,", 2), (b"c, 5", 2), (b"c,5 ", 2), (b"C,5", 1), (b"c5", 1),
 ])
 def test_calibration_masses_outside_the_sketch_grammar_are_refused(command: bytes, code: int) -> None:
-    # Was: float() semantics ("1e2", " 5", "100.0000" accepted).
+    # The sketch's own grammar, not float()'s ("1e2", " 5" and "100.0000" are refused).
     got = _session(command + b"\n")
     assert [(p.kind, p.code) for p in got[1:]] == [("error", code)]
 
