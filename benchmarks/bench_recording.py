@@ -17,12 +17,15 @@ compress) and the read-back rate. JPEG quality 95 (OpenCV's default) in both enc
 
 Part 2, live: the same JPEG frames published on a :class:`tactile_rig.rig.live.LiveServer` to a
 subscribed WebSocket client (typed, and JSON on a JSON channel as the baseline): bytes per frame on
-the wire and CPU per message of the publishing thread.
+the wire and CPU per message of the publishing thread. Each encoding runs REPEATS times, the two taking
+turns; the table gives the median and the range (a client thread in the same process shares the GIL, so
+single runs scatter by a third).
 
 Part 3, the MCAP writer alone: the same pre-encoded typed JPEG messages (3000, 320x240, 60 different
 frames in turn) through the
 project's writer (:class:`Recorder`, ``publish``) and through foxglove-sdk's own ``MCAPWriter`` (a
-channel per topic, flushed once a second as the recorder does): CPU per message and bytes per message.
+channel per topic, flushed once a second as the recorder does): CPU per message and bytes per message,
+median and range over REPEATS runs taking turns.
 
 Part 4 (``--session``): ``tactile-rig record`` of a rehearsal bench with two cameras at 30 fps
 (the GelSight stage camera and a 30-fps footage camera) for 60 s; reports per camera the frames
@@ -39,6 +42,7 @@ import base64
 import json
 import os
 import platform
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -60,6 +64,7 @@ from tactile_rig.rig.messages import Encoded, json_schema  # noqa: E402
 from tactile_rig.rig.recording import Recorder, read_recording  # noqa: E402
 
 JPEG_QUALITY = 95
+REPEATS = 5
 
 
 def _frames(shape: tuple[int, int], n: int) -> list[np.ndarray]:
@@ -177,6 +182,13 @@ def _live(kind: str, frames: list[np.ndarray]) -> dict[str, float]:
             "received": got["n"]}
 
 
+def _spread(runs: list[dict]) -> dict:
+    """The median of every number over ``runs``, and the range of the CPU per message."""
+    out = {k: statistics.median(r[k] for r in runs) for k, v in runs[0].items() if isinstance(v, (int, float))}
+    cpu = [r["cpu_us_per_message"] for r in runs]
+    return {**out, "cpu_us_per_message_range": [min(cpu), max(cpu)]}
+
+
 def _writers(tmp: Path, n: int) -> list[dict]:
     """CPU and bytes per message of the project's MCAP writer and of foxglove-sdk's, the same messages."""
     import foxglove
@@ -262,6 +274,7 @@ def main() -> None:
     add_save_args(ap, "recording.json")
     args = parse_args(ap)
     n = 30 if args.quick else 150
+    repeats = 2 if args.quick else REPEATS
     results, live = [], []
     with tempfile.TemporaryDirectory() as tmp:
         for shape in ((240, 320), (480, 640)):
@@ -269,9 +282,18 @@ def main() -> None:
             size = f"{shape[1]}x{shape[0]}"
             for mode in ("baseline_bytes", "json_raw", "typed_raw", "json_jpeg", "typed_jpeg", "typed_png"):
                 results.append({"size": size, "mode": mode, "frames": n, **_record(mode, frames, Path(tmp) / f"{mode}.bin")})
-            for kind in ("json", "typed"):
-                live.append({"size": size, "mode": f"{kind}_jpeg", "frames": n, **_live(kind, frames)})
-        writers = _writers(Path(tmp), 600 if args.quick else 3000)
+            runs: dict[str, list[dict]] = {"json": [], "typed": []}
+            for _ in range(repeats):
+                for kind in runs:
+                    runs[kind].append(_live(kind, frames))
+            for kind, rs in runs.items():
+                live.append({"size": size, "mode": f"{kind}_jpeg", "frames": n, "runs": len(rs), **_spread(rs)})
+        writer_runs = []
+        for i in range(repeats):
+            (Path(tmp) / f"writers{i}").mkdir()
+            writer_runs.append(_writers(Path(tmp) / f"writers{i}", 600 if args.quick else 3000))
+        writers = [{"writer": rows[0]["writer"], "runs": len(rows), **_spread(rows)}
+                   for rows in zip(*writer_runs)]
         session = _session(10.0 if args.quick else 60.0, Path(tmp)) if args.session else None
     out = {"benchmark": "recording", "python": platform.python_version(), "machine": platform.machine(),
            "cpus": os.cpu_count(), "load_avg": os.getloadavg(), "quick": args.quick, "jpeg_quality": JPEG_QUALITY,
@@ -283,9 +305,13 @@ def main() -> None:
               f"{r['fps_wall']:9.1f} {r.get('read_fps', float('nan')):9.1f}")
     print(f"{'size':>8} {'live':>15} {'bytes/frame':>12} {'CPU us/msg':>11} {'received':>9}")
     for r in live:
-        print(f"{r['size']:>8} {r['mode']:>15} {r['bytes_per_frame']:12.0f} {r['cpu_us_per_message']:11.1f} {r['received']:9d}")
+        lo, hi = r["cpu_us_per_message_range"]
+        print(f"{r['size']:>8} {r['mode']:>15} {r['bytes_per_frame']:12.0f} {r['cpu_us_per_message']:11.1f} "
+              f"{r['received']:9.0f}  ({lo:.0f}-{hi:.0f} over {r['runs']} runs)")
     for r in writers:
-        print(f"{'writer':>8} {r['writer']:>30} {r['bytes_per_message']:9.0f} B/msg {r['cpu_us_per_message']:8.1f} us/msg")
+        lo, hi = r["cpu_us_per_message_range"]
+        print(f"{'writer':>8} {r['writer']:>30} {r['bytes_per_message']:9.0f} B/msg {r['cpu_us_per_message']:8.1f} us/msg "
+              f"({lo:.0f}-{hi:.0f} over {r['runs']} runs)")
     if session is not None:
         print(f"session: {session['seconds']:.0f} s, frames {session['frames']}, fps {session['camera_fps']}, "
               f"dropped by the recording {session['dropped'] or 'none'}, missing from the cameras' own sequence "
