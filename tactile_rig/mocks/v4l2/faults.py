@@ -42,7 +42,11 @@ class CameraFaultEvent:
 
 @dataclass
 class CameraFaults:
-    """Which faults to inject and when; :meth:`on_frame` is called after every delivered frame."""
+    """Which faults to inject and when; :meth:`on_frame` is called after every delivered frame.
+
+    ``stall``, ``freeze``, ``unplug``, ``replug``: the chance per delivered frame (0..1, as in a
+    ``rigfault://`` query); ``*_s``: how long each lasts, in seconds; ``*_after``: a fault that
+    comes once, after this many frames."""
 
     stall: float = 0.0
     freeze: float = 0.0
