@@ -23,9 +23,9 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
                           check=False)
 
 
-def _sysfs() -> dict[str, str]:
+def walk_tree(root: Path) -> dict[str, str]:
+    """Every file (its bytes as hex) and symlink (its target) under ``root``, by relative path."""
     out = {}
-    root = Path(os.environ["UMOCKDEV_DIR"]) / "sys"
     for dirpath, dirnames, filenames in os.walk(root):
         for name in dirnames + filenames:
             p = Path(dirpath, name)
@@ -35,6 +35,10 @@ def _sysfs() -> dict[str, str]:
             elif p.is_file():
                 out[rel] = p.read_bytes().hex()
     return out
+
+
+def _sysfs() -> dict[str, str]:
+    return walk_tree(Path(os.environ["UMOCKDEV_DIR"]) / "sys")
 
 
 def _pyusb() -> dict[str, object]:

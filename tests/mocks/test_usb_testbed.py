@@ -4,8 +4,6 @@
 from __future__ import annotations
 
 import json
-import os
-from pathlib import Path
 
 import pytest
 from hypothesis import given
@@ -14,8 +12,14 @@ from hypothesis import strategies as st
 import tactile_rig.mocks.usb.udev as udev
 from tactile_rig.mocks.usb.bench import BENCH, Bench, Plugged
 from tactile_rig.mocks.usb.sysfs import build
-from tactile_rig.mocks.usb.testbed import escape_attribute, umockdev_problem, umockdev_text, write_tree
+from tactile_rig.mocks.usb.testbed import (
+    escape_attribute,
+    umockdev_problem,
+    umockdev_text,
+    write_tree,
+)
 from tests import _umockdev
+from tests._usb_probe import walk_tree
 
 
 # -- udev's names, against links users publish from real devices ----------------------------------
@@ -146,26 +150,12 @@ def test_umockdev_text_is_one_block_per_device():
     assert "E: DEVNAME=/dev/ttyUSB0" in text and "H: descriptors=1201" in text
 
 
-def _walk(root: Path) -> dict[str, object]:
-    """Every file (its bytes as hex) and symlink (its target) under ``root``, by relative path."""
-    out: dict[str, object] = {}
-    for dirpath, dirnames, filenames in os.walk(root):
-        for name in dirnames + filenames:
-            p = Path(dirpath, name)
-            rel = str(p.relative_to(root))
-            if p.is_symlink():
-                out[rel] = "-> " + os.readlink(p)
-            elif p.is_file():
-                out[rel] = p.read_bytes().hex()
-    return out
-
-
 def test_the_plain_tree_is_the_sysfs_umockdev_presents(tmp_path):
     """--mock reads a plain tree; discovery under umockdev reads umockdev's testbed: they must hold the
     same /sys, file for file and link for link."""
     seen = _umockdev.probe()["sysfs"]
     sysfs, _ = write_tree(build(BENCH)[0], tmp_path / "tree")
-    ours = _walk(sysfs)
+    ours = walk_tree(sysfs)
     assert set(seen) == set(ours)
     assert {k: v for k, v in seen.items() if ours[k] != v} == {}
 
