@@ -4,14 +4,21 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from hypothesis import given, strategies as st
+from hypothesis import given
+from hypothesis import strategies as st
 
 from tactile_rig.devices import scale as sp
 from tactile_rig.drivers.scale import ScaleLineParser, crc8, parse_line
-from tactile_rig.mocks.scale import _crc8 as mock_crc8, frame
+from tactile_rig.mocks.scale import frame
+from tactile_rig.mocks.scale.sketch import _crc8 as mock_crc8
 from tactile_rig.testing.strategies import split_stream
 from tactile_rig.testing.strategies_scale import (
-    corrupted, crc8_reference, noise, sample_line, samples, stock_line,
+    corrupted,
+    crc8_reference,
+    noise,
+    sample_line,
+    samples,
+    stock_line,
 )
 
 GOLDEN = Path(__file__).resolve().parents[1] / "data" / "scale" / "stock_read_1x_load_cell.txt"
